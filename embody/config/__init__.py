@@ -1,0 +1,114 @@
+"""Typed configuration: `configs/default.yaml` + `--config FILE` + `--set section.key=value`.
+
+Every error names the dotted key and is a `ConfigError` (exit 2 in the CLI).
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+from pathlib import Path
+from typing import Any, Iterable
+
+import yaml
+from pydantic import ValidationError
+
+from embody import PROJECT_ROOT
+from embody.config.base import Section, canonical_json
+from embody.config.body import BodyConfig
+from embody.config.collision import CollisionConfig
+from embody.config.critic import CriticConfig
+from embody.config.ik import IKConfig
+from embody.config.render import RenderConfig
+from embody.config.robot import RobotConfig
+from embody.config.run import DebugConfig, RunConfig
+from embody.errors import ConfigError
+
+__all__ = ["Config", "Section", "canonical_json", "load_config", "configs_dir", "parse_set"]
+
+
+class Config(Section):
+    body: BodyConfig = BodyConfig()
+    collision: CollisionConfig = CollisionConfig()
+    robot: RobotConfig = RobotConfig()
+    ik: IKConfig = IKConfig()
+    render: RenderConfig = RenderConfig()
+    critic: CriticConfig = CriticConfig()
+    run: RunConfig = RunConfig()
+    debug: DebugConfig = DebugConfig()
+
+    def section_json(self, name: str) -> str:
+        """Canonical JSON of one section: what that step's content key hashes."""
+        return canonical_json(getattr(self, name))
+
+
+def configs_dir() -> Path:
+    """Where `configs/` lives: `$EMBODY_CONFIGS` or the project root."""
+    return Path(os.environ.get("EMBODY_CONFIGS", PROJECT_ROOT / "configs"))
+
+
+def _read_yaml(path: Path) -> dict[str, Any]:
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise ConfigError(str(path), f"cannot read config file: {exc.strerror or exc}") from None
+    try:
+        data = yaml.safe_load(text) or {}
+    except yaml.YAMLError as exc:
+        raise ConfigError(str(path), f"not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(str(path), "top level must be a mapping of sections")
+    return data
+
+
+def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:
+    out = copy.deepcopy(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def parse_set(item: str) -> dict[str, Any]:
+    """`section.key=value` → nested dict; the value is parsed as YAML (numbers, lists, ...)."""
+    if "=" not in item:
+        raise ConfigError(item, "--set expects section.key=value")
+    dotted, raw = item.split("=", 1)
+    parts = [p for p in dotted.strip().split(".") if p]
+    if len(parts) < 2:
+        raise ConfigError(dotted, "--set key must be section.key")
+    try:
+        value = yaml.safe_load(raw)
+    except yaml.YAMLError:
+        value = raw
+    nested: dict[str, Any] = {parts[-1]: value}
+    for part in reversed(parts[:-1]):
+        nested = {part: nested}
+    return nested
+
+
+def load_config(
+    files: Iterable[str | Path] = (),
+    sets: Iterable[str] = (),
+    *,
+    defaults: str | Path | None = None,
+) -> Config:
+    """Load defaults, then each file, then each `--set`, validating once at the end."""
+    default_path = Path(defaults) if defaults is not None else configs_dir() / "default.yaml"
+    data: dict[str, Any] = _read_yaml(default_path) if default_path.exists() else {}
+    for f in files:
+        data = _merge(data, _read_yaml(Path(f)))
+    for item in sets:
+        data = _merge(data, parse_set(item))
+    try:
+        return Config.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = ".".join(str(p) for p in err["loc"]) or "<root>"
+        msg = err["msg"]
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        extra = f" ({len(exc.errors()) - 1} more)" if len(exc.errors()) > 1 else ""
+        raise ConfigError(key, f"{msg}; got {err.get('input')!r}{extra}") from None

@@ -1,0 +1,9 @@
+"""`collision`: settings of the collision stage."""
+
+from __future__ import annotations
+
+from embody.config.base import Section
+
+
+class CollisionConfig(Section):
+    pass
