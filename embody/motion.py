@@ -106,6 +106,23 @@ class Motion:
                        transl=self.transl.copy() if transl is None else np.asarray(transl),
                        meta=dict(self.meta))
 
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """Arrays for the artifact store (see docs/ARCHITECTURE.md, "Artifacts")."""
+        return {"pose": self.pose, "transl": self.transl, "betas": self.betas}
+
+    def to_attrs(self) -> dict[str, Any]:
+        return {"fps": self.fps, "gender": self.gender, "up_axis": self.up_axis,
+                "source": {"path": self.source.path, "format": self.source.format,
+                           "hand_convention": self.source.hand_convention},
+                "meta": self.meta}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> "Motion":
+        return cls(pose=np.asarray(arrays["pose"]), transl=np.asarray(arrays["transl"]),
+                   betas=np.asarray(arrays["betas"]), fps=attrs["fps"], gender=attrs["gender"],
+                   up_axis=attrs.get("up_axis", "y"), source=MotionSource(**attrs["source"]),
+                   meta=dict(attrs.get("meta", {})))
+
     def pose165(self) -> np.ndarray:
         """The flat (T,165) SMPL-X layout used by AMASS-style files."""
         return self.pose.reshape(self.num_frames, NUM_JOINTS * 3)
