@@ -7,6 +7,7 @@ Inputs are always SMPL-X ordered: `pose` (T,55,3) axis-angle with absolute (flat
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,7 +50,16 @@ class BodyModel(ABC):
     hand_mean: np.ndarray
 
     def joint_index(self, name: str) -> int:
-        return self.joint_names.index(name)
+        """Index of a joint by SMPL-X name (`embody.motion.JOINT_NAMES`), whatever the backend."""
+        try:
+            return self.joint_names.index(name)
+        except ValueError:
+            raise ValueError(f"{self.name} body has no joint {name!r}; "
+                             f"known: {', '.join(self.joint_names)}") from None
+
+    def joint_indices(self, names: Iterable[str]) -> np.ndarray:
+        """Indices (K,) of several joints, e.g. to slice `joints(...)[:, idx]`."""
+        return np.array([self.joint_index(n) for n in names], dtype=np.int64)
 
     @abstractmethod
     def joint_transforms(self, pose: torch.Tensor, betas: torch.Tensor,
@@ -69,6 +79,10 @@ class BodyModel(ABC):
     @abstractmethod
     def rest_vertices(self, betas: torch.Tensor) -> torch.Tensor:
         """Shaped mesh in the zero pose (V,3)."""
+
+    @abstractmethod
+    def rest_joints(self, betas: torch.Tensor) -> torch.Tensor:
+        """Shaped joint positions in the zero pose (J,3), differentiable in betas (shape fit)."""
 
     @abstractmethod
     def collision_geometry(self, betas: np.ndarray) -> list[ConvexPiece]:
