@@ -55,10 +55,15 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     try:
         data = yaml.safe_load(text) or {}
     except yaml.YAMLError as exc:
-        raise ConfigError(str(path), f"not valid YAML: {exc}") from None
+        # PyYAML's message spans several lines with a caret; errors here are one line.
+        mark = getattr(exc, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(str(path), f"not valid YAML{where}: {problem}") from None
     if not isinstance(data, dict):
         raise ConfigError(str(path), "top level must be a mapping of sections")
-    return data
+    # `section:` with nothing under it reads as None: it means "this section's defaults".
+    return {key: value for key, value in data.items() if value is not None}
 
 
 def _merge(base: dict[str, Any], over: dict[str, Any]) -> dict[str, Any]:

@@ -1,9 +1,56 @@
-"""`critic`: settings of the critic stage."""
+"""`critic`: the refinement loop, the geometric critic and the VLM client."""
 
 from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
 
 from embody.config.base import Section
 
 
+class VLMConfig(Section):
+    #: OpenAI-compatible endpoint (vLLM `/v1`, Ollama `http://localhost:11434/v1`, llama-server).
+    base_url: str = "http://localhost:8000/v1"
+    model: str = "Qwen/Qwen2.5-VL-7B-Instruct"
+    #: Name of the environment variable holding the API key (the key itself is never config).
+    api_key_env: str = "EMBODY_VLM_API_KEY"
+    #: Local servers often need no key; when false a missing key sends no Authorization header.
+    api_key_required: bool = True
+    timeout_s: float = Field(60.0, gt=0.0, le=3600.0)
+    max_retries: int = Field(3, ge=0, le=20)
+    backoff_s: float = Field(1.0, ge=0.0, le=60.0)
+    max_backoff_s: float = Field(30.0, ge=0.0, le=600.0)
+    #: Requests one run may send at most (retries included), so a bad loop cannot run up a bill.
+    request_budget: int = Field(64, ge=1, le=100_000)
+    temperature: float = Field(0.0, ge=0.0, le=2.0)
+    max_tokens: int = Field(512, ge=16, le=32_768)
+    #: Prompt file; default `configs/critic/prompt.md`.
+    prompt_path: str | None = None
+    #: Also send each keyframe pair as its own image, besides the comparison sheet.
+    send_keyframes: bool = True
+
+
 class CriticConfig(Section):
-    pass
+    kind: Literal["geometric", "vlm"] = "geometric"
+    #: Critique rounds after the IK-only solution (the paper uses 2).
+    rounds: int = Field(2, ge=0, le=20)
+    #: Default primitive amounts when an action names no amount.
+    position_step_m: float = Field(0.10, gt=0.0, le=0.5)
+    angle_step_deg: float = Field(20.0, gt=0.0, le=90.0)
+    #: Largest amount one primitive may carry; larger ones make the whole action invalid.
+    max_position_m: float = Field(0.30, gt=0.0, le=1.0)
+    max_angle_deg: float = Field(60.0, gt=0.0, le=180.0)
+    #: Ramp length at window edges, so windowed offsets do not make the IK targets jump.
+    blend_s: float = Field(0.2, ge=0.0, le=5.0)
+    #: Geometric critic: accept when every side's mean offset / arm length and yaw are below these.
+    accept_position: float = Field(0.03, gt=0.0, le=1.0)
+    accept_yaw_deg: float = Field(8.0, gt=0.0, le=180.0)
+    #: Geometric critic: amounts are rounded to these quanta (a VLM speaks in coarse steps too).
+    position_quantum_m: float = Field(0.01, gt=0.0, le=0.5)
+    angle_quantum_deg: float = Field(5.0, gt=0.0, le=90.0)
+    #: Geometric critic: window length for the worst-window search; a window is used when its
+    #: offset exceeds the whole-sequence offset by this factor.
+    window_s: float = Field(1.0, gt=0.0, le=60.0)
+    window_factor: float = Field(2.0, ge=1.0, le=100.0)
+    vlm: VLMConfig = VLMConfig()

@@ -1,9 +1,44 @@
-"""`ik`: settings of the ik stage."""
+"""`ik`: shape fit, whole-sequence IK, hands and control-rate resampling."""
 
 from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field
 
 from embody.config.base import Section
 
 
 class IKConfig(Section):
-    pass
+    # --- shape fit (Eq. 4) ---
+    shape_iterations: int = Field(300, ge=1, le=100_000)
+    shape_lr: float = Field(0.05, gt=0, le=10)
+    #: λ_β of ‖β‖²: keeps the body plausible while it stretches towards the robot.
+    shape_beta_reg: float = Field(1e-3, ge=0)
+    #: Also fit one global scale (robots are ~0.7× a human: betas alone cannot get there).
+    shape_fit_scale: bool = True
+    # --- IK costs (targets in metres / radians, torso frame) ---
+    w_wrist_pos: float = Field(1.0, ge=0)
+    w_wrist_rot: float = Field(0.02, ge=0)
+    w_elbow_pos: float = Field(0.05, ge=0)
+    w_torso_rot: float = Field(0.005, ge=0)
+    w_head_rot: float = Field(0.0, ge=0)
+    #: Second differences of q (rad²): smoothness over the whole sequence.
+    w_smooth: float = Field(0.05, ge=0)
+    #: Pull towards the T-pose: resolves redundancy (elbow swivel, waist) gently.
+    w_posture: float = Field(1e-4, ge=0)
+    w_collision: float = Field(50.0, ge=0)
+    #: Clearance (m) the collision proxies must keep.
+    collision_margin: float = Field(0.01, ge=0, le=0.1)
+    # --- solver ---
+    #: lm: Levenberg-Marquardt over the banded whole-sequence system; lbfgs/adam: first-order baselines.
+    optimizer: Literal["lm", "lbfgs", "adam"] = "lm"
+    iterations: int = Field(20, ge=1, le=100_000)
+    #: Step size of lbfgs/adam (unused by lm).
+    lr: float = Field(1.0, gt=0, le=10)
+    # --- output ---
+    #: Retarget fingers (robots without hands skip it).
+    hands: bool = True
+    #: Clamp per-step joint changes to the velocity limits at the trajectory's fps.
+    enforce_velocity_limits: bool = True
+    control_rate_hz: float = Field(50.0, gt=0, le=2000)

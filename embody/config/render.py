@@ -1,9 +1,46 @@
-"""`render`: settings of the render stage."""
+"""`render`: offscreen MuJoCo rendering of reference and robot, keyframes, sheet and preview."""
 
 from __future__ import annotations
 
+from typing import Literal
+
+from pydantic import Field, field_validator
+
 from embody.config.base import Section
+
+View = Literal["front", "side"]
 
 
 class RenderConfig(Section):
-    pass
+    width: int = Field(320, ge=16, le=4096)
+    height: int = Field(240, ge=16, le=4096)
+    #: Keyframes per sequence, picked at motion extrema (holds and extreme wrist positions).
+    keyframes: int = Field(8, ge=1, le=64)
+    #: Cameras, each a row pair (reference over robot) in the comparison sheet.
+    views: list[View] = ["front"]
+    #: OpenGL backend; osmesa needs `libosmesa6`. egl falls back to osmesa when it fails.
+    gl: Literal["egl", "osmesa"] = "egl"
+    #: Hide geometry below the torso (legs): signing is upper-body, and it halves render time.
+    upper_body: bool = True
+    #: Robot meshes are decimated on a grid of this cell size (m) for rendering only; 0 keeps
+    #: them whole. 4 mm is about a pixel at 320×240 and 1.2 m, and makes rendering ~4× faster.
+    mesh_cell_m: float = Field(0.004, ge=0.0, le=0.05)
+    #: Free-camera placement around a look-at point given in the robot torso frame (metres).
+    lookat: tuple[float, float, float] = (0.1, 0.0, 0.15)
+    camera_distance: float = Field(1.2, gt=0.1, le=20.0)
+    camera_elevation: float = Field(-5.0, ge=-89.0, le=89.0)
+    #: Colour of the reference body mesh (RGBA 0..1).
+    reference_rgba: tuple[float, float, float, float] = (0.85, 0.62, 0.42, 1.0)
+    #: Animated preview: mp4 needs imageio-ffmpeg (falls back to gif), none disables it.
+    preview_format: Literal["mp4", "gif", "webp", "none"] = "mp4"
+    #: Preview frames per second of motion (plays in real time).
+    preview_fps: float = Field(10.0, gt=0.0, le=60.0)
+    #: Frames rendered for the preview at most (evenly subsampled); rendering is ~0.1 s/frame.
+    preview_max_frames: int = Field(40, ge=2, le=100_000)
+
+    @field_validator("views")
+    @classmethod
+    def _unique_views(cls, views: list[str]) -> list[str]:
+        if not views or len(set(views)) != len(views):
+            raise ValueError("views must be a non-empty list without repeats")
+        return views

@@ -1,4 +1,4 @@
-"""`run` and `debug`: dataset-level orchestration settings."""
+"""`run` and `debug`: dataset-level orchestration settings (never part of a content key)."""
 
 from __future__ import annotations
 
@@ -10,10 +10,18 @@ from embody.config.base import Section
 
 
 class RunConfig(Section):
+    #: Artifact store directory (local filesystem); `embody run --store` overrides it.
+    store: str = Field("embody-store", min_length=1)
+    #: Run name (manifest `runs/<name>/`); default derived from the dataset and split.
+    name: str | None = Field(None, min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
     workers: int = Field(2, ge=1, le=256)
     runner: Literal["threads", "processes", "dask"] = "threads"
     dask_address: str | None = None
+    #: Sequences per task submission: 20k sequences become 20k/batch_size task runs per step.
+    batch_size: int = Field(8, ge=1, le=10_000)
     limit: int | None = Field(None, ge=1)
+    #: Run the critic refinement step after IK.
+    critic: bool = False
     seed: int = 0
     synth_n: int = Field(24, ge=1)
 
@@ -21,3 +29,5 @@ class RunConfig(Section):
 class DebugConfig(Section):
     #: Sequence ids that raise on purpose: used to test failure isolation and resume.
     fail_on: list[str] = []
+    #: The step at which `fail_on` sequences raise.
+    fail_step: str = Field("collide", min_length=1)

@@ -1,0 +1,50 @@
+"""`embody play`: render an exported trajectory back to an animated preview (MuJoCo offscreen)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+import numpy as np
+
+from embody.cli.common import build_config, config_options
+from embody.errors import InputError
+
+
+def preview_frames(num_steps: int, dt: float, preview_fps: float, max_frames: int) -> np.ndarray:
+    """Control steps to render: `preview_fps` per second of motion, at most `max_frames`."""
+    duration = num_steps * dt
+    count = int(np.clip(round(duration * preview_fps), 2, min(max_frames, num_steps)))
+    return np.unique(np.linspace(0, num_steps - 1, count).round().astype(np.int64))
+
+
+@click.command("play")
+@click.argument("file", type=click.Path(dir_okay=False))
+@click.option("--out", type=click.Path(dir_okay=False),
+              help="Preview path; the suffix follows the format [default: FILE's name + format].")
+@click.option("--format", "fmt", type=click.Choice(["mp4", "gif", "webp"]), default=None,
+              help="Preview format [default: render.preview_format, mp4].")
+@config_options
+def command(file: str, out: str | None, fmt: str | None, config_files: tuple[str, ...],
+            sets: tuple[str, ...]) -> int:
+    """Render FILE (an `embody export` .npz) on its robot as an animated preview."""
+    from embody.render import SceneRenderer, write_preview
+    from embody.report.library import Trajectory
+    from embody.robot import load_robot
+
+    cfg = build_config(config_files, sets)
+    traj = Trajectory.load(file)
+    robot = load_robot(cfg.robot.model_copy(update={"name": traj.robot}))
+    missing = sorted(set(traj.joint_names) - set(robot.joint_names))
+    if missing:
+        raise InputError(file, "joint_names", f"not joints of {traj.robot}: {missing[:5]}")
+    q = np.tile(robot.tpose, (len(traj.q), 1))
+    q[:, [robot.joint_index(n) for n in traj.joint_names]] = traj.q
+    steps = preview_frames(len(q), traj.dt, cfg.render.preview_fps, cfg.render.preview_max_frames)
+    fmt = fmt or (cfg.render.preview_format if cfg.render.preview_format != "none" else "mp4")
+    with SceneRenderer(robot, cfg.render, torso_body=robot.spec.torso_body) as renderer:
+        frames = renderer.robot_frames(q[steps], cfg.render.views[0])
+    target = Path(out) if out else Path(file).with_suffix("")
+    written = write_preview(frames, target, len(steps) / (len(q) * traj.dt), fmt)
+    click.echo(f"preview: {written} ({len(steps)} frames)")
+    return 0

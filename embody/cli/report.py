@@ -1,0 +1,87 @@
+"""`embody report`: Tables I–III, figures and index.html of a run, from the artifact store."""
+
+from __future__ import annotations
+
+import json
+import re
+from pathlib import Path
+from typing import Any
+
+import click
+
+from embody.cli.common import emit_json, json_option
+
+
+def ablation_configs(base: Any) -> dict[str, Any]:
+    """The three Table II configs: the run's config with λ_close / λ_smooth switched off or on
+    (on = the run's value, or the default when the run had it off)."""
+    from embody.config import Config
+    from embody.config.collision import CollisionConfig
+    from embody.report.assemble import ABLATION_SETTINGS
+
+    defaults, own = CollisionConfig(), base.collision
+    out = {}
+    for setting, (close, smooth) in ABLATION_SETTINGS.items():
+        data = base.model_dump(mode="json")
+        data["collision"]["lambda_close"] = (own.lambda_close or defaults.lambda_close) if close else 0.0
+        data["collision"]["lambda_smooth"] = (own.lambda_smooth or defaults.lambda_smooth) if smooth else 0.0
+        out[setting] = Config.model_validate(data)
+    return out
+
+
+def run_ablation(store_root: str, run: str) -> dict[str, Any]:
+    """Run the Table II settings through the dataset flow (source + collide only: the source is
+    a cache hit, and so is every setting already computed) → {setting: collision metrics}."""
+    from embody.report.collect import COLLIDE, metrics_frame, open_run, run_config
+    from flows.env import configure
+
+    store, manifest = open_run(store_root, run)
+    configure(store.root)
+    from flows.dataset import run_flow
+    from tasks.pipeline import Pipeline
+    from tasks.stages import COLLIDE as COLLIDE_STEP, SOURCE
+
+    dataset, split = manifest.data.get("dataset"), manifest.data.get("split")
+    if not dataset:
+        from embody.errors import InputError
+        raise InputError(manifest.path, "dataset", "the run does not record its dataset")
+    out = {}
+    for setting, cfg in ablation_configs(run_config(manifest)).items():
+        slug = re.sub(r"[^a-z]+", "-", setting.lower()).strip("-")
+        cfg = cfg.model_copy(update={"run": cfg.run.model_copy(
+            update={"name": f"{run}.ablation-{slug}", "store": str(store.root)})})
+        run_flow(dataset, cfg, split=split, pipeline=Pipeline(SOURCE, (COLLIDE_STEP,)))
+        _, ablated = open_run(store.root, cfg.run.name)
+        out[setting] = metrics_frame(ablated, COLLIDE)
+    return out
+
+
+@click.command("report")
+@click.argument("run", required=False)
+@click.option("--store", "store_root", default="embody-store", show_default=True,
+              type=click.Path(file_okay=False), help="Artifact store root.")
+@click.option("--out", "out_dir", type=click.Path(file_okay=False),
+              help="Output folder [default: reports/<run>].")
+@click.option("--ablation", is_flag=True,
+              help="Also run the three Table II collision settings (cached like any run).")
+@json_option
+def command(run: str | None, store_root: str, out_dir: str | None, ablation: bool,
+            as_json: bool) -> int:
+    """Write the report of RUN (default: the store's latest run) to reports/RUN/."""
+    from embody.report import collect, default_out_dir, latest_run, write_report
+
+    run = run or latest_run(store_root)
+    data = collect(store_root, run)
+    if ablation:
+        data.ablation = run_ablation(store_root, run)
+    paths = write_report(data, Path(out_dir) if out_dir else default_out_dir(run))
+    summary = json.loads(paths.summary.read_text())
+    if as_json:
+        emit_json({"run": run, "out_dir": str(paths.out_dir), "index": str(paths.index),
+                   "tables": {k: {e: str(p) for e, p in v.items()} for k, v in paths.tables.items()},
+                   "figures": [str(p) for p in paths.figures], "summary": summary})
+    else:
+        for name, files in paths.tables.items():
+            click.echo(f"{name}: {files['md']}")
+        click.echo(f"report: {paths.index}")
+    return 0

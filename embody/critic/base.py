@@ -1,0 +1,52 @@
+"""The critic protocol: look at reference vs robot, answer with an `Action`."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from embody.critic.action import Action, Limits
+
+
+@dataclass
+class CritiqueContext:
+    """What a critic may look at in one round.
+
+    Positions are (T,2,3) and rotations (T,2,3,3) [left, right] in the robot torso frame. The
+    reference is the human motion's targets (never the offset working targets), so the critic
+    judges the robot against what the signer did.
+    """
+
+    round: int
+    fps: float
+    arm_length: float
+    reference_pos: np.ndarray
+    reference_rot: np.ndarray
+    robot_pos: np.ndarray
+    robot_rot: np.ndarray
+    limits: Limits
+    #: PNG bytes: the comparison sheet and the keyframe pairs (only for critics that need images).
+    sheet_png: bytes | None = None
+    keyframe_pngs: list[bytes] = field(default_factory=list)
+    keyframes: list[int] = field(default_factory=list)
+    text: str = ""
+    #: Filled by the critic: request/response record for this round (JSON-able).
+    record: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def num_frames(self) -> int:
+        return int(self.reference_pos.shape[0])
+
+
+class Critic(ABC):
+    """Turns one round's context into an action."""
+
+    #: Whether `critique` looks at renders; the loop renders only for critics that do.
+    needs_images: bool = False
+
+    @abstractmethod
+    def critique(self, context: CritiqueContext) -> Action:
+        """Return the action for this round; invalid replies come back as `Action.rejected`."""

@@ -1,0 +1,268 @@
+"""The critic refinement loop: IK-only → critique → offset the targets → re-solve, per round.
+
+The critic always compares the robot against the *reference* (the human's targets), while the
+primitives offset the *working* IK targets; offsets accumulate there across rounds. So a robot
+that misses a target by 10 cm gets its target moved 10 cm further, not its reference.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+import pandas as pd
+import torch
+
+from embody.config.critic import CriticConfig
+from embody.config.render import RenderConfig
+from embody.critic.action import Action, Limits
+from embody.critic.base import Critic, CritiqueContext
+from embody.critic.primitives import apply_primitives
+from embody.metrics.trajectory import dtw_distance, position_error, rotation_error_deg
+
+log = logging.getLogger(__name__)
+
+WRISTS = ["left_wrist", "right_wrist"]
+
+
+def make_critic(cfg: CriticConfig) -> Critic:
+    """The configured critic (the VLM one checks its API key here)."""
+    if cfg.kind == "vlm":
+        from embody.critic.vlm import VLMCritic
+
+        return VLMCritic(cfg.vlm)
+    from embody.critic.geometric import GeometricCritic
+
+    return GeometricCritic(cfg)
+
+
+def robot_wrists(robot, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Wrist positions (T,2,3) and rotations (T,2,3,3) of joint trajectories, torso frame."""
+    with torch.no_grad():
+        pos, rot = robot.link_points(torch.as_tensor(np.asarray(q), dtype=torch.float64), WRISTS)
+    return pos.cpu().numpy(), rot.cpu().numpy()
+
+
+def wrist_metrics(ref_pos: np.ndarray, ref_rot: np.ndarray, pos: np.ndarray, rot: np.ndarray,
+                  arm_length: float) -> dict[str, float]:
+    """Signing-space errors of the robot against the reference, both wrists pooled."""
+    err = position_error(pos, ref_pos) * 1000.0
+    ang = rotation_error_deg(rot, ref_rot)
+    dtw = [dtw_distance(pos[:, s], ref_pos[:, s]) * 1000.0 for s in range(2)]
+    offset = np.linalg.norm((ref_pos - pos).mean(axis=0), axis=-1)
+    return {
+        "wrist_mm_mean": float(err.mean()), "wrist_mm_p95": float(np.percentile(err, 95)),
+        "wrist_deg_mean": float(ang.mean()), "wrist_deg_p95": float(np.percentile(ang, 95)),
+        "wrist_dtw_mm": float(np.mean(dtw)),
+        "wrist_offset_arm": float(offset.max() / arm_length),
+    }
+
+
+@dataclass
+class RoundRecord:
+    """One round: the working targets solved for, the solution, its metrics and the critique."""
+
+    index: int
+    q: np.ndarray
+    target_pos: np.ndarray
+    target_rot: np.ndarray
+    metrics: dict[str, float]
+    #: The critic's action on this round's solution (None when it was not critiqued).
+    action: dict[str, Any] | None = None
+    #: Render name → {"sha256": ..., "path": ...}.
+    renders: dict[str, dict[str, str | None]] = field(default_factory=dict)
+    #: The critic's request/response record (VLM), images by hash.
+    exchange: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def accepted(self) -> bool | None:
+        return None if self.action is None else bool(self.action["valid"] and self.action["verdict"] == "accept")
+
+
+@dataclass
+class RefineResult:
+    rounds: list[RoundRecord]
+    joint_names: list[str]
+    keyframes: np.ndarray
+    critic: str
+
+    @property
+    def ik_only(self) -> RoundRecord:
+        return self.rounds[0]
+
+    @property
+    def final(self) -> RoundRecord:
+        return self.rounds[-1]
+
+    @property
+    def q(self) -> np.ndarray:
+        return self.final.q
+
+    @property
+    def accepted(self) -> bool:
+        return any(r.accepted for r in self.rounds)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {"q": np.stack([r.q for r in self.rounds]),
+                "target_pos": np.stack([r.target_pos for r in self.rounds]),
+                "target_rot": np.stack([r.target_rot for r in self.rounds]),
+                "keyframes": np.asarray(self.keyframes, dtype=np.int64)}
+
+    def to_attrs(self) -> dict[str, Any]:
+        rounds = [{"index": r.index, "metrics": r.metrics, "action": r.action,
+                   "accepted": r.accepted, "renders": r.renders, "exchange": r.exchange}
+                  for r in self.rounds]
+        return json.loads(json.dumps({"joint_names": list(self.joint_names), "critic": self.critic,
+                                      "accepted": self.accepted, "rounds": rounds}))
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> "RefineResult":
+        rounds = [RoundRecord(index=a["index"], q=np.asarray(arrays["q"][i]),
+                              target_pos=np.asarray(arrays["target_pos"][i]),
+                              target_rot=np.asarray(arrays["target_rot"][i]),
+                              metrics=dict(a["metrics"]), action=a["action"],
+                              renders=dict(a["renders"]), exchange=dict(a["exchange"]))
+                  for i, a in enumerate(attrs["rounds"])]
+        return cls(rounds, list(attrs["joint_names"]), np.asarray(arrays["keyframes"]), attrs["critic"])
+
+
+class _Renders:
+    """Lazily opened renderer plus the reference keyframe images (rendered once per sequence)."""
+
+    def __init__(self, motion, body, fit, robot, cfg: RenderConfig, keyframes: np.ndarray) -> None:
+        self.motion, self.body, self.fit, self.robot, self.cfg = motion, body, fit, robot, cfg
+        self.keyframes = keyframes
+        self._renderer = None
+        self._reference: dict[str, np.ndarray] | None = None
+
+    @property
+    def renderer(self):
+        if self._renderer is None:
+            from embody.render.compare import open_renderer
+
+            self._renderer = open_renderer(self.robot, self.body, self.fit, self.cfg)
+        return self._renderer
+
+    def comparison(self, q: np.ndarray):
+        from embody.render.compare import reference_vertices, render_comparison
+
+        verts = None
+        if self._reference is None:
+            verts = reference_vertices(self.motion, self.body, self.fit, self.keyframes)
+        comp = render_comparison(self.renderer, self.cfg, self.keyframes, self.motion.fps, q,
+                                 self._reference, verts)
+        self._reference = comp.reference
+        return comp
+
+    def close(self) -> None:
+        if self._renderer is not None:
+            self._renderer.close()
+            self._renderer = None
+
+
+def _store_png(data: bytes, out_dir: Path | None, name: str) -> dict[str, str | None]:
+    from embody.critic.vlm import sha256
+
+    path = None
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / name).write_bytes(data)
+        path = name
+    return {"sha256": sha256(data), "path": path}
+
+
+def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticConfig, cfg_ik,
+           cfg_render: RenderConfig, out_dir: str | Path | None = None,
+           critic: Critic | None = None, ik_targets=None) -> RefineResult:
+    """Run up to `cfg_critic.rounds` critique-and-re-solve rounds after the IK-only solution.
+
+    `targets` is the reference; `ik_targets` the targets `ik_solution` was solved for (default
+    `targets`; differs when resuming, or in tests that plant an offset). `critic` lets a run share
+    one critic (and so one VLM request budget) across sequences. Renders are made only when the critic looks at images, plus the final round's sheet and
+    preview when `out_dir` is given (paths in the record are relative to `out_dir`).
+    """
+    from embody.render.keyframes import select_keyframes
+    from embody.retarget import solve
+
+    out = Path(out_dir) if out_dir is not None else None
+    critic = critic or make_critic(cfg_critic)
+    ref_pos = np.asarray(targets.wrist_pos, dtype=np.float64)
+    ref_rot = np.asarray(targets.wrist_rot, dtype=np.float64)
+    limits = Limits(targets.num_frames, cfg_critic.position_step_m, cfg_critic.angle_step_deg,
+                    cfg_critic.max_position_m, cfg_critic.max_angle_deg)
+    blend = int(round(cfg_critic.blend_s * targets.fps))
+    keyframes = select_keyframes(ref_pos, cfg_render.keyframes)
+    renders = _Renders(motion, body, fit, robot, cfg_render, keyframes)
+    working, solution = ik_targets if ik_targets is not None else targets, ik_solution
+    rounds: list[RoundRecord] = []
+    try:
+        for index in range(cfg_critic.rounds + 1):
+            q = np.asarray(solution.q, dtype=np.float64)
+            pos, rot = robot_wrists(robot, q)
+            record = RoundRecord(index, q, np.asarray(working.wrist_pos), np.asarray(working.wrist_rot),
+                                 wrist_metrics(ref_pos, ref_rot, pos, rot, targets.arm_length))
+            rounds.append(record)
+            last = index == cfg_critic.rounds
+            if last and critic.needs_images:  # a VLM verdict nobody acts on is not worth a request
+                break
+            context = CritiqueContext(index, targets.fps, targets.arm_length, ref_pos, ref_rot,
+                                      pos, rot, limits, keyframes=keyframes.tolist(),
+                                      text=str(motion.meta.get("text", "")))
+            if critic.needs_images:
+                comp = renders.comparison(q)
+                context.sheet_png = comp.sheet_png(f"round {index}")
+                context.keyframe_pngs = comp.keyframe_pngs()
+                record.renders["sheet"] = _store_png(context.sheet_png, out, f"sheet_round{index}.png")
+                for k, png in zip(keyframes, context.keyframe_pngs):
+                    record.renders[f"keyframe_{k}"] = _store_png(png, out, f"round{index}_f{k}.png")
+            action: Action = critic.critique(context)
+            record.action = action.to_json()
+            record.exchange = context.record
+            log.info("round %d: %s %s", index, action.verdict if action.valid else "invalid",
+                     action.reason or action.error)
+            if action.accepted or last:
+                break
+            if not action.primitives:
+                continue  # invalid or empty: no action this round, the solution stands
+            new_pos, new_rot = apply_primitives(working.wrist_pos, working.wrist_rot,
+                                                action.primitives, blend)
+            working = dataclasses.replace(working, wrist_pos=new_pos, wrist_rot=new_rot)
+            solution = solve(robot, working, cfg_ik, init=solution)
+        if out is not None:
+            final = rounds[-1]
+            comp = renders.comparison(final.q)
+            final.renders["final_sheet"] = _store_png(comp.sheet_png("final"), out, "sheet.png")
+            from embody.render.compare import render_preview
+
+            preview = render_preview(renders.renderer, cfg_render, motion, body, fit, final.q,
+                                     out / "preview")
+            if preview is not None:
+                from embody.critic.vlm import sha256
+
+                final.renders["preview"] = {"sha256": sha256(preview.read_bytes()),
+                                            "path": preview.name}
+    finally:
+        renders.close()
+    return RefineResult(rounds, list(robot.joint_names), keyframes, cfg_critic.kind)
+
+
+_TABLE_METRICS = ("wrist_mm_mean", "wrist_mm_p95", "wrist_deg_mean", "wrist_deg_p95",
+                  "wrist_dtw_mm", "wrist_offset_arm")
+
+
+def refine_table(results: Sequence[RefineResult] | Mapping[str, RefineResult]) -> pd.DataFrame:
+    """"IK-only vs refined": mean metrics over sequences, plus acceptance and rounds used."""
+    items = list(results.values()) if isinstance(results, Mapping) else list(results)
+    rows = {}
+    for label, pick in (("IK-only", lambda r: r.ik_only), ("refined", lambda r: r.final)):
+        row = {m: float(np.mean([pick(r).metrics[m] for r in items])) for m in _TABLE_METRICS}
+        row["accepted"] = float(np.mean([bool(pick(r).accepted) for r in items]))
+        row["rounds"] = float(np.mean([pick(r).index for r in items]))
+        row["n"] = len(items)
+        rows[label] = row
+    return pd.DataFrame.from_dict(rows, orient="index")

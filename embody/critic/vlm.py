@@ -1,0 +1,195 @@
+"""A VLM critic over any OpenAI-compatible Chat Completions server, with only the stdlib.
+
+Works with vLLM (`/v1`), Ollama (`http://localhost:11434/v1`) and llama.cpp's `llama-server`:
+the reply is constrained with `response_format={"type": "json_schema", ...}`, the schema at
+`json_schema.schema` (the only place llama.cpp reads it). Transient failures (429, 5xx,
+timeouts, refused connections) are retried with exponential backoff, honouring `Retry-After`;
+a per-client request budget caps a run. Every exchange is recorded with images replaced by their
+sha256, and the API key is scrubbed from anything recorded or raised: it lives only in the
+Authorization header.
+"""
+
+from __future__ import annotations
+
+import base64
+import hashlib
+import json
+import logging
+import os
+import socket
+import time
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any, Callable
+
+from embody.config.critic import VLMConfig
+from embody.critic.action import ACTION_SCHEMA, Action
+from embody.critic.base import Critic, CritiqueContext
+from embody.errors import ConfigError, EmbodyError
+
+log = logging.getLogger(__name__)
+
+_RETRY_STATUS = {408, 409, 425, 429, 500, 502, 503, 504}
+
+
+class VLMError(EmbodyError):
+    """The VLM could not be asked (no key, unreachable, budget spent, HTTP error): fails the sequence."""
+
+
+def sha256(data: bytes) -> str:
+    return hashlib.sha256(data).hexdigest()
+
+
+def default_prompt_path() -> Path:
+    from embody.config import configs_dir
+
+    return configs_dir() / "critic" / "prompt.md"
+
+
+class VLMClient:
+    """Chat Completions over `urllib`; one instance per run so the request budget is per run."""
+
+    def __init__(self, cfg: VLMConfig, *, sleep: Callable[[float], None] = time.sleep) -> None:
+        self.cfg = cfg
+        self.requests_sent = 0
+        self._sleep = sleep
+        self._key = os.environ.get(cfg.api_key_env) or None
+        if self._key is None and cfg.api_key_required:
+            raise VLMError(f"VLM API key missing: set the environment variable {cfg.api_key_env} "
+                           "(or critic.vlm.api_key_required=false for a local server)")
+        if not cfg.base_url.startswith(("http://", "https://")):
+            raise ConfigError("critic.vlm.base_url", f"must be an http(s) URL, got {cfg.base_url!r}")
+
+    def scrub(self, text: str) -> str:
+        """The text with the API key (if any) replaced: for everything recorded or raised."""
+        return text.replace(self._key, "***") if self._key else text
+
+    def chat(self, payload: dict[str, Any]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+        """POST /chat/completions; returns the reply JSON and one record per attempt."""
+        url = self.cfg.base_url.rstrip("/") + "/chat/completions"
+        body = json.dumps(payload).encode()
+        headers = {"Content-Type": "application/json", "Accept": "application/json"}
+        if self._key:
+            headers["Authorization"] = f"Bearer {self._key}"
+        attempts: list[dict[str, Any]] = []
+        for attempt in range(self.cfg.max_retries + 1):
+            if self.requests_sent >= self.cfg.request_budget:
+                raise VLMError(f"VLM request budget of {self.cfg.request_budget} exhausted")
+            self.requests_sent += 1
+            retry_after: float | None = None
+            try:
+                req = urllib.request.Request(url, data=body, headers=headers, method="POST")
+                with urllib.request.urlopen(req, timeout=self.cfg.timeout_s) as resp:
+                    text = resp.read().decode("utf-8", errors="replace")
+                attempts.append({"status": resp.status})
+                try:
+                    return json.loads(text), attempts
+                except json.JSONDecodeError:
+                    raise VLMError(f"VLM endpoint {url} answered non-JSON: "
+                                   f"{self.scrub(text[:200])!r}") from None
+            except urllib.error.HTTPError as exc:
+                detail = self.scrub(exc.read().decode("utf-8", errors="replace")[:300])
+                attempts.append({"status": exc.code, "error": detail})
+                if exc.code not in _RETRY_STATUS:
+                    raise VLMError(f"VLM endpoint {url} answered HTTP {exc.code}: {detail}") from None
+                retry_after = _retry_after(exc.headers.get("Retry-After"))
+                failure = f"HTTP {exc.code}"
+            except (urllib.error.URLError, socket.timeout, TimeoutError, ConnectionError) as exc:
+                reason = getattr(exc, "reason", exc)
+                failure = self.scrub(f"{type(reason).__name__}: {reason}")
+                attempts.append({"status": None, "error": failure})
+            if attempt == self.cfg.max_retries:
+                raise VLMError(f"VLM endpoint {url} unavailable after {attempt + 1} attempts: {failure}")
+            delay = min(self.cfg.backoff_s * 2 ** attempt, self.cfg.max_backoff_s)
+            if retry_after is not None:
+                delay = min(max(delay, retry_after), self.cfg.max_backoff_s)
+            log.warning("VLM request failed (%s); retrying in %.2fs", failure, delay)
+            self._sleep(delay)
+        raise AssertionError("unreachable")
+
+
+def _retry_after(value: str | None) -> float | None:
+    """Seconds from a Retry-After header (delta-seconds form; HTTP dates are ignored)."""
+    try:
+        return max(0.0, float(value)) if value is not None else None
+    except ValueError:
+        return None
+
+
+def _image_part(png: bytes) -> dict[str, Any]:
+    url = "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+    return {"type": "image_url", "image_url": {"url": url}}
+
+
+def redact_images(payload: dict[str, Any]) -> dict[str, Any]:
+    """A copy of a request with every inline image replaced by its sha256 and size."""
+    out = json.loads(json.dumps(payload))
+    for message in out.get("messages", []):
+        content = message.get("content")
+        if not isinstance(content, list):
+            continue
+        for part in content:
+            url = part.get("image_url", {}).get("url", "")
+            if url.startswith("data:"):
+                data = base64.b64decode(url.split(",", 1)[1])
+                part["image_url"] = {"sha256": sha256(data), "bytes": len(data)}
+    return out
+
+
+class VLMCritic(Critic):
+    """Sends the critique prompt, the comparison sheet and keyframes; parses the JSON action."""
+
+    needs_images = True
+
+    def __init__(self, cfg: VLMConfig, client: VLMClient | None = None) -> None:
+        self.cfg = cfg
+        self.client = client or VLMClient(cfg)
+        path = Path(cfg.prompt_path) if cfg.prompt_path else default_prompt_path()
+        try:
+            self.prompt = path.read_text()
+        except OSError as exc:
+            raise ConfigError("critic.vlm.prompt_path", f"cannot read {path}: {exc.strerror}") from None
+
+    def payload(self, context: CritiqueContext) -> dict[str, Any]:
+        facts = (f"Sequence: {context.num_frames} frames at {context.fps:g} fps. "
+                 f"Keyframes shown (columns, frame indices): {context.keyframes}. "
+                 f"Round {context.round}. Default amounts: {context.limits.position_step_m:g} m, "
+                 f"{context.limits.angle_step_deg:g} deg; largest: {context.limits.max_position_m:g} m, "
+                 f"{context.limits.max_angle_deg:g} deg. Windows are inclusive frame indices "
+                 f"0..{context.num_frames - 1}.")
+        if context.text:
+            facts += f" Sign text: {context.text!r}."
+        content: list[dict[str, Any]] = [{"type": "text", "text": facts}]
+        if context.sheet_png is not None:
+            content += [{"type": "text", "text": "Comparison sheet (top: human reference, bottom: robot):"},
+                        _image_part(context.sheet_png)]
+        if self.cfg.send_keyframes:
+            for frame, png in zip(context.keyframes, context.keyframe_pngs):
+                content += [{"type": "text", "text": f"Frame {frame} (top: human, bottom: robot):"},
+                            _image_part(png)]
+        return {
+            "model": self.cfg.model,
+            "messages": [{"role": "system", "content": self.prompt},
+                         {"role": "user", "content": content}],
+            "temperature": self.cfg.temperature,
+            "max_tokens": self.cfg.max_tokens,
+            "response_format": {"type": "json_schema", "json_schema": {
+                "name": "embody_critic_action", "strict": True, "schema": ACTION_SCHEMA}},
+        }
+
+    def critique(self, context: CritiqueContext) -> Action:
+        payload = self.payload(context)
+        record: dict[str, Any] = {"request": redact_images(payload)}
+        context.record.update(record)
+        reply, attempts = self.client.chat(payload)
+        context.record["attempts"] = attempts
+        context.record["response"] = json.loads(self.client.scrub(json.dumps(reply)))
+        try:
+            content = reply["choices"][0]["message"]["content"]
+        except (KeyError, IndexError, TypeError):
+            return Action.rejected("reply has no choices[0].message.content")
+        if not isinstance(content, str):
+            return Action.rejected(f"reply content is {type(content).__name__}, not text")
+        return Action.parse(self.client.scrub(content), context.limits)
+

@@ -1,0 +1,103 @@
+"""AMASS-style npz: the field's SMPL-X (165) and SMPL+H (156) files, and embody's own files.
+
+AMASS is z-up with absolute hands. Files written by `save` carry an `embody_meta` JSON entry
+saying they are already y-up, so re-loading never rotates twice.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from embody.errors import InputError
+from embody.io.fields import betas10, field, read_npz, scalar, text
+from embody.io.frames import Z_UP_TO_Y_UP, rotate_root
+from embody.io.npzfile import npz_bytes, write_atomic
+from embody.motion import NUM_JOINTS, Motion, MotionSource
+
+META_KEY = "embody_meta"
+FRAME_RATE_KEYS = ("mocap_frame_rate", "mocap_framerate")
+#: SMPL+H hands sit at 66:111 (left) and 111:156 (right); SMPL-X puts them after jaw and eyes.
+SMPLH_BODY = slice(0, 66)
+SMPLH_HANDS = slice(66, 156)
+SMPLX_HANDS = slice(75, 165)
+
+
+def is_amass(data: dict[str, Any]) -> bool:
+    return META_KEY in data or any(k in data for k in FRAME_RATE_KEYS)
+
+
+def smplh_to_smplx(poses: np.ndarray) -> np.ndarray:
+    """(T,156) SMPL+H → (T,165) SMPL-X: body and hands copied, jaw and eyes zero."""
+    out = np.zeros((poses.shape[0], 165), dtype=poses.dtype)
+    out[:, SMPLH_BODY] = poses[:, SMPLH_BODY]
+    out[:, SMPLX_HANDS] = poses[:, SMPLH_HANDS]
+    return out
+
+
+def read(path: Path, data: dict[str, Any] | None = None) -> Motion:
+    data = read_npz(path) if data is None else data
+    meta_json = data.get(META_KEY)
+    if "poses" not in data:
+        raise InputError(path, "poses", "missing")
+    width = np.asarray(data["poses"]).shape[-1] if np.asarray(data["poses"]).ndim == 2 else None
+    if width == 156 and meta_json is None:
+        poses, fmt = smplh_to_smplx(field(data, "poses", path, width=156)), "amass-smplh"
+    else:
+        poses, fmt = field(data, "poses", path, width=165), "amass-smplx"
+    t = poses.shape[0]
+    transl = field(data, "trans", path, rows=t, width=3) if "trans" in data else np.zeros((t, 3))
+    fps = scalar(data, FRAME_RATE_KEYS, path, default=0.0)
+    if fps == 0.0:
+        raise InputError(path, "mocap_frame_rate", "missing")
+    pose = poses.reshape(t, NUM_JOINTS, 3)
+    meta: dict[str, Any] = {}
+    if meta_json is None:
+        pose, transl = rotate_root(pose, transl, Z_UP_TO_Y_UP)
+    else:
+        try:
+            info = json.loads(text(data, META_KEY, "{}"))
+        except json.JSONDecodeError as exc:
+            raise InputError(path, META_KEY, f"not valid JSON: {exc.msg}") from None
+        if info.get("up_axis", "y") != "y" or info.get("hand_convention", "absolute") != "absolute":
+            raise InputError(path, META_KEY, "embody files must be y-up with absolute hands")
+        meta, fmt = dict(info.get("meta", {})), "embody"
+    return Motion(pose=pose, transl=transl, betas=betas10(data, "betas", path), fps=fps,
+                  gender=text(data, "gender", "neutral"),
+                  source=MotionSource(str(path), fmt, "absolute"), meta=meta)
+
+
+def _numpy_json(value: Any) -> Any:
+    """Numpy scalars and arrays in `meta` (stages often put them there) as plain JSON."""
+    if isinstance(value, (np.generic, np.ndarray)):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON-serialisable")
+
+
+def save(motion: Motion, path: str | Path) -> Path:
+    """Write `motion` as an AMASS-style SMPL-X npz (y-up, absolute hands), atomically.
+
+    The bytes depend only on the motion, so the same motion always gives the same file.
+    """
+    path = Path(path)
+    info = {"format_version": 1, "up_axis": "y", "hand_convention": "absolute",
+            "source": {"path": motion.source.path, "format": motion.source.format,
+                       "hand_convention": motion.source.hand_convention},
+            "meta": motion.meta}
+    try:
+        meta_json = json.dumps(info, sort_keys=True, separators=(",", ":"), default=_numpy_json)
+    except TypeError as exc:
+        raise InputError(path, "meta", f"not JSON-serialisable: {exc}") from None
+    arrays = {
+        "poses": motion.pose165().astype(np.float32),
+        "trans": motion.transl.astype(np.float32),
+        "betas": motion.betas.astype(np.float32),
+        "gender": np.array(motion.gender),
+        "mocap_frame_rate": np.array(motion.fps, dtype=np.float64),
+        META_KEY: np.array(meta_json),
+    }
+    write_atomic(path, npz_bytes(arrays))
+    return path

@@ -1,0 +1,58 @@
+"""Plain pose arrays: `.npy` or `.npz` holding (T,165) or (T,55,3) SMPL-X axis-angle.
+
+Assumed absolute hands, y-up, 30 fps, unless the npz says otherwise with the optional keys
+`fps`, `trans`/`transl`, `betas`, `hand_convention` ("relative"|"absolute"), `up_axis` ("y"|"z").
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from embody.errors import InputError
+from embody.io.fields import betas10, field, read_npy, read_npz, scalar, text
+from embody.io.frames import Z_UP_TO_Y_UP, rotate_root
+from embody.io.hands import relative_to_absolute
+from embody.motion import NUM_JOINTS, Motion, MotionSource
+
+DEFAULT_FPS = 30.0
+
+
+def _poses(data: dict[str, Any], key: str, path: Path) -> np.ndarray:
+    raw = np.asarray(data[key])
+    if raw.ndim == 3 and raw.shape[1:] == (NUM_JOINTS, 3):
+        return field({key: raw.reshape(raw.shape[0], -1)}, key, path, width=165)
+    return field(data, key, path, width=165)
+
+
+def read(path: Path, data: dict[str, Any] | None = None) -> Motion:
+    if data is None:
+        data = {"poses": read_npy(path)} if path.suffix == ".npy" else read_npz(path)
+    arrays = [k for k in data if np.asarray(data[k]).ndim >= 2]
+    if "poses" in data:
+        key = "poses"
+    elif len(arrays) == 1:
+        key = arrays[0]
+    else:
+        raise InputError(path, "poses", f"missing (arrays present: {', '.join(sorted(data)) or 'none'})")
+    poses = _poses(data, key, path)
+    t = poses.shape[0]
+    tkey = "trans" if "trans" in data else "transl"
+    transl = field(data, tkey, path, rows=t, width=3) if tkey in data else np.zeros((t, 3))
+    hands = text(data, "hand_convention", "absolute")
+    up = text(data, "up_axis", "y")
+    if hands not in ("absolute", "relative"):
+        raise InputError(path, "hand_convention", f"expected 'absolute' or 'relative', got {hands!r}")
+    if up not in ("y", "z"):
+        raise InputError(path, "up_axis", f"expected 'y' or 'z', got {up!r}")
+    pose = poses.reshape(t, NUM_JOINTS, 3)
+    if hands == "relative":
+        pose = relative_to_absolute(pose)
+    if up == "z":
+        pose, transl = rotate_root(pose, transl, Z_UP_TO_Y_UP)
+    return Motion(pose=pose, transl=transl, betas=betas10(data, "betas", path),
+                  fps=scalar(data, ("fps", "mocap_frame_rate"), path, DEFAULT_FPS),
+                  gender=text(data, "gender", "neutral"),
+                  source=MotionSource(str(path), "array", hands))  # type: ignore[arg-type]

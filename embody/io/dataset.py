@@ -1,0 +1,140 @@
+"""Lazy datasets: a folder of motion files, a SOKE root with a split, or a CSV manifest.
+
+Listing touches only names, never contents, so one bad file fails only its own `load()`.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+from embody.errors import InputError
+from embody.io import soke
+from embody.io.loader import MOTION_SUFFIXES, load
+from embody.motion import Motion
+
+
+@dataclass(frozen=True)
+class SequenceRef:
+    """One sequence of a dataset: a stable id, where it lives, and its text if known."""
+
+    id: str
+    path: Path
+    text: str | None = None
+    source_files: tuple[Path, ...] = ()
+
+    def load(self) -> Motion:
+        motion = load(self.path)
+        motion.meta.setdefault("id", self.id)
+        if self.text is not None:
+            motion.meta["text"] = self.text
+        return motion
+
+
+class Dataset:
+    """An ordered, sized collection of `SequenceRef`s with unique ids."""
+
+    def __init__(self, root: Path, refs: list[SequenceRef], kind: str) -> None:
+        seen: set[str] = set()
+        for ref in refs:
+            if ref.id in seen:
+                raise InputError(root, "id", f"duplicate sequence id {ref.id!r}")
+            seen.add(ref.id)
+        self.root = root
+        self.kind = kind
+        self._refs = tuple(refs)
+
+    def __len__(self) -> int:
+        return len(self._refs)
+
+    def __iter__(self) -> Iterator[SequenceRef]:
+        return iter(self._refs)
+
+    def __getitem__(self, index: int) -> SequenceRef:
+        return self._refs[index]
+
+    @property
+    def ids(self) -> list[str]:
+        return [r.id for r in self._refs]
+
+    def get(self, seq_id: str) -> SequenceRef:
+        for ref in self._refs:
+            if ref.id == seq_id:
+                return ref
+        raise KeyError(seq_id)
+
+    def __repr__(self) -> str:
+        return f"Dataset({self.kind}, {self.root}, {len(self)} sequences)"
+
+
+def _folder(root: Path) -> Dataset:
+    """Every motion file below `root` is one sequence (SOKE data goes through its root)."""
+    refs: list[SequenceRef] = []
+    for path in sorted(root.rglob("*")):
+        rel = path.relative_to(root)
+        if any(part.startswith(".") for part in rel.parts) or not path.is_file():
+            continue
+        if path.suffix.lower() in MOTION_SUFFIXES:
+            refs.append(SequenceRef(rel.with_suffix("").as_posix(), path, None, (path,)))
+    return Dataset(root, refs, "folder")
+
+
+def _soke(root: Path, split: str | None) -> Dataset:
+    poses = root / "poses"
+    if split is None:
+        names = sorted(p.name for p in poses.iterdir() if p.is_dir())
+        entries = [{"name": n} for n in names]
+    else:
+        entries = soke.read_split(root, split)
+    refs = []
+    for entry in entries:
+        folder = poses / str(entry["name"])
+        text = entry.get("text")
+        # frame files are listed on load: listing 20k folders up front costs minutes
+        refs.append(SequenceRef(str(entry["name"]), folder, None if text is None else str(text),
+                                (folder,)))
+    return Dataset(root, refs, f"soke-{split}" if split else "soke")
+
+
+def _manifest(path: Path) -> Dataset:
+    try:
+        with path.open(newline="", encoding="utf-8") as fh:
+            rows = list(csv.DictReader(fh))
+    except (OSError, UnicodeDecodeError, csv.Error) as exc:
+        raise InputError(path, None, f"cannot read CSV manifest: {exc}") from None
+    if not rows or "path" not in rows[0]:
+        raise InputError(path, "path", "manifest needs a header 'path,text' and at least one row")
+    refs = []
+    for i, row in enumerate(rows, start=2):
+        rel = (row.get("path") or "").strip()
+        if not rel:
+            raise InputError(path, "path", f"empty path on line {i}")
+        target = Path(rel) if Path(rel).is_absolute() else path.parent / rel
+        text = row.get("text")
+        refs.append(SequenceRef(Path(rel).with_suffix("").as_posix(), target,
+                                text if text else None, (target,)))
+    return Dataset(path.parent, refs, "manifest")
+
+
+def load_dataset(path: str | Path, split: str | None = None) -> Dataset:
+    """A lazy dataset from a folder, a SOKE root (+ `split`), or a `path,text` CSV manifest."""
+    path = Path(path)
+    if not path.exists():
+        raise InputError(path, None, "no such file or directory")
+    if path.is_file():
+        if path.suffix.lower() != ".csv":
+            raise InputError(path, None, "a dataset is a folder or a .csv manifest")
+        if split is not None:
+            raise InputError(path, "split", "splits apply to SOKE roots only")
+        return _manifest(path)
+    poses = path / "poses"
+    if poses.is_dir() and (split is not None or any(p.is_dir() for p in poses.iterdir())):
+        return _soke(path, split)
+    if split is not None:
+        raise InputError(path, "split", f"no csl_clean.{split} and poses/ here (not a SOKE root)")
+    dataset = _folder(path)
+    if not len(dataset):
+        raise InputError(path, None, "no motion files found")
+    return dataset

@@ -1,0 +1,60 @@
+"""`load(path)`: detect a motion file's format from its suffix (or first bytes) and read it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from embody.errors import InputError
+from embody.io import amass, arrays, signavatars, soke
+from embody.io.fields import read_npz, read_pickle
+from embody.motion import Motion
+
+#: Suffixes a dataset folder treats as one motion file each.
+MOTION_SUFFIXES = (".npz", ".npy", ".pkl", ".pickle")
+_MAGIC = {b"PK": ".npz", b"\x93N": ".npy", b"\x80": ".pkl"}
+
+
+def _kind(path: Path) -> str:
+    if path.suffix.lower() in MOTION_SUFFIXES:
+        return path.suffix.lower()
+    try:
+        with path.open("rb") as fh:
+            head = fh.read(2)
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read file: {exc.strerror or exc}") from None
+    for magic, kind in _MAGIC.items():
+        if head.startswith(magic):
+            return kind
+    raise InputError(path, None, f"unknown motion format (suffix {path.suffix or 'none'!r})")
+
+
+def _load_dir(path: Path) -> Motion:
+    if soke.is_sequence_dir(path):
+        return soke.read(path)
+    if not any(path.iterdir()):
+        raise InputError(path, None, "empty directory")
+    if (path / "poses").is_dir():
+        raise InputError(path, None, "a SOKE dataset root: use load_dataset(path, split)")
+    raise InputError(path, None, "directory has no per-frame .pkl files (not a SOKE sequence)")
+
+
+def load(path: str | Path) -> Motion:
+    """Read any supported motion file or SOKE sequence folder as a y-up, absolute-hand Motion."""
+    path = Path(path)
+    if path.is_dir():
+        return _load_dir(path)
+    if not path.exists():
+        raise InputError(path, None, "no such file or directory")
+    kind = _kind(path)
+    if kind == ".npy":
+        return arrays.read(path)
+    if kind == ".npz":
+        data = read_npz(path)
+        return amass.read(path, data) if amass.is_amass(data) else arrays.read(path, data)
+    data = read_pickle(path)
+    if signavatars.is_signavatars(data):
+        return signavatars.read(path, data)
+    if isinstance(data, dict) and "smplx_root_pose" in data:
+        raise InputError(path, None, "a single SOKE frame: load its sequence folder instead")
+    keys = ", ".join(sorted(map(str, data))[:8]) if isinstance(data, dict) else type(data).__name__
+    raise InputError(path, None, f"unknown pickle layout ({keys})")

@@ -1,0 +1,241 @@
+"""Offscreen MuJoCo rendering of the robot and of the reference body from the same cameras.
+
+Two models share one GL context: a private copy of the robot model, and a one-mesh model of the
+reference body whose vertices are rewritten and re-uploaded every frame (`mjr_uploadMesh`).
+Both are placed in the robot torso frame's world pose at the T-pose and seen through identical
+free cameras, so reference and robot line up pixel for pixel. Shadows, reflections and skybox are
+off and (by default) the legs are hidden: signing is upper-body and this halves the render time.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Protocol
+
+import numpy as np
+
+from embody.config.render import RenderConfig
+from embody.render.gl import create_context
+
+import mujoco  # noqa: E402  (after embody.render.gl has set MUJOCO_GL)
+
+_OFF_FLAGS = (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION,
+              mujoco.mjtRndFlag.mjRND_SKYBOX, mujoco.mjtRndFlag.mjRND_FOG,
+              mujoco.mjtRndFlag.mjRND_HAZE)
+_HIDDEN_GROUP = 5
+
+
+class RenderableRobot(Protocol):
+    """What rendering needs of `embody.robot.Robot`."""
+
+    model: mujoco.MjModel
+    torso_from_world: np.ndarray
+
+    def qpos(self, q: np.ndarray) -> np.ndarray: ...
+
+
+def _subtree_mask(model: mujoco.MjModel, root: int) -> np.ndarray:
+    """Per geom: does its body descend from (or equal) body `root`?"""
+    inside = np.zeros(model.nbody, dtype=bool)
+    for b in range(model.nbody):  # parents precede children in MuJoCo's body order
+        inside[b] = b == root or (b > 0 and inside[model.body_parentid[b]])
+    return inside[model.geom_bodyid]
+
+
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted unit vertex normals (V,3)."""
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    idx = faces.ravel()
+    weights = np.repeat(fn, 3, axis=0)
+    vn = np.stack([np.bincount(idx, weights[:, c], minlength=len(vertices)) for c in range(3)], 1)
+    return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
+
+
+def cluster_mesh(model: mujoco.MjModel, mesh: int, cell: float) -> None:
+    """Decimate one mesh in place by vertex clustering on a `cell`-sized grid.
+
+    Menagerie's G1 upper body has ~470k triangles, which software GL draws at ~4 frames/s; a
+    grid finer than a pixel at the camera distance keeps the look at a fraction of the cost.
+    Faces are rewritten at the front of the mesh's face block and `mesh_facenum` shrinks; each
+    surviving vertex gets a fresh area-weighted normal (normals are per vertex in these meshes).
+    """
+    vadr, vnum = model.mesh_vertadr[mesh], model.mesh_vertnum[mesh]
+    fadr, fnum = model.mesh_faceadr[mesh], model.mesh_facenum[mesh]
+    nadr, nnum = model.mesh_normaladr[mesh], model.mesh_normalnum[mesh]
+    if nnum != vnum or fnum < 64:
+        return  # normals not per vertex (or tiny mesh): leave it
+    verts = model.mesh_vert[vadr:vadr + vnum].astype(np.float64)
+    faces = model.mesh_face[fadr:fadr + fnum]
+    _, first, label = np.unique(np.floor(verts / cell).astype(np.int64), axis=0,
+                                return_index=True, return_inverse=True)
+    new = first[label.ravel()][faces]
+    new = new[(new[:, 0] != new[:, 1]) & (new[:, 1] != new[:, 2]) & (new[:, 0] != new[:, 2])]
+    if len(new) == 0:
+        return
+    _, keep = np.unique(np.sort(new, axis=1), axis=0, return_index=True)
+    new = new[np.sort(keep)]
+    model.mesh_face[fadr:fadr + len(new)] = new
+    model.mesh_facenormal[fadr:fadr + len(new)] = new
+    model.mesh_facenum[mesh] = len(new)
+    model.mesh_normal[nadr:nadr + nnum] = vertex_normals(verts, new)
+
+
+class SceneRenderer:
+    """Renders robot configurations and reference meshes; close it (or use `with`) when done."""
+
+    def __init__(self, robot: RenderableRobot, cfg: RenderConfig,
+                 faces: np.ndarray | None = None, rest_vertices: np.ndarray | None = None,
+                 torso_body: str = "torso_link") -> None:
+        self.cfg = cfg
+        self.robot = robot
+        self.world_from_torso = np.linalg.inv(np.asarray(robot.torso_from_world, dtype=np.float64))
+        self._ctx = create_context(cfg.width, cfg.height, cfg.gl)
+        self._contexts: list[mujoco.MjrContext] = []
+        try:
+            self._model = self._robot_model(robot.model, torso_body)
+            self._data = mujoco.MjData(self._model)
+            self._robot_ctx = self._context(self._model)
+            self._scene = mujoco.MjvScene(self._model, maxgeom=self._model.ngeom + 100)
+            self._mesh: _MeshModel | None = None
+            if faces is not None and rest_vertices is not None:
+                self._mesh = _MeshModel(faces, rest_vertices, cfg, self._model.vis.global_.fovy)
+                self._mesh_ctx = self._context(self._mesh.model)
+                self._mesh_scene = mujoco.MjvScene(self._mesh.model, maxgeom=16)
+        except Exception:
+            self.close()
+            raise
+        self._rect = mujoco.MjrRect(0, 0, cfg.width, cfg.height)
+        self._option = mujoco.MjvOption()  # groups 0-2 visible: robot visuals, no collision meshes
+
+    # --- setup ----------------------------------------------------------------------------
+
+    def _robot_model(self, model: mujoco.MjModel, torso_body: str) -> mujoco.MjModel:
+        model = copy.copy(model)  # private: we change offscreen size and geom groups
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.cfg.width)
+        model.vis.global_.offheight = max(model.vis.global_.offheight, self.cfg.height)
+        if self.cfg.upper_body:
+            upper = _subtree_mask(model, model.body(torso_body).id)
+            model.geom_group[~upper] = _HIDDEN_GROUP
+        if self.cfg.mesh_cell_m > 0:
+            for mesh in range(model.nmesh):
+                cluster_mesh(model, mesh, self.cfg.mesh_cell_m)
+        return model
+
+    def _context(self, model: mujoco.MjModel) -> mujoco.MjrContext:
+        ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, ctx)
+        self._contexts.append(ctx)
+        return ctx
+
+    def camera(self, view: str) -> mujoco.MjvCamera:
+        """The fixed free camera of a view ("front" or "side", seen from the robot's left)."""
+        cam = mujoco.MjvCamera()
+        cam.type = mujoco.mjtCamera.mjCAMERA_FREE
+        rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
+        cam.lookat[:] = pos + rot @ np.asarray(self.cfg.lookat, dtype=np.float64)
+        forward = -rot[:, 0] if view == "front" else -rot[:, 1]
+        cam.azimuth = float(np.degrees(np.arctan2(forward[1], forward[0])))
+        cam.elevation = self.cfg.camera_elevation
+        cam.distance = self.cfg.camera_distance
+        return cam
+
+    # --- rendering ------------------------------------------------------------------------
+
+    def _draw(self, model, data, scene, ctx, cam) -> np.ndarray:
+        mujoco.mjv_updateScene(model, data, self._option, None, cam,
+                               mujoco.mjtCatBit.mjCAT_ALL, scene)
+        for flag in _OFF_FLAGS:
+            scene.flags[flag] = 0
+        out = np.empty((self.cfg.height, self.cfg.width, 3), dtype=np.uint8)
+        # each MjrContext owns a framebuffer; bind this one's (the last created is bound)
+        mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, ctx)
+        mujoco.mjr_render(self._rect, scene, ctx)
+        mujoco.mjr_readPixels(out, None, self._rect, ctx)
+        return np.flipud(out)
+
+    def robot_frames(self, q: np.ndarray, view: str = "front") -> np.ndarray:
+        """Images (N,H,W,3) of joint configurations q (N,n) in the robot's joint order."""
+        self._ctx.make_current()
+        cam = self.camera(view)
+        frames = []
+        for qi in np.atleast_2d(q):
+            self._data.qpos[:] = self.robot.qpos(np.asarray(qi, dtype=np.float64))
+            mujoco.mj_kinematics(self._model, self._data)
+            frames.append(self._draw(self._model, self._data, self._scene, self._robot_ctx, cam))
+        return np.stack(frames)
+
+    def reference_frames(self, vertices: np.ndarray, view: str = "front") -> np.ndarray:
+        """Images (N,H,W,3) of reference meshes given as (N,V,3) vertices in the torso frame."""
+        if self._mesh is None:
+            raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
+        self._ctx.make_current()
+        cam = self.camera(view)
+        rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
+        frames = []
+        for verts in np.asarray(vertices, dtype=np.float64):
+            self._mesh.set_vertices(verts @ rot.T + pos, self._mesh_ctx)
+            frames.append(self._draw(self._mesh.model, self._mesh.data, self._mesh_scene,
+                                     self._mesh_ctx, cam))
+        return np.stack(frames)
+
+    def close(self) -> None:
+        """Free GL resources now: EGL teardown at interpreter exit prints errors otherwise."""
+        if self._ctx is None:
+            return
+        self._ctx.make_current()
+        for ctx in self._contexts:
+            ctx.free()
+        self._contexts.clear()
+        self._ctx.free()
+        self._ctx = None
+
+    def __enter__(self) -> "SceneRenderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+class _MeshModel:
+    """A model holding one visual mesh at the world origin whose vertices we overwrite."""
+
+    def __init__(self, faces: np.ndarray, rest_vertices: np.ndarray, cfg: RenderConfig,
+                 fovy: float) -> None:
+        spec = mujoco.MjSpec()
+        spec.visual.global_.offwidth = cfg.width
+        spec.visual.global_.offheight = cfg.height
+        spec.visual.global_.fovy = fovy
+        spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
+        spec.visual.headlight.ambient = [0.1, 0.1, 0.1]
+        spec.worldbody.add_light(pos=[1, 0, 3.5], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+        mesh = spec.add_mesh(name="reference")
+        mesh.uservert = np.asarray(rest_vertices, dtype=np.float64).ravel().tolist()
+        mesh.userface = np.asarray(faces, dtype=np.int64).ravel().tolist()
+        spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="reference",
+                                contype=0, conaffinity=0, rgba=list(cfg.reference_rgba))
+        self.model = spec.compile()
+        self.faces = np.asarray(faces, dtype=np.int64)
+        mid = 0
+        self.mesh_id = mid
+        adr, num = self.model.mesh_vertadr[mid], self.model.mesh_vertnum[mid]
+        if num != len(rest_vertices):
+            raise ValueError(f"MuJoCo kept {num} of {len(rest_vertices)} mesh vertices")
+        self._verts = slice(adr, adr + num)
+        fadr, fnum = self.model.mesh_faceadr[mid], self.model.mesh_facenum[mid]
+        self._face_normal = self.model.mesh_facenormal[fadr:fadr + fnum]
+        self._face = self.model.mesh_face[fadr:fadr + fnum]
+        self._nadr = self.model.mesh_normaladr[mid]
+        # The compiler recentres meshes and compensates in the geom pose; we write world
+        # coordinates, so put the geom back at the origin.
+        self.model.geom_pos[0] = 0.0
+        self.model.geom_quat[0] = (1.0, 0.0, 0.0, 0.0)
+        self.data = mujoco.MjData(self.model)
+        mujoco.mj_kinematics(self.model, self.data)
+
+    def set_vertices(self, world_vertices: np.ndarray, ctx: mujoco.MjrContext) -> None:
+        normals = vertex_normals(world_vertices, self._face)
+        self.model.mesh_vert[self._verts] = world_vertices
+        idx = self._nadr + self._face_normal.ravel()
+        self.model.mesh_normal[idx] = normals[self._face.ravel()]
+        mujoco.mjr_uploadMesh(self.model, ctx, self.mesh_id)

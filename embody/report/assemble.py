@@ -1,0 +1,208 @@
+"""Tables I–III and the flat summary, computed by the stages' own metric functions.
+
+The numbers come from `embody.collision.metrics.table1/table2` and `embody.critic.refine_table`
+on the run's artifacts. This module only lays them out the paper's way (Before/After columns,
+the paper's row names), adds the paper's reported figures as a separate column, and reads the
+summary back out of the tables, so README, `summary.json` and the tables cannot disagree.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from typing import Any
+
+import pandas as pd
+
+from embody.report.data import RunData
+from embody.report.tables import Table
+
+PAPER_COLUMN = "Paper (reported)"
+#: Table I rows in the paper's order.
+TABLE1_ROWS = (
+    "Collision energy (mean)", "Collision energy (median)", "Improved sequences (%)",
+    "Collision reduction (median)", "Collision reduction (mean)",
+    "Pose MSE vs. original (median)", "ΔAccel MSE (median)", "Runtime per sequence (mean)",
+)
+#: The paper's own Table I figures; rows it does not report stay blank (never invented).
+PAPER_TABLE1 = {
+    "Improved sequences (%)": 88.9,
+    "Collision reduction (median)": 21.66,
+    "Pose MSE vs. original (median)": 6.8e-4,
+    "Runtime per sequence (mean)": 521.7,
+}
+#: Table II settings: which of the collision loss's regularisers are on (λ_close, λ_smooth).
+ABLATION_SETTINGS = {
+    "Collision only": (False, False),
+    "+ Closeness": (True, False),
+    "+ Closeness + Smoothness": (True, True),
+}
+#: Table III columns: header → `refine_table` column (scaled) or validation counter.
+TABLE3_FROM_REFINE = {
+    "Wrist pos. mean (mm)": ("wrist_mm_mean", 1.0),
+    "Wrist pos. p95 (mm)": ("wrist_mm_p95", 1.0),
+    "Wrist rot. mean (deg)": ("wrist_deg_mean", 1.0),
+    "DTW wrist (mm)": ("wrist_dtw_mm", 1.0),
+    "Rounds": ("rounds", 1.0),
+    "Accepted (%)": ("accepted", 100.0),
+}
+#: Validation counters, summed over sequences: header → IK metric key.
+TABLE3_COUNTS = {
+    "Limit viol.": "joint_limit_violations",
+    "Vel. viol.": "velocity_violations",
+    "Self-coll. frames": "self_collision_frames",
+}
+TABLE3_KEYS = {
+    "Wrist pos. mean (mm)": "wrist_pos_mean_mm", "Wrist pos. p95 (mm)": "wrist_pos_p95_mm",
+    "Wrist rot. mean (deg)": "wrist_rot_mean_deg", "DTW wrist (mm)": "wrist_dtw_mm",
+    "Limit viol.": "limit_violations", "Vel. viol.": "velocity_violations",
+    "Self-coll. frames": "self_collision_frames", "Rounds": "rounds",
+    "Accepted (%)": "accepted_pct", "N": "n",
+}
+_NUMBER = re.compile(r"[-+]?\d*\.?\d+(?:[eE][-+]?\d+)?")
+
+
+def number(cell: Any) -> float:
+    """A cell as a float: numbers as they are, "8/9 (88.9%)" → 88.9, blanks → NaN."""
+    if cell is None or cell is pd.NA:
+        return math.nan
+    if isinstance(cell, (int, float)):
+        return float(cell)
+    text = str(cell)
+    inner = re.search(r"\(([^)]*)\)", text)
+    found = _NUMBER.findall(inner.group(1) if inner else text)
+    return float(found[-1]) if found else math.nan
+
+
+def table1_slot(label: str) -> tuple[str, str]:
+    """Where a row of `collision.metrics.table1` goes: (paper row name, "Before"|"After")."""
+    low = label.lower()
+    stat = "median" if "median" in low else "mean"
+    if "l_col" in low or "energy" in low:
+        return f"Collision energy ({stat})", "Before" if "before" in low else "After"
+    if "improved" in low:
+        return "Improved sequences (%)", "After"
+    if "reduction" in low:
+        return f"Collision reduction ({stat})", "After"
+    if "pose" in low:
+        return "Pose MSE vs. original (median)", "After"
+    if "accel" in low:
+        return "ΔAccel MSE (median)", "After"
+    if "runtime" in low:
+        return "Runtime per sequence (mean)", "After"
+    return label, "After"
+
+
+def table1(data: RunData) -> Table:
+    """Table I: the library's `table1` values in Before/After columns, plus the paper's."""
+    from embody.collision.metrics import table1 as collision_table1
+
+    lib = collision_table1(data.collision)
+    cells: dict[str, dict[str, Any]] = {}
+    for label, value in lib.iloc[:, 0].items():
+        row, column = table1_slot(str(label))
+        cells.setdefault(row, {})[column] = value
+    order = [r for r in cells if r not in TABLE1_ROWS] + [r for r in TABLE1_ROWS if r in cells]
+    frame = pd.DataFrame({
+        "Metric": order,
+        "Before": [cells[r].get("Before") for r in order],
+        "After": [cells[r].get("After") for r in order],
+        PAPER_COLUMN: [PAPER_TABLE1.get(r) for r in order],
+    })
+    return Table("table1_collision", "Table I: self-collision mitigation (SMPL-X)", frame)
+
+
+def table2(data: RunData) -> Table:
+    """Table II over the ablation settings, or the run's own setting alone without `--ablation`."""
+    from embody.collision.metrics import table2 as collision_table2
+
+    settings = data.ablation or {"This run": data.collision}
+    frame = collision_table2(settings).reset_index()
+    frame = frame.rename(columns={frame.columns[0]: "Setting"})
+    return Table("table2_ablation", "Table II: loss-term ablation", frame)
+
+
+def _counts(frame: pd.DataFrame) -> dict[str, float]:
+    return {h: float(frame[k].sum()) if k in frame else math.nan
+            for h, k in TABLE3_COUNTS.items()}
+
+
+def table3(data: RunData) -> Table:
+    """IK-only vs refined (one row per critic) from `refine_table`, plus validation counts.
+
+    Without a critic only the IK-only row is filled, from the IK's own aggregate metrics (its
+    targets are the reference then); columns that need the critic's metrics stay blank.
+    """
+    from embody.critic import refine_table
+
+    rows = []
+    ik_counts = _counts(data.retarget)
+    if not data.refine:
+        ik = data.retarget
+        rows.append({"Method": "IK only",
+                     "Wrist pos. mean (mm)": ik["wrist_pos_err_mm"].mean() if len(ik) else None,
+                     "Wrist rot. mean (deg)": ik["wrist_rot_err_deg"].mean() if len(ik) else None,
+                     **ik_counts, "N": len(ik)})
+    for critic, results in sorted(data.refine.items()):
+        lib = refine_table(results)
+        for label, row in lib.iterrows():
+            refined = str(label).lower().startswith("refined")
+            if not refined and rows:
+                continue  # the IK-only row is the same for every critic
+            counts = _counts(data.validation.get(critic, pd.DataFrame())) if refined else ik_counts
+            rows.append({"Method": f"Refined ({critic})" if refined else "IK only",
+                         **{h: row[k] * s for h, (k, s) in TABLE3_FROM_REFINE.items()},
+                         **counts, "N": int(row["n"])})
+    columns = ["Method", "Wrist pos. mean (mm)", "Wrist pos. p95 (mm)", "Wrist rot. mean (deg)",
+               "DTW wrist (mm)", *TABLE3_COUNTS, "Rounds", "Accepted (%)", "N"]
+    frame = pd.DataFrame(rows).reindex(columns=columns)
+    return Table("table3_retargeting", "Table III: retargeting fidelity, IK-only vs refined",
+                 frame)
+
+
+def _row(table: Table, label: str) -> pd.Series | None:
+    hits = table.frame[table.frame.iloc[:, 0].astype(str) == label]
+    return None if hits.empty else hits.iloc[0]
+
+
+def _cell(table: Table, label: str, column: str) -> float:
+    row = _row(table, label)
+    return math.nan if row is None or column not in row.index else number(row[column])
+
+
+def summary(data: RunData, tables: dict[str, Table]) -> dict[str, Any]:
+    """Flat `summary.json` keys, read from the tables (and the sequence statuses)."""
+    out: dict[str, Any] = {
+        "run": data.name,
+        "sequences.total": int(len(data.sequences)),
+        "sequences.ok": int((data.sequences["status"] == "ok").sum()),
+        "sequences.failed": int((data.sequences["status"] != "ok").sum()),
+    }
+    t1 = tables.get("table1_collision")
+    if t1 is not None:
+        for key, (row, col) in {
+            "energy_mean_before": ("Collision energy (mean)", "Before"),
+            "energy_mean_after": ("Collision energy (mean)", "After"),
+            "energy_median_before": ("Collision energy (median)", "Before"),
+            "energy_median_after": ("Collision energy (median)", "After"),
+            "improved_pct": ("Improved sequences (%)", "After"),
+            "reduction_median_pct": ("Collision reduction (median)", "After"),
+            "reduction_mean_pct": ("Collision reduction (mean)", "After"),
+            "pose_mse_median": ("Pose MSE vs. original (median)", "After"),
+            "daccel_mse_median": ("ΔAccel MSE (median)", "After"),
+            "runtime_mean_s": ("Runtime per sequence (mean)", "After"),
+        }.items():
+            out[f"collision.{key}"] = _cell(t1, row, col)
+    t3 = tables.get("table3_retargeting")
+    if t3 is not None:
+        labels = [("IK only", "retarget.ik_only")]
+        labels += [(f"Refined ({c})", f"retarget.refined.{c}") for c in sorted(data.refine)]
+        if data.refine:  # the first critic's row doubles as "the refined result"
+            labels.append((f"Refined ({sorted(data.refine)[0]})", "retarget.refined"))
+        for label, prefix in labels:
+            for header, key in TABLE3_KEYS.items():
+                out[f"{prefix}.{key}"] = _cell(t3, label, header)
+        final = "retarget.refined" if data.refine else "retarget.ik_only"
+        for key in ("limit_violations", "velocity_violations", "self_collision_frames"):
+            out[f"retarget.{key}"] = out[f"{final}.{key}"]
+    return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in out.items()}

@@ -1,0 +1,219 @@
+"""Read one run from the artifact store into `RunData` (manifest + the artifacts it names).
+
+Metric dicts come from the manifest (what each step's library call returned). Table III's
+validation counters and the wrist figures need the robot: they are computed here with the
+retargeting stage's own functions on the stored trajectories.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from embody.errors import InputError
+from embody.report.data import RunData
+
+#: Step names as the orchestrator stores them (tasks/stages.py).
+SOURCE, COLLIDE, SHAPE_FIT, RETARGET, REFINE = "source", "collide", "shape_fit", "retarget", "refine"
+
+
+def open_run(store_root: str | Path, run: str) -> tuple[Any, Any]:
+    """(ArtifactStore, Manifest) of `run`; InputError naming the known runs when it is absent."""
+    from store.artifacts import ArtifactStore
+    from store.manifest import Manifest
+
+    store = ArtifactStore(store_root)
+    path = store.runs_dir / run / "manifest.json"
+    if not path.is_file():
+        runs = sorted(p.parent.name for p in store.runs_dir.glob("*/manifest.json"))
+        raise InputError(path, None, f"no run {run!r} in the store (runs: {', '.join(runs) or 'none'})")
+    return store, Manifest.load(store, run)
+
+
+def run_config(manifest: Any) -> Any:
+    """The config the run used (recorded in its manifest)."""
+    from embody.config import Config
+
+    return Config.model_validate(manifest.data.get("config") or {})
+
+
+def latest_run(store_root: str | Path) -> str:
+    """The most recently written run of a store (what `embody report` shows by default)."""
+    runs = sorted(Path(store_root, "runs").glob("*/manifest.json"), key=lambda p: p.stat().st_mtime)
+    if not runs:
+        raise InputError(Path(store_root), None, "the store has no runs (run `embody run` first)")
+    return runs[-1].parent.name
+
+
+def metrics_frame(manifest: Any, step: str) -> pd.DataFrame:
+    """One row per sequence that has `step`'s metrics, indexed by sequence id."""
+    rows = {sid: seq["metrics"][step] for sid, seq in sorted(manifest.sequences.items())
+            if step in seq.get("steps", {}) and step in seq.get("metrics", {})}
+    frame = pd.DataFrame.from_dict(rows, orient="index")
+    frame.index.name = "id"
+    return frame
+
+
+def load_result(store: Any, seq: dict[str, Any], step: str) -> Any:
+    """The stored result of `step` for one manifest sequence entry, as the stage's own type."""
+    from tasks.stages import COLLIDE as C, REFINE as R, RETARGET as T, SOURCE as S
+
+    loader = {s.name: s.load for s in (S, C, T, R)}[step]
+    art = store.read(step, seq["steps"][step])
+    return loader(art.arrays, art.attrs)
+
+
+class _Robotics:
+    """The run's robot (and body, shape fit) loaded on first use."""
+
+    def __init__(self, store: Any, manifest: Any) -> None:
+        self.store, self.manifest, self.cfg = store, manifest, run_config(manifest)
+        self._robot = self._body = self._fit = None
+
+    @property
+    def robot(self) -> Any:
+        if self._robot is None:
+            from embody.robot import load_robot
+            self._robot = load_robot(self.cfg.robot)
+        return self._robot
+
+    def _body_fit(self) -> tuple[Any, Any]:
+        from embody.body import load_body_model
+        from embody.retarget import ShapeFit
+
+        if self._fit is None:
+            art = self.store.read(SHAPE_FIT, self.manifest.data["shared"][SHAPE_FIT])
+            self._fit = ShapeFit.from_arrays(art.arrays, art.attrs)
+            self._body = load_body_model(self.cfg.body)
+        return self._body, self._fit
+
+    def reference_wrists(self, motion: Any) -> np.ndarray:
+        """The IK's reference wrist positions (T,2,3), rebuilt as the retarget step did."""
+        from embody.retarget import build_targets
+
+        body, fit = self._body_fit()
+        return np.asarray(build_targets(motion, body, fit, self.robot).wrist_pos)
+
+    def sheet(self, motion: Any, result: Any, title: str) -> bytes:
+        """The critic's final comparison sheet (human over robot at its keyframes), re-rendered
+        with the render stage's own functions: the refine step keeps hashes, not images."""
+        from embody.render.compare import open_renderer, reference_vertices, render_comparison
+
+        body, fit = self._body_fit()
+        keys = np.asarray(result.keyframes)
+        renderer = open_renderer(self.robot, body, fit, self.cfg.render)
+        try:
+            comp = render_comparison(renderer, self.cfg.render, keys, motion.fps, result.final.q,
+                                     reference_verts=reference_vertices(motion, body, fit, keys))
+            return comp.sheet_png(title)
+        finally:
+            renderer.close()
+
+    def wrists(self, q: np.ndarray) -> np.ndarray:
+        from embody.critic.refine import robot_wrists
+        return robot_wrists(self.robot, q)[0]
+
+
+def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
+            max_sheets: int = 4) -> RunData:
+    """Everything a report needs about `run`.
+
+    Wrist figures are drawn for the `max_figures` sequences with the largest IK wrist error and
+    comparison sheets for the first `max_sheets` of those (rendering costs ~2 s each), so a
+    20k-sequence run still gets a readable page in bounded time.
+    """
+    from embody.report.library import validate
+
+    store, manifest = open_run(store_root, run)
+    seqs = manifest.sequences
+    ids = sorted(seqs)
+    sequences = pd.DataFrame(
+        {"status": [seqs[i]["status"] for i in ids],
+         "failed_step": [seqs[i].get("failed_step") or "" for i in ids],
+         "error": [seqs[i].get("error") or "" for i in ids],
+         "text": [_text(store, seqs[i]) for i in ids]},
+        index=pd.Index(ids, name="id"))
+    data = RunData(name=run, sequences=sequences, collision=metrics_frame(manifest, COLLIDE),
+                   retarget=metrics_frame(manifest, RETARGET))
+    ok = [i for i in ids if seqs[i]["status"] == "ok" and RETARGET in seqs[i]["steps"]]
+    if not ok:
+        return data
+    robotics = _Robotics(store, manifest)
+    critic = robotics.cfg.critic.kind
+    ik = {i: load_result(store, seqs[i], RETARGET) for i in ok}
+    refined = {i: load_result(store, seqs[i], REFINE) for i in ok if REFINE in seqs[i]["steps"]}
+    if "self_collision_frames" not in data.retarget:
+        extra = {i: validate(robotics.robot, ik[i].q, ik[i].fps) for i in ok}
+        data.retarget["self_collision_frames"] = pd.Series(
+            {i: v["self_collision_frames"] for i, v in extra.items()})
+    if refined:
+        data.refine[critic] = [refined[i] for i in sorted(refined)]
+        data.refined[critic] = pd.DataFrame.from_dict(
+            {i: r.final.metrics for i, r in refined.items()}, orient="index")
+        data.validation[critic] = pd.DataFrame.from_dict(
+            {i: validate(robotics.robot, r.q, ik[i].fps) for i, r in refined.items()},
+            orient="index")
+    worst = data.retarget.loc[ok, "wrist_pos_err_mm"].sort_values(ascending=False, kind="stable")
+    for rank, sid in enumerate(worst.index[:max_figures]):
+        if sid in refined:
+            r = refined[sid]
+            tracks = {"reference": r.ik_only.target_pos, "IK only": robotics.wrists(r.ik_only.q),
+                      "refined": robotics.wrists(r.final.q)}
+            if rank < max_sheets:
+                motion = load_result(store, seqs[sid], COLLIDE).motion
+                data.sheets[sid] = robotics.sheet(motion, r, f"{sid}: final round")
+        else:
+            motion = load_result(store, seqs[sid], COLLIDE).motion
+            tracks = {"reference": robotics.reference_wrists(motion),
+                      "IK only": robotics.wrists(ik[sid].q)}
+        data.wrists[sid] = tracks
+        data.wrist_fps[sid] = float(ik[sid].fps)
+    return data
+
+
+def _text(store: Any, seq: dict[str, Any]) -> str:
+    """The sign's text from the source motion's attrs (read without loading its arrays)."""
+    key = seq.get("steps", {}).get(SOURCE)
+    if key is None:
+        return ""
+    doc = json.loads((store.path(SOURCE, key) / "zarr.json").read_text())
+    return str(doc.get("attributes", {}).get("result", {}).get("meta", {}).get("text", ""))
+
+
+def run_trajectories(store_root: str | Path, run: str, robot_name: str
+                     ) -> tuple[list[Any], list[tuple[str, str]]]:
+    """The final trajectory of every finished sequence of `run` (refined when the critic ran),
+    validated on `robot_name`; plus (id, reason) of the sequences the run itself failed."""
+    from embody.report.library import Trajectory, validate
+    from embody.retarget.limits import resample
+
+    store, manifest = open_run(store_root, run)
+    robotics = _Robotics(store, manifest)
+    if robotics.cfg.robot.name != robot_name:
+        raise InputError(manifest.path, "robot", f"run {run!r} was retargeted for "
+                         f"{robotics.cfg.robot.name!r}, not {robot_name!r}")
+    out, failed = [], []
+    for sid, seq in sorted(manifest.sequences.items()):
+        if seq["status"] != "ok" or RETARGET not in seq["steps"]:
+            failed.append((sid, f"run {seq['status']}: {seq.get('error') or 'not retargeted'}"))
+            continue
+        ik = load_result(store, seq, RETARGET)
+        if REFINE in seq["steps"]:
+            final = load_result(store, seq, REFINE)
+            q = np.asarray(final.q, dtype=np.float64)
+            q_control = resample(q, ik.fps, ik.control_rate_hz)
+            scores = {**final.final.metrics, "refined": True, "accepted": bool(final.accepted)}
+        else:
+            q, q_control = ik.q, ik.q_control
+            scores = {"wrist_mm_mean": ik.metrics.get("wrist_pos_err_mm"),
+                      "wrist_deg_mean": ik.metrics.get("wrist_rot_err_deg"), "refined": False}
+        validation = {**scores, **validate(robotics.robot, q, ik.fps),
+                      "fps": ik.fps, "control_rate_hz": ik.control_rate_hz}
+        out.append(Trajectory(id=sid, robot=robot_name, joint_names=tuple(ik.joint_names),
+                              q=q_control, dt=1.0 / ik.control_rate_hz, text=_text(store, seq),
+                              validation=validation))
+    return out, failed

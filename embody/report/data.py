@@ -1,0 +1,58 @@
+"""What a report is made of: one run's per-sequence results as plain tables and arrays.
+
+`RunData` is the seam between the store (see `embody.report.collect`) and the report writers, so
+the writers can be driven by any source of results, e.g. a notebook's DataFrames.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+
+@dataclass
+class RunData:
+    """One run's results. Every DataFrame is indexed by sequence id.
+
+    - `sequences`: status ("ok"/"failed"), error and text of every sequence, failed ones included.
+    - `collision`: the `embody.collision.mitigate` metrics dict per sequence.
+    - `retarget`: the IK-only `IKSolution.metrics` per sequence.
+    - `refine`: critic name → the `RefineResult` objects (what `refine_table` consumes).
+    - `refined`: critic name → the final round's metrics per sequence.
+    - `validation`: critic name → validation counters of the refined trajectories.
+    - `ablation`: Table II setting → collision metrics DataFrame (only for `--ablation`).
+    - `wrists`: sequence id → {"reference"|"IK only"|"refined": (T,2,3) wrist positions, m}.
+    - `sheets`: sequence id → the critic's comparison sheet (PNG bytes).
+    """
+
+    name: str
+    sequences: pd.DataFrame
+    collision: pd.DataFrame = field(default_factory=pd.DataFrame)
+    retarget: pd.DataFrame = field(default_factory=pd.DataFrame)
+    refine: dict[str, list[Any]] = field(default_factory=dict)
+    refined: dict[str, pd.DataFrame] = field(default_factory=dict)
+    validation: dict[str, pd.DataFrame] = field(default_factory=dict)
+    ablation: dict[str, pd.DataFrame] = field(default_factory=dict)
+    wrists: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
+    wrist_fps: dict[str, float] = field(default_factory=dict)
+    sheets: dict[str, bytes] = field(default_factory=dict)
+
+    def per_sequence(self) -> pd.DataFrame:
+        """Every metric of every sequence in one flat table (the `sequences.csv` rows)."""
+        frame = self.sequences.copy()
+        parts = [("collision", self.collision), ("ik", self.retarget)]
+        parts += [(f"refined.{critic}", df) for critic, df in sorted(self.refined.items())]
+        parts += [(f"refined.{critic}", df) for critic, df in sorted(self.validation.items())]
+        for prefix, df in parts:
+            if len(df):
+                frame = frame.join(df.add_prefix(f"{prefix}."), how="left")
+        frame.index.name = "id"
+        return frame.reset_index()
+
+    @property
+    def failures(self) -> list[tuple[str, str]]:
+        bad = self.sequences[self.sequences["status"] != "ok"]
+        return [(str(i), str(e)) for i, e in zip(bad.index, bad["error"].fillna(""))]

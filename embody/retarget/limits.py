@@ -1,0 +1,54 @@
+"""Joint and velocity limits: hard by construction, then a feasibility pass at the trajectory's fps."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+
+class BoxMap:
+    """q = mid + half·tanh(u): every u maps inside [lower, upper], so limits hold by construction."""
+
+    def __init__(self, lower: np.ndarray, upper: np.ndarray, shrink: float = 1e-6) -> None:
+        self.mid = (upper + lower) / 2.0
+        self.half = (upper - lower) / 2.0 * (1.0 - shrink)
+
+    def to_q(self, u: torch.Tensor) -> torch.Tensor:
+        mid = torch.as_tensor(self.mid, dtype=u.dtype, device=u.device)
+        half = torch.as_tensor(self.half, dtype=u.dtype, device=u.device)
+        return mid + half * torch.tanh(u)
+
+    def to_u(self, q: np.ndarray) -> np.ndarray:
+        x = np.clip((q - self.mid) / self.half, -0.999999, 0.999999)
+        return np.arctanh(x)
+
+
+def clamp_velocity(q: np.ndarray, vmax: np.ndarray, fps: float) -> np.ndarray:
+    """Limit every per-step change to vmax/fps (one forward pass).
+
+    Each step moves towards a value inside the joint box, so box limits are preserved.
+    """
+    step = vmax / fps
+    out = q.copy()
+    for t in range(1, len(out)):
+        out[t] = out[t - 1] + np.clip(out[t] - out[t - 1], -step, step)
+    return out
+
+
+def velocity_violations(q: np.ndarray, vmax: np.ndarray, fps: float, tol: float = 1e-9) -> int:
+    """Number of (step, joint) pairs whose speed exceeds its limit."""
+    if len(q) < 2:
+        return 0
+    return int((np.abs(np.diff(q, axis=0)) * fps > vmax * (1 + tol) + tol).sum())
+
+
+def limit_violations(q: np.ndarray, lower: np.ndarray, upper: np.ndarray, tol: float = 1e-9) -> int:
+    return int(((q < lower - tol) | (q > upper + tol)).sum())
+
+
+def resample(q: np.ndarray, fps: float, rate: float) -> np.ndarray:
+    """Linear resampling to `rate` Hz over the same duration; never exceeds the source speeds."""
+    t_src = np.arange(len(q)) / fps
+    n = int(np.floor(t_src[-1] * rate + 1e-9)) + 1
+    t_dst = np.arange(n) / rate
+    return np.stack([np.interp(t_dst, t_src, q[:, j]) for j in range(q.shape[1])], axis=1)

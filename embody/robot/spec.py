@@ -1,0 +1,89 @@
+"""The typed robot definition read from `configs/robots/<name>.yaml`."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from embody.errors import ConfigError
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class MjcfSource(_Strict):
+    #: Explicit MJCF path (absolute, or relative to the YAML file); tried first.
+    path: str | None = None
+    #: Path inside the MuJoCo Menagerie tree (offline wheel first, then `mujoco-menagerie`).
+    file: str | None = None
+
+
+class LinkRef(_Strict):
+    """A point on a robot body: the body's origin plus `offset` in the body frame."""
+
+    body: str
+    offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+class CollisionSpec(_Strict):
+    geom_groups: list[int] = [3]
+    ignore_subtrees: list[str] = []
+    #: Body pairs whose contact is structural (a joint housing against its mount).
+    ignore_pairs: list[tuple[str, str]] = []
+
+
+class ProxySpec(_Strict):
+    """Sphere chain fitted to the collision geoms of `bodies` (fnmatch patterns)."""
+
+    bodies: list[str]
+    #: Indices into the matched collision geoms (all when empty).
+    geoms: list[int] = []
+    spheres: int = Field(3, ge=1, le=16)
+
+
+class RobotSpec(_Strict):
+    mjcf: MjcfSource
+    root_body: str
+    torso_body: str
+    links: dict[str, LinkRef]
+    fit_weights: dict[str, float] = {}
+    tpose: dict[str, float] = {}
+    #: IK start and posture prior (joints not named: 0). Zero is arms down, forearms forward on
+    #: G1/H1: close to a signer's neutral pose, unlike the T-pose.
+    rest: dict[str, float] = {}
+    ik_joints: list[str]
+    hands: dict[str, dict[str, list[str]]] = {}
+    velocity_limits: dict[str, float] = {"*": 5.0}
+    collision: CollisionSpec = CollisionSpec()
+    proxies: dict[str, ProxySpec] = {}
+    proxy_pairs: list[tuple[str, str]] = []
+
+
+def read_spec(path: Path) -> RobotSpec:
+    """Parse and validate a robot YAML; every error names `<file>:<dotted key>`."""
+    try:
+        data = yaml.safe_load(Path(path).read_text())
+    except OSError as exc:
+        raise ConfigError(str(path), f"cannot read robot definition: {exc.strerror or exc}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(str(path), f"not valid YAML: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(str(path), "robot definition must be a mapping")
+    try:
+        spec = RobotSpec.model_validate(data)
+    except ValidationError as exc:
+        err = exc.errors()[0]
+        key = ".".join(str(p) for p in err["loc"]) or "<root>"
+        msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+        raise ConfigError(f"{path}:{key}", msg) from None
+    for side in ("left_wrist", "right_wrist"):
+        if side not in spec.links:
+            raise ConfigError(f"{path}:links.{side}", "required link mapping missing")
+    for a, b in spec.proxy_pairs:
+        for name in (a, b):
+            if name not in spec.proxies:
+                raise ConfigError(f"{path}:proxy_pairs", f"unknown proxy {name!r}")
+    return spec

@@ -1,0 +1,254 @@
+"""The dataset flow: every sequence through the pipeline, batched, cached, failure-isolated.
+
+The driver submits one task per (step, batch) and chains a batch's next step when its previous
+one finishes (done-callbacks feed a queue), so stages overlap without idle waiting tasks and at
+most `2 × workers` batches are in flight: a 20k-sequence dataset never queues 100k task runs.
+Shared steps (the shape fit) run once; steps that need them wait until they are done.
+"""
+
+from __future__ import annotations
+
+import queue
+import re
+import time
+from pathlib import Path
+from typing import Any
+
+from prefect import flow
+
+from embody.config import Config
+from flows.progress import Progress
+from flows.runners import make_task_runner
+from store import ArtifactStore, Manifest
+from tasks.execute import new_record
+from tasks.pipeline import Context, Pipeline
+from tasks.stages import default_pipeline
+from tasks.steps import batch_task, shared_task
+
+__all__ = ["dataset_flow", "default_run_name", "resolve_dataset", "run_dataset", "run_flow",
+           "write_tables"]
+
+_SAVE_EVERY_S = 1.0
+
+
+def resolve_dataset(dataset: str | Path | None, cfg: Config) -> Path:
+    """The dataset path; the default synthetic set is generated into `<store>/data` once."""
+    if dataset is None:
+        from embody.synth import default_dataset
+        return Path(default_dataset(Path(cfg.run.store) / "data", n=cfg.run.synth_n,
+                                    seed=cfg.run.seed))
+    return Path(dataset)
+
+
+def default_run_name(dataset: Path, split: str | None) -> str:
+    name = re.sub(r"[^A-Za-z0-9_.-]+", "-", dataset.stem or "dataset").strip("-") or "dataset"
+    return f"{name}-{split}" if split else name
+
+
+class _Driver:
+    """The event loop of one flow run: submits batch steps as their inputs become ready."""
+
+    def __init__(self, pipeline: Pipeline, ctx: Context, manifest: Manifest, progress: Progress,
+                 max_inflight: int) -> None:
+        self.pipeline, self.ctx, self.manifest, self.progress = pipeline, ctx, manifest, progress
+        self.steps = pipeline.per_sequence
+        self.max_inflight = max_inflight
+        self.events: queue.Queue = queue.Queue()
+        self.outstanding = 0
+        self.shared: dict[str, dict[str, Any]] = {}
+        self.parked: list[tuple[int, int, list[dict[str, Any]]]] = []
+        self.computed: dict[str, int] = {}
+        self.records: dict[str, dict[str, Any]] = {}
+        self._saved = time.monotonic()
+
+    def _watch(self, future: Any, tag: tuple) -> None:
+        self.outstanding += 1
+        future.add_done_callback(lambda f: self.events.put((tag, f)))
+
+    def _shared_keys(self) -> dict[str, str]:
+        return {n: r["key"] for n, r in self.shared.items() if r["status"] == "ok"}
+
+    def _submit_shared(self) -> None:
+        for step in self.pipeline.shared:
+            if step.name in self.shared or any(s.name not in self.shared for s in step.inputs):
+                continue
+            self.shared[step.name] = {"status": "running"}
+            fut = shared_task(step).submit(step, self.ctx, self._shared_keys())
+            self._watch(fut, ("shared", step.name))
+
+    def _submit(self, b: int, i: int, records: list[dict[str, Any]]) -> None:
+        step = self.steps[i]
+        needs = [s.name for s in step.inputs if s.shared]
+        if any(self.shared.get(n, {}).get("status") in (None, "running") for n in needs):
+            self.parked.append((b, i, records))
+            return
+        broken = [self.shared[n] for n in needs if self.shared[n]["status"] != "ok"]
+        if broken:
+            for rec in records:
+                if rec["status"] == "ok":
+                    rec.update(status="failed", failed_step=step.name, error=broken[0]["error"])
+            self._complete(b, i, records)
+            return
+        if not any(r["status"] == "ok" for r in records):  # nothing left to do in this batch
+            self._complete(b, i, records)
+            return
+        fut = batch_task(step, b).submit(step, self.ctx, records,
+                                         self._shared_keys())
+        self._watch(fut, ("batch", b, i))
+
+    def _complete(self, b: int, i: int, records: list[dict[str, Any]]) -> None:
+        name = self.steps[i].name
+        ok = [r for r in records if r["status"] == "ok" and name in r["keys"]]
+        computed = sum(name in r["computed"] for r in ok)
+        failed = sum(r.get("failed_step") == name for r in records)
+        self.computed[name] = self.computed.get(name, 0) + computed
+        self.progress.add(name, done=len(ok), cached=len(ok) - computed, failed=failed)
+        for rec in records:
+            self.manifest.update(rec)
+        if i + 1 < len(self.steps):
+            self._submit(b, i + 1, records)
+            return
+        for rec in records:
+            self.manifest.finish_sequence(rec["id"])
+            self.records[rec["id"]] = rec
+        self.inflight -= 1
+        self._fill()
+        if time.monotonic() - self._saved > _SAVE_EVERY_S:
+            self.manifest.save()
+            self._saved = time.monotonic()
+
+    def _fill(self) -> None:
+        while self.inflight < self.max_inflight and self.next_batch < len(self.batches):
+            b = self.next_batch
+            self.next_batch += 1
+            self.inflight += 1
+            self._submit(b, 0, self.batches[b])
+
+    def run(self, batches: list[list[dict[str, Any]]]) -> None:
+        self.batches, self.next_batch, self.inflight = batches, 0, 0
+        self._submit_shared()
+        self._fill()
+        while self.outstanding:
+            tag, fut = self.events.get()
+            self.outstanding -= 1
+            if tag[0] == "shared":
+                self._on_shared(tag[1], fut)
+            else:
+                self._on_batch(tag[1], tag[2], fut)
+
+    def _on_shared(self, name: str, fut: Any) -> None:
+        try:
+            rec = fut.result()
+        except Exception as exc:  # the task itself crashed (worker lost, unpicklable, ...)
+            rec = {"step": name, "status": "failed", "key": None, "computed": False,
+                   "metrics": {}, "error": f"{name}: task crashed: {type(exc).__name__}: {exc}"}
+        self.shared[name] = rec
+        self.manifest.set_shared(name, rec.get("key"))
+        self.computed[name] = self.computed.get(name, 0) + int(bool(rec.get("computed")))
+        self._submit_shared()
+        parked, self.parked = self.parked, []
+        for b, i, records in parked:
+            self._submit(b, i, records)
+
+    def _on_batch(self, b: int, i: int, fut: Any) -> None:
+        try:
+            records = fut.result()
+        except Exception as exc:
+            name = self.steps[i].name
+            records = [dict(r, status="failed", failed_step=name,
+                            error=f"{name}: task crashed: {type(exc).__name__}: {exc}")
+                       if r["status"] == "ok" else r for r in self._batch_input(b, i)]
+            for r in records:
+                r.pop("ref", None)
+        self._complete(b, i, records)
+
+    def _batch_input(self, b: int, i: int) -> list[dict[str, Any]]:
+        # A crashed task returns nothing: fall back to the manifest's view of the batch.
+        out = []
+        for rec in self.batches[b]:
+            seq = self.manifest.sequences[rec["id"]]
+            out.append({"id": rec["id"], "status": "ok" if seq["status"] == "pending" else "failed",
+                        "error": seq["error"], "failed_step": seq["failed_step"],
+                        "keys": dict(seq["steps"]), "metrics": dict(seq["metrics"]), "computed": []})
+        return out
+
+
+def write_tables(store: ArtifactStore, run: str) -> Path:
+    """`runs/<run>/sequences.csv`: one row per sequence, status, error and every scalar metric."""
+    import pandas as pd
+    manifest = Manifest.load(store, run)
+    rows = []
+    for sid, seq in manifest.sequences.items():
+        row = {"id": sid, "status": seq["status"], "failed_step": seq["failed_step"],
+               "error": seq["error"]}
+        for step, metrics in seq["metrics"].items():
+            row.update({f"{step}.{k}": v for k, v in metrics.items()
+                        if isinstance(v, (int, float, str, bool)) or v is None})
+        rows.append(row)
+    path = manifest.path.parent / "sequences.csv"
+    pd.DataFrame(rows).to_csv(path, index=False)
+    return path
+
+
+def build_report(store: ArtifactStore, run: str) -> tuple[str | None, str | None]:
+    """The report module's tables and figures, when it is installed: (where, error)."""
+    try:
+        from embody.report import build_report as build
+    except ImportError:
+        return None, None
+    try:
+        paths = build(store.root, run)
+    except Exception as exc:  # a report problem must not turn finished work into a failure
+        return None, f"{type(exc).__name__}: {exc}"
+    return str(getattr(paths, "out_dir", paths)), None
+
+
+def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
+                pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
+    """Run the pipeline over a dataset inside the current flow; returns the run summary."""
+    from embody.io import load_dataset
+
+    t0 = time.perf_counter()
+    store = ArtifactStore(cfg.run.store)
+    data = load_dataset(dataset, split)
+    refs = list(data)[: cfg.run.limit] if cfg.run.limit else list(data)
+    run = cfg.run.name or default_run_name(Path(dataset), split)
+    pipeline = pipeline or default_pipeline(critic=cfg.run.critic)
+    ctx = Context(cfg=cfg, store_root=str(store.root), run=run)
+    manifest = Manifest(store, run)
+    manifest.start([r.id for r in refs], dataset=str(dataset), split=split,
+                   steps=pipeline.names, config=cfg.model_dump(mode="json"))
+    size = cfg.run.batch_size
+    batches = [[new_record(r) for r in refs[i:i + size]] for i in range(0, len(refs), size)]
+    bar = Progress([s.name for s in pipeline.per_sequence], len(refs), enabled=progress)
+    driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers)
+    driver.run(batches)
+    manifest.save(finished=True)
+    table = write_tables(store, run)
+    report, report_error = build_report(store, run)
+    seqs = manifest.sequences
+    failures = [{"id": i, "step": s["failed_step"], "error": s["error"]}
+                for i, s in seqs.items() if s["status"] != "ok"]
+    return {"run": run, "store": str(store.root), "dataset": str(dataset), "split": split,
+            "total": len(seqs), "ok": len(seqs) - len(failures), "failed": len(failures),
+            "failures": failures, "computed": driver.computed,
+            "shared": {n: r.get("key") for n, r in driver.shared.items()},
+            "manifest": str(manifest.path), "table": str(table),
+            "report": report, "report_error": report_error,
+            "elapsed_s": round(time.perf_counter() - t0, 3)}
+
+
+@flow(name="embody-dataset", persist_result=False, log_prints=False, validate_parameters=False)
+def dataset_flow(dataset: str, split: str | None = None, config: dict[str, Any] | None = None,
+                 pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
+    """Prefect entry point; `config` is the full config as JSON data (deployments need JSON)."""
+    cfg = Config.model_validate(config or {})
+    return run_dataset(dataset, cfg=cfg, split=split, pipeline=pipeline, progress=progress)
+
+
+def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
+             pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
+    """Run `dataset_flow` with the task runner `cfg.run` asks for."""
+    runner = make_task_runner(cfg.run)
+    return dataset_flow.with_options(task_runner=runner)(
+        str(dataset), split, cfg.model_dump(mode="json"), pipeline, progress)

@@ -1,0 +1,206 @@
+"""The artifact store: one zarr v3 group per artifact, published atomically.
+
+Layout under the store root::
+
+    artifacts/<step>/<key[:2]>/<key>/     zarr group: arrays + attrs {"embody": info, "result": attrs}
+    counters/<step>.jsonl                 one line per computation (what tests and benchmarks count)
+    runs/<run>/manifest.json              see `store.manifest`
+
+A group is written under a temporary sibling name and renamed into place, so a reader either
+sees a complete artifact or none, and a killed writer leaves only a temp that `gc` removes.
+Directory renames are atomic on one filesystem and fail when the target exists, which is what
+makes concurrent writers (threads, processes, Dask workers) safe: the loser discards its temp.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import socket
+import time
+import uuid
+from dataclasses import dataclass
+from functools import lru_cache
+from importlib import metadata
+from pathlib import Path
+from typing import Any, Iterator, Mapping
+
+import numpy as np
+import zarr
+
+from embody.errors import ConfigError
+from store.keys import arrays_checksum
+
+__all__ = ["Artifact", "ArtifactStore", "jsonable", "package_versions"]
+
+_TMP = ".tmp-"
+
+
+@lru_cache(maxsize=1)
+def package_versions() -> dict[str, str]:
+    """Versions recorded with every artifact, so a result can be traced to its software."""
+    out = {}
+    for name in ("embody", "numpy", "torch", "zarr", "mujoco", "pytorch-kinematics", "mannequin-x"):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            pass
+    return out
+
+
+@dataclass(frozen=True)
+class Artifact:
+    """A stored result: its arrays, the stage's own attrs and the store's bookkeeping (`info`)."""
+
+    step: str
+    key: str
+    arrays: dict[str, np.ndarray]
+    attrs: dict[str, Any]
+    info: dict[str, Any]
+
+
+def jsonable(value: Any) -> Any:
+    """Attrs go to zarr.json: numpy scalars and arrays become plain JSON values."""
+    def default(o: Any) -> Any:
+        if isinstance(o, np.generic):
+            return o.item()
+        if isinstance(o, np.ndarray):
+            return o.tolist()
+        return str(o)
+    return json.loads(json.dumps(value, default=default))
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class ArtifactStore:
+    """Content-addressed zarr artifacts on a local filesystem."""
+
+    def __init__(self, root: str | Path) -> None:
+        text = str(root)
+        if "://" in text:
+            raise ConfigError("run.store", f"the store must be a local path, got {text!r}")
+        self.root = Path(root).expanduser().resolve()
+        self.artifacts_dir = self.root / "artifacts"
+        self.counters_dir = self.root / "counters"
+        self.runs_dir = self.root / "runs"
+
+    # -- artifacts -------------------------------------------------------------------------
+    def path(self, step: str, key: str) -> Path:
+        return self.artifacts_dir / step / key[:2] / key
+
+    def has(self, step: str, key: str) -> bool:
+        return (self.path(step, key) / "zarr.json").is_file()
+
+    def publish(self, step: str, key: str, arrays: Mapping[str, np.ndarray],
+                attrs: Mapping[str, Any], info: Mapping[str, Any]) -> bool:
+        """Write an artifact atomically; False when another writer published the key first."""
+        final = self.path(step, key)
+        if self.has(step, key):
+            return False
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = final.parent / f"{key}{_TMP}{socket.gethostname()}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        try:
+            arrays = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
+            group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+            for name, a in arrays.items():
+                arr = group.create_array(name, shape=a.shape, dtype=a.dtype,
+                                         chunks=a.shape if a.ndim else (), overwrite=True)
+                arr[...] = a
+            group.attrs.update(jsonable({
+                "embody": {**info, "step": step, "key": key, "status": "ok",
+                           "checksum": arrays_checksum(arrays), "versions": package_versions(),
+                           "host": socket.gethostname(), "created": time.time()},
+                "result": dict(attrs),
+            }))
+            os.rename(tmp, final)
+            return True
+        except OSError:
+            if self.has(step, key):  # a concurrent writer won the rename
+                return False
+            raise
+        finally:
+            if tmp.exists():
+                shutil.rmtree(tmp, ignore_errors=True)
+
+    def info(self, step: str, key: str) -> dict[str, Any]:
+        """The bookkeeping attrs of an artifact, read without opening its arrays."""
+        doc = json.loads((self.path(step, key) / "zarr.json").read_text())
+        return doc.get("attributes", {}).get("embody", {})
+
+    def read(self, step: str, key: str) -> Artifact:
+        group = zarr.open_group(str(self.path(step, key)), mode="r")
+        arrays = {name: np.asarray(arr[...]) for name, arr in group.arrays()}
+        attrs = dict(group.attrs)
+        return Artifact(step, key, arrays, attrs.get("result", {}), attrs.get("embody", {}))
+
+    def entries(self) -> Iterator[tuple[str, str, Path]]:
+        """Every published artifact as (step, key, path); temps are skipped."""
+        if not self.artifacts_dir.is_dir():
+            return
+        for step_dir in sorted(p for p in self.artifacts_dir.iterdir() if p.is_dir()):
+            for prefix in sorted(p for p in step_dir.iterdir() if p.is_dir()):
+                for path in sorted(prefix.iterdir()):
+                    if _TMP not in path.name and (path / "zarr.json").is_file():
+                        yield step_dir.name, path.name, path
+
+    def verify(self, step: str, key: str) -> str | None:
+        """Re-hash an artifact's arrays; the problem in one line, or None when intact."""
+        try:
+            art = self.read(step, key)
+        except Exception as exc:  # any unreadable chunk or metadata is corruption
+            return f"unreadable: {type(exc).__name__}: {exc}"
+        expected = art.info.get("checksum")
+        if expected is None:
+            return "no checksum recorded"
+        if arrays_checksum(art.arrays) != expected:
+            return "checksum mismatch"
+        return None
+
+    def remove(self, step: str, key: str) -> None:
+        shutil.rmtree(self.path(step, key), ignore_errors=True)
+
+    def stale_temps(self, max_age_s: float = 24 * 3600) -> list[Path]:
+        """Temps of writers that died (same host, PID gone) or are older than `max_age_s`."""
+        if not self.artifacts_dir.is_dir():
+            return []
+        host, now, out = socket.gethostname(), time.time(), []
+        for path in self.artifacts_dir.glob(f"*/*/*{_TMP}*"):
+            tag = path.name.split(_TMP, 1)[1]
+            t_host, _, rest = tag.rpartition("-")[0].rpartition("-")
+            pid = int(rest) if rest.isdigit() else -1
+            dead = t_host == host and not _pid_alive(pid)
+            if dead or now - path.stat().st_mtime > max_age_s:
+                out.append(path)
+        return out
+
+    # -- counters --------------------------------------------------------------------------
+    def record(self, step: str, key: str, **fields: Any) -> None:
+        """Append one computation line; a single O_APPEND write keeps concurrent lines whole."""
+        self.counters_dir.mkdir(parents=True, exist_ok=True)
+        line = json.dumps({"step": step, "key": key, "time": time.time(), "pid": os.getpid(),
+                           **fields}, sort_keys=True, default=str) + "\n"
+        fd = os.open(self.counters_dir / f"{step}.jsonl", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        try:
+            os.write(fd, line.encode("utf-8"))
+        finally:
+            os.close(fd)
+
+    def computations(self, step: str | None = None) -> list[dict[str, Any]]:
+        """Every recorded computation (of one step, or all), oldest first."""
+        if not self.counters_dir.is_dir():
+            return []
+        files = [self.counters_dir / f"{step}.jsonl"] if step else sorted(self.counters_dir.glob("*.jsonl"))
+        rows = []
+        for f in files:
+            if f.is_file():
+                rows += [json.loads(line) for line in f.read_text().splitlines() if line.strip()]
+        return sorted(rows, key=lambda r: r["time"])

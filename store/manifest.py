@@ -1,0 +1,88 @@
+"""Run manifests: which artifact each sequence's steps produced in one named run.
+
+`runs/<run>/manifest.json` maps sequence id → {status, error, steps: {step: key}, metrics}. It is
+rewritten atomically (temp + `os.replace`) as sequences finish, so a killed run still leaves a
+valid manifest, and `gc` can tell which artifacts any run still references.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from pathlib import Path
+from typing import Any, Iterable
+
+from store.artifacts import ArtifactStore
+
+__all__ = ["Manifest", "load_manifests", "write_json_atomic"]
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(json.dumps(data, indent=1, sort_keys=True, default=str))
+    os.replace(tmp, path)
+
+
+class Manifest:
+    """The manifest of one run; only the flow's driver process writes it."""
+
+    def __init__(self, store: ArtifactStore, run: str) -> None:
+        self.store = store
+        self.run = run
+        self.path = store.runs_dir / run / "manifest.json"
+        self.data: dict[str, Any] = {"run": run, "created": time.time(), "shared": {},
+                                     "sequences": {}}
+
+    @classmethod
+    def load(cls, store: ArtifactStore, run: str) -> "Manifest":
+        m = cls(store, run)
+        m.data = json.loads(m.path.read_text())
+        return m
+
+    @property
+    def sequences(self) -> dict[str, dict[str, Any]]:
+        return self.data["sequences"]
+
+    def start(self, ids: Iterable[str], **info: Any) -> None:
+        """Begin (or restart) the run: every sequence pending, earlier results dropped."""
+        self.data.update(info, created=time.time(), finished=None, shared={})
+        self.data["sequences"] = {i: {"status": "pending", "error": None, "failed_step": None,
+                                      "steps": {}, "metrics": {}} for i in ids}
+        self.save()
+
+    def update(self, record: dict[str, Any]) -> None:
+        """Merge one sequence record produced by a step."""
+        seq = self.sequences[record["id"]]
+        seq["steps"].update(record.get("keys", {}))
+        seq["metrics"].update(record.get("metrics", {}))
+        if record.get("status") == "failed":
+            seq.update(status="failed", error=record.get("error"), failed_step=record.get("failed_step"))
+
+    def set_shared(self, step: str, key: str | None) -> None:
+        if key is not None:
+            self.data["shared"][step] = key
+
+    def finish_sequence(self, seq_id: str) -> None:
+        seq = self.sequences[seq_id]
+        if seq["status"] == "pending":
+            seq["status"] = "ok"
+
+    def save(self, finished: bool = False) -> None:
+        if finished:
+            self.data["finished"] = time.time()
+        write_json_atomic(self.path, self.data)
+
+    def keys(self) -> set[tuple[str, str]]:
+        """Every (step, key) this run references."""
+        out = set(self.data.get("shared", {}).items())
+        for seq in self.sequences.values():
+            out.update(seq["steps"].items())
+        return out
+
+
+def load_manifests(store: ArtifactStore) -> list[Manifest]:
+    if not store.runs_dir.is_dir():
+        return []
+    return [Manifest.load(store, p.parent.name) for p in sorted(store.runs_dir.glob("*/manifest.json"))]

@@ -1,0 +1,118 @@
+"""Run one step over a batch of sequences, using the store as the cache (no Prefect here).
+
+Records travel between steps instead of arrays: ``{"id", "status", "error", "failed_step",
+"keys": {step: key}, "metrics": {step: {...}}, "computed": [step, ...]}``. A failing sequence is
+marked failed and skipped by later steps; the rest of the batch goes on.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from typing import Any
+
+from store.artifacts import jsonable
+from store.keys import files_key
+from tasks.pipeline import Context, Step
+
+__all__ = ["InjectedFailure", "new_record", "run_batch", "run_shared", "source_key"]
+
+
+class InjectedFailure(RuntimeError):
+    """Raised for ids in `debug.fail_on`, to exercise failure isolation and resume."""
+
+
+def new_record(ref: Any) -> dict[str, Any]:
+    return {"id": ref.id, "ref": ref, "status": "ok", "error": None, "failed_step": None,
+            "keys": {}, "metrics": {}, "computed": []}
+
+
+def source_key(step: Step, ctx: Context, ref: Any) -> str:
+    """Source artifacts hash their files' bytes (and the text, which the files may lack)."""
+    files = tuple(ref.source_files) or (ref.path,)
+    return step.key(ctx.cfg, {"files": files_key(files, extra=ref.text or "")})
+
+
+def _input_keys(step: Step, keys: dict[str, str], shared: dict[str, str]) -> dict[str, str]:
+    return {s.name: (shared if s.shared else keys)[s.name] for s in step.inputs}
+
+
+def _compute(step: Step, ctx: Context, key: str, inputs: dict[str, Any], input_keys: dict[str, str],
+             seq_id: str | None) -> dict[str, Any]:
+    """Compute, publish and count one artifact; returns its metrics."""
+    store = ctx.store
+    t0 = time.perf_counter()
+    result = step.compute(ctx, inputs)
+    compute_s = time.perf_counter() - t0
+    metrics = jsonable(step.metrics(result))
+    published = store.publish(step.name, key, result.to_arrays(), result.to_attrs(), {
+        "inputs": input_keys, "config": step.config(ctx.cfg), "version": step.version,
+        "timings": {"compute_s": compute_s}, "run": ctx.run, "sequence": seq_id, "metrics": metrics})
+    store.record(step.name, key, sequence=seq_id, run=ctx.run, compute_s=compute_s,
+                 published=published)
+    return metrics
+
+
+def _load_inputs(step: Step, ctx: Context, input_keys: dict[str, str]) -> dict[str, Any]:
+    store, out = ctx.store, {}
+    for s in step.inputs:
+        art = store.read(s.name, input_keys[s.name])
+        out[s.name] = s.load(art.arrays, art.attrs)
+    return out
+
+
+def run_batch(step: Step, ctx: Context, records: list[dict[str, Any]],
+              shared: dict[str, str]) -> list[dict[str, Any]]:
+    """Apply `step` to every still-ok record: a store hit only reads metrics, a miss computes."""
+    store = ctx.store
+    fail_step = ctx.cfg.debug.fail_step
+    out = []
+    for rec in records:
+        rec = dict(rec, keys=dict(rec["keys"]), metrics=dict(rec["metrics"]),
+                   computed=list(rec["computed"]))
+        out.append(rec)
+        if rec["status"] != "ok":
+            continue
+        try:
+            if rec["id"] in ctx.cfg.debug.fail_on and step.name == fail_step:
+                raise InjectedFailure(f"debug.fail_on lists {rec['id']!r}")
+            if rec.get("ref") is not None:
+                key, input_keys = source_key(step, ctx, rec["ref"]), {}
+            else:
+                input_keys = _input_keys(step, rec["keys"], shared)
+                key = step.key(ctx.cfg, input_keys)
+            if store.has(step.name, key):
+                metrics = store.info(step.name, key).get("metrics", {})
+            else:
+                inputs = ({"ref": rec["ref"]} if rec.get("ref") is not None
+                          else _load_inputs(step, ctx, input_keys))
+                metrics = _compute(step, ctx, key, inputs, input_keys, rec["id"])
+                rec["computed"].append(step.name)
+            rec["keys"][step.name] = key
+            rec["metrics"][step.name] = metrics
+        except Exception as exc:  # isolate: this sequence fails, the batch goes on
+            rec.update(status="failed", failed_step=step.name,
+                       error=f"{step.name}: {type(exc).__name__}: {exc}",
+                       traceback=traceback.format_exc(limit=8))
+        rec.pop("ref", None)
+    return out
+
+
+def run_shared(step: Step, ctx: Context, shared: dict[str, str]) -> dict[str, Any]:
+    """Compute (or hit) a once-per-run step; same record shape without an id."""
+    rec: dict[str, Any] = {"step": step.name, "status": "ok", "error": None, "key": None,
+                           "metrics": {}, "computed": False}
+    try:
+        input_keys = _input_keys(step, {}, shared)
+        key = step.key(ctx.cfg, input_keys)
+        if ctx.store.has(step.name, key):
+            rec["metrics"] = ctx.store.info(step.name, key).get("metrics", {})
+        else:
+            rec["metrics"] = _compute(step, ctx, key, _load_inputs(step, ctx, input_keys),
+                                      input_keys, None)
+            rec["computed"] = True
+        rec["key"] = key
+    except Exception as exc:
+        rec.update(status="failed", error=f"{step.name}: {type(exc).__name__}: {exc}",
+                   traceback=traceback.format_exc(limit=8))
+    return rec

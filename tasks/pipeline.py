@@ -1,0 +1,100 @@
+"""Steps and pipelines as the orchestrator sees them (no Prefect here).
+
+A `Step` names a stage, its code version, the config sections it reads, its upstream steps and
+two callables: `compute(ctx, inputs) -> result` (one library call) and `load(arrays, attrs)`
+(the result's `from_arrays`). Adding a stage to the pipeline means writing one such definition.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping
+
+from embody.config import Config
+from store.artifacts import ArtifactStore
+from store.keys import content_key
+
+__all__ = ["Context", "Pipeline", "Step", "resource"]
+
+#: Expensive per-process objects (body model, robot), keyed by what determines them.
+_RESOURCES: dict[tuple[str, str], Any] = {}
+
+
+def resource(name: str, identity: str, factory: Callable[[], Any]) -> Any:
+    """Build `factory()` once per process and identity; batches in one worker share it."""
+    slot = (name, identity)
+    if slot not in _RESOURCES:
+        _RESOURCES[slot] = factory()
+    return _RESOURCES[slot]
+
+
+def _default_metrics(result: Any) -> dict[str, Any]:
+    metrics = getattr(result, "metrics", None)
+    return dict(metrics) if isinstance(metrics, Mapping) else {}
+
+
+@dataclass(frozen=True)
+class Step:
+    """One stage: how to key it, compute it and load its stored result."""
+
+    name: str
+    #: Bump by hand whenever the step's output changes for the same inputs and config.
+    version: str
+    #: Config sections whose canonical JSON enters the content key.
+    sections: tuple[str, ...]
+    compute: Callable[["Context", dict[str, Any]], Any] = field(repr=False)
+    load: Callable[[dict[str, Any], dict[str, Any]], Any] = field(repr=False)
+    #: Upstream steps whose results `compute` receives, by name.
+    inputs: tuple["Step", ...] = ()
+    #: Computed once per run (e.g. the shape fit per robot + body), not per sequence.
+    shared: bool = False
+    metrics: Callable[[Any], dict[str, Any]] = field(default=_default_metrics, repr=False)
+
+    def key(self, cfg: Config, input_keys: Mapping[str, str]) -> str:
+        return content_key(self.name, self.version, self.config(cfg), input_keys)
+
+    def config(self, cfg: Config) -> dict[str, str]:
+        return {s: cfg.section_json(s) for s in self.sections}
+
+
+@dataclass(frozen=True)
+class Pipeline:
+    """The source step (one `SequenceRef` → `Motion`) followed by the steps in run order."""
+
+    source: Step
+    steps: tuple[Step, ...]
+
+    @property
+    def per_sequence(self) -> tuple[Step, ...]:
+        return (self.source,) + tuple(s for s in self.steps if not s.shared)
+
+    @property
+    def shared(self) -> tuple[Step, ...]:
+        return tuple(s for s in self.steps if s.shared)
+
+    @property
+    def names(self) -> list[str]:
+        return [self.source.name] + [s.name for s in self.steps]
+
+
+@dataclass
+class Context:
+    """What every step call sees: the config, the store and the run; picklable for workers."""
+
+    cfg: Config
+    store_root: str
+    run: str
+
+    @property
+    def store(self) -> ArtifactStore:
+        return ArtifactStore(self.store_root)
+
+    @property
+    def body(self) -> Any:
+        from embody.body import load_body_model
+        return resource("body", self.cfg.section_json("body"), lambda: load_body_model(self.cfg.body))
+
+    @property
+    def robot(self) -> Any:
+        from embody.robot import load_robot
+        return resource("robot", self.cfg.section_json("robot"), lambda: load_robot(self.cfg.robot))

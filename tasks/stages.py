@@ -1,0 +1,129 @@
+"""The default pipeline: each step is one library call plus its key ingredients.
+
+source → collide → shape_fit (shared) → retarget → [refine] → metrics. Library imports happen
+inside the steps, so defining the pipeline costs nothing and never imports a stage's deps.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from embody.motion import Motion
+from tasks.pipeline import Context, Pipeline, Step
+
+__all__ = ["Metrics", "default_pipeline", "SOURCE", "COLLIDE", "SHAPE_FIT", "RETARGET",
+           "REFINE", "METRICS"]
+
+
+@dataclass
+class Metrics:
+    """The `metrics` step's result: a flat dict of numbers, stored as attrs only."""
+
+    metrics: dict[str, Any] = field(default_factory=dict)
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        return {}
+
+    def to_attrs(self) -> dict[str, Any]:
+        return {"metrics": self.metrics}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> "Metrics":
+        return cls(dict(attrs.get("metrics", {})))
+
+
+def _own_metrics(result: Metrics) -> dict[str, Any]:
+    return result.metrics
+
+
+def _load_source(ctx: Context, inputs: dict[str, Any]) -> Motion:
+    return inputs["ref"].load()
+
+
+def _source_metrics(motion: Motion) -> dict[str, Any]:
+    return {"frames": motion.num_frames, "fps": motion.fps}
+
+
+def _collide(ctx: Context, inputs: dict[str, Any]) -> Any:
+    from embody.collision import mitigate
+    return mitigate(inputs["source"], ctx.body, ctx.cfg.collision)
+
+
+def _collision_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
+    from embody.collision import CollisionResult
+    return CollisionResult.from_arrays(arrays, attrs)
+
+
+def _shape_fit(ctx: Context, inputs: dict[str, Any]) -> Any:
+    from embody.retarget import shape_fit
+    return shape_fit(ctx.robot, ctx.body, ctx.cfg.ik)
+
+
+def _shape_fit_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
+    from embody.retarget import ShapeFit
+    return ShapeFit.from_arrays(arrays, attrs)
+
+
+def _retarget(ctx: Context, inputs: dict[str, Any]) -> Any:
+    from embody.retarget import build_targets, solve
+    targets = build_targets(inputs["collide"].motion, ctx.body, inputs["shape_fit"], ctx.robot)
+    return solve(ctx.robot, targets, ctx.cfg.ik)
+
+
+def _ik_solution(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
+    from embody.retarget import IKSolution
+    return IKSolution.from_arrays(arrays, attrs)
+
+
+def _refine(ctx: Context, inputs: dict[str, Any]) -> Any:
+    """Critic rounds after IK; the reference targets are rebuilt exactly as `retarget` built them."""
+    from embody.critic import refine
+    from embody.retarget import build_targets
+    motion, fit = inputs["collide"].motion, inputs["shape_fit"]
+    targets = build_targets(motion, ctx.body, fit, ctx.robot)
+    return refine(motion, ctx.body, fit, ctx.robot, targets, inputs["retarget"], ctx.cfg.critic,
+                  ctx.cfg.ik, ctx.cfg.render)
+
+
+def _refine_metrics(result: Any) -> dict[str, Any]:
+    return {**result.final.metrics, "accepted": bool(result.accepted),
+            "rounds": int(result.final.index)}
+
+
+def _refine_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
+    from embody.critic import RefineResult
+    return RefineResult.from_arrays(arrays, attrs)
+
+
+def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
+    """Smoothness of the final joint trajectory (the refined one when the critic ran)."""
+    from embody.metrics import mean_jerk
+    ik = inputs["retarget"]
+    q = np.asarray(inputs["refine"].q if "refine" in inputs else ik.q)
+    return Metrics({"frames": int(q.shape[0]), "joints": int(q.shape[-1]),
+                    "duration_s": float(q.shape[0] / ik.fps), "mean_jerk": mean_jerk(q, ik.fps),
+                    "final": "refine" if "refine" in inputs else "retarget"})
+
+
+SOURCE = Step("source", "1", (), _load_source, Motion.from_arrays, metrics=_source_metrics)
+COLLIDE = Step("collide", "1", ("body", "collision"), _collide, _collision_result, (SOURCE,))
+SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
+                 shared=True)
+RETARGET = Step("retarget", "1", ("body", "robot", "ik"), _retarget, _ik_solution,
+                (COLLIDE, SHAPE_FIT))
+REFINE = Step("refine", "1", ("body", "robot", "ik", "render", "critic"), _refine,
+              _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics)
+METRICS = Step("metrics", "1", (), _trajectory_metrics, Metrics.from_arrays, (RETARGET,),
+               metrics=_own_metrics)
+METRICS_REFINED = Step("metrics", "1", (), _trajectory_metrics, Metrics.from_arrays,
+                       (RETARGET, REFINE), metrics=_own_metrics)
+
+
+def default_pipeline(critic: bool = False) -> Pipeline:
+    """The full chain; `critic` adds the refinement step between IK and metrics."""
+    if critic:
+        return Pipeline(SOURCE, (COLLIDE, SHAPE_FIT, RETARGET, REFINE, METRICS_REFINED))
+    return Pipeline(SOURCE, (COLLIDE, SHAPE_FIT, RETARGET, METRICS))

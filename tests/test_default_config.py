@@ -1,0 +1,22 @@
+"""configs/default.yaml is generated from the typed models; the two must agree."""
+
+from pathlib import Path
+
+import yaml
+
+from embody.config import Config, configs_dir, load_config
+
+
+def test_default_yaml_matches_model_defaults():
+    data = yaml.safe_load((configs_dir() / "default.yaml").read_text())
+    assert data == Config().model_dump(mode="json")
+
+
+def test_default_yaml_has_every_stage_section():
+    data = yaml.safe_load((configs_dir() / "default.yaml").read_text())
+    for section in ("body", "collision", "robot", "ik", "render", "critic", "run"):
+        assert section in data, section
+
+
+def test_loaded_default_equals_model_default():
+    assert load_config() == Config()

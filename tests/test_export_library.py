@@ -1,0 +1,54 @@
+"""The trajectory library writer: valid trajectories exported, failing ones excluded and listed."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from embody.errors import InputError
+from embody.report.library import Trajectory, export_library
+
+NAMES = ("left_shoulder_pitch_joint", "left_elbow_joint", "right_elbow_joint")
+
+
+def _traj(sid: str, **validation) -> Trajectory:
+    q = np.linspace(0, 1, 30)[:, None] * np.array([0.1, 0.2, -0.3])
+    return Trajectory(id=sid, robot="unitree_g1_dex3", joint_names=NAMES, q=q, dt=0.02,
+                      text=f"sign {sid}", validation={"joint_limit_violations": 0,
+                      "velocity_violations": 0, "self_collision_frames": 0,
+                      "wrist_pos_mean_mm": 12.5, **validation})
+
+
+@pytest.mark.parametrize("fmt", ["npz", "csv"])
+def test_export_excludes_failing(tmp_path, fmt) -> None:
+    trajs = [_traj("a"), _traj("b/2", self_collision_frames=3), _traj("c", joint_limit_violations=1)]
+    library, excluded = export_library(trajs, tmp_path, fmt)
+    assert library["id"].tolist() == ["a"]
+    assert excluded["id"].tolist() == ["b/2", "c"]
+    assert excluded["reason"].tolist() == ["self_collision_frames=3", "joint_limit_violations=1"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["library.csv", "excluded.csv",
+                                                                 f"a.{fmt}"])
+    index = pd.read_csv(tmp_path / "library.csv")
+    assert index.loc[0, "file"] == f"a.{fmt}" and index.loc[0, "frames"] == 30
+    assert index.loc[0, "validation.wrist_pos_mean_mm"] == 12.5
+    if fmt == "npz":
+        back = Trajectory.load(tmp_path / "a.npz")
+        np.testing.assert_array_equal(back.q, trajs[0].q)
+        assert back.joint_names == NAMES and back.dt == 0.02 and back.text == "sign a"
+        assert back.validation == trajs[0].validation and back.id == "a"
+    else:
+        table = pd.read_csv(tmp_path / "a.csv")
+        assert table.columns.tolist() == ["time", *NAMES]
+        np.testing.assert_allclose(table["time"], np.arange(30) * 0.02, atol=1e-12)
+        np.testing.assert_allclose(table[list(NAMES)].to_numpy(), trajs[0].q, atol=1e-8)
+
+
+def test_bad_inputs(tmp_path) -> None:
+    with pytest.raises(InputError, match="q"):
+        Trajectory(id="x", robot="r", joint_names=NAMES, q=np.zeros((5, 2)), dt=0.02)
+    (tmp_path / "junk.npz").write_bytes(b"not a zip")
+    with pytest.raises(InputError, match="junk.npz"):
+        Trajectory.load(tmp_path / "junk.npz")
+    with pytest.raises(InputError, match="npz"):
+        Trajectory.load(tmp_path / "a.csv")

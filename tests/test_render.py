@@ -1,0 +1,131 @@
+"""Offscreen rendering: image sizes, the robot and reference where the cameras should see them,
+deterministic bytes, keyframes at extrema, the comparison sheet and the preview."""
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from embody.config import load_config
+from embody.config.render import RenderConfig
+from embody.errors import ConfigError
+from embody.render import SceneRenderer, comparison_sheet, png_bytes, select_keyframes, write_preview
+from embody.robot import load_robot
+
+W, H = 96, 72
+CFG = RenderConfig(width=W, height=H)
+
+
+def _cube(center, half=0.05):
+    corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float) * half
+    faces = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
+                      [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
+    return corners + np.asarray(center, float), faces
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot()
+
+
+@pytest.fixture(scope="module")
+def renderer(robot):
+    verts, faces = _cube((0, 0, 0))
+    r = SceneRenderer(robot, CFG, faces, verts)
+    yield r
+    r.close()
+
+
+def _mask(img):
+    return img.max(axis=-1) > 20  # background is black
+
+
+def _bbox(mask):
+    ys, xs = np.nonzero(mask)
+    return xs.min(), xs.max(), ys.min(), ys.max()
+
+
+def test_robot_is_visible_inside_the_expected_box(robot, renderer):
+    imgs = renderer.robot_frames(np.stack([robot.tpose, np.zeros(robot.n_joints)]))
+    assert imgs.shape == (2, H, W, 3) and imgs.dtype == np.uint8
+    tpose, rest = _mask(imgs[0]), _mask(imgs[1])
+    for m in (tpose, rest):
+        assert m[H // 2 - 4:H // 2 + 4, W // 2 - 4:W // 2 + 4].mean() > 0.5  # torso at the centre
+        assert not m[:3, :3].any() and not m[-3:, -3:].any()  # corners stay background
+        assert 0.05 < m.mean() < 0.6
+    x0, x1, _, _ = _bbox(tpose)
+    r0, r1, _, _ = _bbox(rest)
+    assert (x1 - x0) > 1.5 * (r1 - r0)  # T-pose arms reach far out sideways
+    assert abs((x0 + x1) / 2 - W / 2) < 4  # and symmetric about the image centre
+
+
+def test_left_arm_up_shows_on_image_right_and_side_view_differs(robot, renderer):
+    q = robot.tpose.copy()
+    q[robot.joint_index("left_shoulder_roll_joint")] = 2.6  # raise the left arm
+    up = _mask(renderer.robot_frames(q[None])[0])
+    base = _mask(renderer.robot_frames(robot.tpose[None])[0])
+    changed = up ^ base
+    ys, xs = np.nonzero(changed)
+    assert xs.mean() > W / 2  # the robot faces the camera: its left is the image's right
+    assert ys[up[ys, xs]].mean() < H / 2  # new pixels are above the centre
+    side = _mask(renderer.robot_frames(robot.tpose[None], view="side")[0])
+    assert not np.array_equal(side, base)
+    x0, x1, _, _ = _bbox(side)
+    assert x1 - x0 < (_bbox(base)[1] - _bbox(base)[0]) / 2  # arms point at the side camera
+
+
+def test_reference_mesh_lines_up_with_the_torso_frame(renderer):
+    # a cube 30 cm to the robot's left of the look-at point, at its height
+    verts, _ = _cube((0.1, 0.3, 0.15))
+    img = renderer.reference_frames(verts[None])[0]
+    m = _mask(img)
+    assert m.any()
+    ys, xs = np.nonzero(m)
+    assert xs.mean() > 0.65 * W and abs(ys.mean() - H / 2) < 0.15 * H
+    verts2, _ = _cube((0.1, -0.3, 0.15))
+    xs2 = np.nonzero(_mask(renderer.reference_frames(verts2[None])[0]))[1]
+    assert xs2.mean() < 0.35 * W
+
+
+def test_same_input_same_png_bytes(robot, renderer):
+    a = png_bytes(renderer.robot_frames(robot.tpose[None])[0])
+    b = png_bytes(renderer.robot_frames(robot.tpose[None])[0])
+    assert a == b
+
+
+def test_keyframes_at_holds_and_extremes():
+    t = np.arange(90)
+    # left wrist: still at x=0 until 20, moves to x=1 by 40, holds to 60, returns by 80
+    x = np.interp(t, [0, 20, 40, 60, 80, 89], [0, 0, 1, 1, 0, 0])
+    pos = np.zeros((90, 2, 3))
+    pos[:, 0, 0] = x
+    pos[:, 1, 2] = 0.3 * np.sin(t / 89 * np.pi)  # right wrist: one up-down swing, peak at the middle
+    k = select_keyframes(pos, 4)
+    assert len(k) == 4 and np.all(np.diff(k) > 0)
+    assert any(40 <= i <= 60 for i in k)  # the hold at the extreme position
+    assert np.array_equal(k, select_keyframes(pos, 4))
+    assert len(select_keyframes(pos[:3], 8)) == 3
+    many = select_keyframes(pos, 30)
+    assert len(many) == 30 and len(set(many.tolist())) == 30
+
+
+def test_sheet_layout_and_preview_files(tmp_path):
+    k = 3
+    rows = [("human", np.full((k, H, W, 3), 80, np.uint8)), ("robot", np.full((k, H, W, 3), 160, np.uint8))]
+    sheet = comparison_sheet(rows, ["f0", "f5", "f9"], title="t")
+    assert sheet.size[0] > k * W and sheet.size[1] > 2 * H
+    arr = np.asarray(sheet)
+    for value in (80, 160):  # every tile pasted whole (a few label pixels may share the value)
+        assert k * W * H <= (arr == value).all(axis=-1).sum() < k * W * H + 100
+    assert png_bytes(sheet) == png_bytes(comparison_sheet(rows, ["f0", "f5", "f9"], title="t"))
+    frames = np.random.default_rng(0).integers(0, 255, (6, H, W, 3), dtype=np.uint8)
+    gif = write_preview(frames, tmp_path / "p", 10, "gif")
+    assert gif.suffix == ".gif" and Image.open(gif).n_frames == 6
+    mp4 = write_preview(frames, tmp_path / "p", 10, "mp4")
+    assert mp4.suffix == ".mp4" and mp4.read_bytes()[4:8] == b"ftyp"
+
+
+def test_render_config_validation():
+    with pytest.raises(ConfigError, match="render.views"):
+        load_config(sets=["render.views=[front, front]"])
+    with pytest.raises(ConfigError, match="render.width"):
+        load_config(sets=["render.width=0"])

@@ -1,0 +1,283 @@
+"""A small real run (Prefect flow, critic on, one failing sequence) reported and exported.
+
+The tables must hold exactly what the stages' own metric functions give on the stored
+artifacts; the page must load in Chromium with every image; export/play must round-trip.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from embody.cli import main
+from embody.config import load_config
+
+ROBOT = "unitree_g1_dex3"
+RUN = "tiny"
+CHEAP = ["collision.steps=3", "collision.vertex_stride=8", "ik.iterations=3",
+         "ik.shape_iterations=10", "critic.rounds=1", "render.preview_format=none",
+         "render.width=64", "render.height=48", "render.keyframes=2", "run.workers=1",
+         "run.critic=true", 'debug.fail_on=["seq2"]']
+
+
+def _dataset(root: Path, frames: int = 10) -> Path:
+    """Three AMASS-style sequences whose forearms cross into the chest (they collide)."""
+    root.mkdir(parents=True)
+    for k in range(3):
+        poses = np.zeros((frames, 165))
+        amp = 1.4 + 0.6 * np.sin(np.linspace(0, np.pi, frames) + 0.5 * k)[:, None]
+        for j, v in ((16, [0, -0.6, -0.3]), (17, [0, 0.6, 0.3]), (18, [0, -1.2, 0]),
+                     (19, [0, 1.2, 0])):
+            poses[:, 3 * j:3 * j + 3] = amp * np.array(v)
+        np.savez(root / f"seq{k}.npz", poses=poses, trans=np.zeros((frames, 3)),
+                 betas=np.zeros(10), gender="neutral", mocap_frame_rate=30.0)
+    index = root / "index.csv"
+    index.write_text("path,text\n" + "".join(f"seq{k}.npz,sign {k} & more_50%\n" for k in range(3)))
+    return index
+
+
+def _flow(dataset: Path, store: Path, name: str, sets: list[str], pipeline=None) -> dict:
+    from flows.dataset import run_flow
+
+    cfg = load_config(sets=[*CHEAP, *sets, f"run.store={store}", f"run.name={name}"])
+    return run_flow(dataset, cfg, pipeline=pipeline)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory, prefect_harness):
+    """The store after one flow run; the flow itself wrote reports/<run> under `cwd`."""
+    tmp = tmp_path_factory.mktemp("report_run")
+    dataset = _dataset(tmp / "data")
+    cwd = os.getcwd()
+    os.chdir(tmp)
+    try:
+        summary = _flow(dataset, tmp / "store", RUN, [])
+    finally:
+        os.chdir(cwd)
+    assert summary["failed"] == 1 and summary["report_error"] is None, summary
+    return {"tmp": tmp, "store": tmp / "store", "dataset": dataset,
+            "report": tmp / "reports" / RUN}
+
+
+def _library_results(store: Path):
+    """The stage results of every ok sequence, read straight from the artifacts."""
+    from store import ArtifactStore, Manifest
+    from tasks.stages import COLLIDE, REFINE
+
+    st = ArtifactStore(store)
+    manifest = Manifest.load(st, RUN)
+    coll, refined = {}, []
+    for sid, seq in sorted(manifest.sequences.items()):
+        if "collide" in seq["steps"]:
+            art = st.read("collide", seq["steps"]["collide"])
+            coll[sid] = COLLIDE.load(art.arrays, art.attrs).metrics
+        if seq["status"] == "ok":
+            art = st.read("refine", seq["steps"]["refine"])
+            refined.append(REFINE.load(art.arrays, art.attrs))
+    return pd.DataFrame.from_dict(coll, orient="index"), refined
+
+
+def _close(a, b) -> bool:
+    if a is None or (isinstance(a, float) and math.isnan(a)):
+        return b is None or (isinstance(b, float) and math.isnan(b))
+    return math.isclose(float(a), float(b), rel_tol=1e-9, abs_tol=1e-12)
+
+
+def test_tables_equal_library_metric_functions(run) -> None:
+    from embody.collision.metrics import table1, table2
+    from embody.critic import refine_table
+    from embody.report.assemble import PAPER_TABLE1, number, table1_slot
+
+    coll, refined = _library_results(run["store"])
+    assert len(coll) == 2 and len(refined) == 2
+
+    t1 = pd.read_csv(run["report"] / "table1_collision.csv").set_index("Metric")
+    for label, value in table1(coll)["value"].items():
+        row, column = table1_slot(label)
+        cell = t1.loc[row, column]
+        assert (cell == value) if isinstance(value, str) else _close(cell, value), label
+    for row, paper in PAPER_TABLE1.items():
+        assert t1.loc[row, "Paper (reported)"] == paper
+    energy = t1.loc["Collision energy (mean)"]
+    assert float(energy["Before"]) > float(energy["After"])
+
+    t2 = pd.read_csv(run["report"] / "table2_ablation.csv").set_index("Setting")
+    lib2 = table2({"This run": coll})
+    for column in lib2.columns:
+        assert _close(t2.loc["This run", column], lib2.loc["This run", column]), column
+
+    t3 = pd.read_csv(run["report"] / "table3_retargeting.csv").set_index("Method")
+    lib3 = refine_table(refined)
+    for method, label in (("IK only", "IK-only"), ("Refined (geometric)", "refined")):
+        for header, key, scale in (("Wrist pos. mean (mm)", "wrist_mm_mean", 1),
+                                   ("Wrist pos. p95 (mm)", "wrist_mm_p95", 1),
+                                   ("Wrist rot. mean (deg)", "wrist_deg_mean", 1),
+                                   ("DTW wrist (mm)", "wrist_dtw_mm", 1),
+                                   ("Rounds", "rounds", 1), ("Accepted (%)", "accepted", 100)):
+            assert _close(t3.loc[method, header], lib3.loc[label, key] * scale), (method, header)
+        assert t3.loc[method, "N"] == 2
+        assert t3.loc[method, "Limit viol."] == 0  # the IK clips to the limits
+
+    summary = json.loads((run["report"] / "summary.json").read_text())
+    assert summary["sequences.ok"] == 2 and summary["sequences.failed"] == 1
+    assert _close(summary["collision.reduction_median_pct"], coll["reduction_pct"].median())
+    assert _close(summary["collision.improved_pct"],
+                  number(table1(coll).loc["Improved n/N (%)", "value"]))
+    assert _close(summary["retarget.refined.wrist_pos_mean_mm"], lib3.loc["refined", "wrist_mm_mean"])
+    assert _close(summary["retarget.ik_only.wrist_pos_mean_mm"], lib3.loc["IK-only", "wrist_mm_mean"])
+    for key in ("collision.pose_mse_median", "collision.daccel_mse_median",
+                "collision.runtime_mean_s", "retarget.refined.wrist_rot_mean_deg",
+                "retarget.limit_violations", "retarget.self_collision_frames"):
+        assert summary[key] is not None, key
+
+
+def test_report_files_and_page(run) -> None:
+    report = run["report"]
+    for name in ("table1_collision", "table2_ablation", "table3_retargeting"):
+        for ext in ("csv", "md", "tex"):
+            assert (report / f"{name}.{ext}").stat().st_size > 0
+        tex = (report / f"{name}.tex").read_text()
+        assert r"\toprule" in tex and r"\bottomrule" in tex
+    seqs = pd.read_csv(report / "sequences.csv", keep_default_na=False).set_index("id")
+    assert seqs["status"].to_dict() == {"seq0": "ok", "seq1": "ok", "seq2": "failed"}
+    assert "InjectedFailure" in seqs.loc["seq2", "error"]
+    assert seqs.loc["seq0", "text"] == "sign 0 & more_50%"
+    assert {"collision.reduction_pct", "ik.wrist_pos_err_mm",
+            "refined.geometric.wrist_mm_mean"} <= set(seqs.columns)
+    figures = {p.relative_to(report).as_posix() for p in (report / "figures").rglob("*.png")}
+    assert {"figures/collision_energy.png", "figures/pose_vs_reduction.png",
+            "figures/wrists/seq0.png", "figures/wrists/seq1.png",
+            "figures/sheets/seq0.png"} <= figures
+    html = (report / "index.html").read_text()
+    assert all(f in html for f in figures)
+    from test_report_html import CHROMIUM, check_report_page
+    if CHROMIUM is None:
+        pytest.skip("chromium not installed (CI: apt-get install -y chromium)")
+    attrs = check_report_page(report / "index.html", run["tmp"],
+                              {"table1_collision", "table2_ablation", "table3_retargeting"})
+    assert int(attrs["images"]) == len(figures)
+
+
+@pytest.mark.skipif(shutil.which("pdflatex") is None, reason="pdflatex not installed")
+def test_tex_tables_compile(run, tmp_path) -> None:
+    for name in ("table1_collision", "table2_ablation", "table3_retargeting"):
+        shutil.copy(run["report"] / f"{name}.tex", tmp_path)
+    (tmp_path / "doc.tex").write_text(
+        "\\documentclass{article}\\usepackage{booktabs}\\begin{document}"
+        "\\input{table1_collision.tex}\\input{table2_ablation.tex}\\input{table3_retargeting.tex}\\end{document}\n")
+    proc = subprocess.run(["pdflatex", "-interaction=nonstopmode", "-halt-on-error", "doc.tex"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout[-3000:]
+
+
+def test_report_cli_is_deterministic(run, tmp_path) -> None:
+    out = tmp_path / "again"
+    assert main(["report", RUN, "--store", str(run["store"]), "--out", str(out), "--json"]) == 0
+    for path in sorted(run["report"].rglob("*")):
+        if path.is_file():
+            rel = path.relative_to(run["report"])
+            assert (out / rel).read_bytes() == path.read_bytes(), rel
+    assert main(["report", "nope", "--store", str(run["store"])]) == 2
+
+
+def test_ablation_reuses_cache(run, tmp_path) -> None:
+    from embody.collision.metrics import table2
+    from embody.report.collect import metrics_frame, open_run
+    from store import ArtifactStore
+
+    st = ArtifactStore(run["store"])
+    before = {s: len(st.computations(s)) for s in ("source", "collide", "retarget", "refine")}
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        assert main(["report", RUN, "--store", str(run["store"]), "--out", str(tmp_path / "r"),
+                     "--ablation"]) == 0
+    finally:
+        os.chdir(cwd)
+    after = {s: len(st.computations(s)) for s in before}
+    # Only the two settings that differ from the run recompute the collision step.
+    assert after == {**before, "collide": before["collide"] + 4}
+    t2 = pd.read_csv(tmp_path / "r" / "table2_ablation.csv").set_index("Setting")
+    assert t2.index.tolist() == ["Collision only", "+ Closeness", "+ Closeness + Smoothness"]
+    settings = {s: metrics_frame(open_run(run["store"], f"{RUN}.ablation-{slug}")[1], "collide")
+                for s, slug in (("Collision only", "collision-only"), ("+ Closeness", "closeness"),
+                                ("+ Closeness + Smoothness", "closeness-smoothness"))}
+    lib = table2(settings)
+    for setting in lib.index:
+        for column in lib.columns:
+            assert _close(t2.loc[setting, column], lib.loc[setting, column]), (setting, column)
+
+
+@pytest.mark.parametrize("fmt", ["npz", "csv"])
+def test_export_library(run, tmp_path, fmt) -> None:
+    from embody.report.collect import run_trajectories
+    from embody.report.library import VIOLATION_KEYS, Trajectory
+
+    out = tmp_path / "lib"
+    code = main(["export", RUN, str(out), "--robot", ROBOT, "--store", str(run["store"]),
+                 "--format", fmt])
+    assert code == 1  # seq2 failed in the run, so it is excluded
+    library = pd.read_csv(out / "library.csv")
+    excluded = pd.read_csv(out / "excluded.csv").set_index("id")
+    assert excluded.loc["seq2", "status"] == "failed"
+    assert set(library["id"]) | set(excluded.index) == {"seq0", "seq1", "seq2"}
+    trajectories, _ = run_trajectories(run["store"], RUN, ROBOT)
+    for traj in trajectories:
+        bad = any(traj.validation[k] for k in VIOLATION_KEYS)
+        assert (traj.id in set(excluded.index)) == bad
+        if bad:
+            assert excluded.loc[traj.id, "status"] == "excluded"
+            continue
+        path = out / f"{traj.id}.{fmt}"
+        if fmt == "npz":
+            back = Trajectory.load(path)
+            np.testing.assert_array_equal(back.q, traj.q)
+            assert back.dt == 0.02 and back.text == "sign 0 & more_50%".replace("0", traj.id[-1])
+            assert back.validation["refined"] is True
+        else:
+            table = pd.read_csv(path)
+            assert table.columns[0] == "time" and list(table.columns[1:]) == list(traj.joint_names)
+            np.testing.assert_allclose(table.iloc[:, 1:].to_numpy(), traj.q, atol=1e-8)
+    assert main(["export", RUN, str(out), "--robot", "unitree_h1", "--store",
+                 str(run["store"])]) == 2
+
+
+def test_play_writes_preview(run, tmp_path) -> None:
+    from embody.report.collect import run_trajectories
+
+    traj = run_trajectories(run["store"], RUN, ROBOT)[0][0]
+    npz = traj.save_npz(tmp_path / "t.npz")
+    code = main(["play", str(npz), "--out", str(tmp_path / "prev"), "--format", "gif",
+                 "--set", "render.width=64", "--set", "render.height=48",
+                 "--set", "render.preview_max_frames=3"])
+    assert code == 0
+    from PIL import Image
+    with Image.open(tmp_path / "prev.gif") as im:
+        assert im.size == (64, 48) and im.n_frames == 3
+        assert (np.asarray(im.convert("RGB")).sum(-1) > 30).mean() > 0.01  # the robot shows
+    (tmp_path / "bad.npz").write_bytes(b"nope")
+    assert main(["play", str(tmp_path / "bad.npz")]) == 2
+
+
+def test_readme_tables_script(run, tmp_path) -> None:
+    script = Path(__file__).resolve().parents[1] / "scripts" / "readme_tables.py"
+    readme = tmp_path / "README.md"
+    readme.write_text("intro\n<!-- tables:start -->\nold\n<!-- tables:end -->\noutro\n")
+    proc = subprocess.run([sys.executable, str(script), str(run["report"]), "--write",
+                           str(readme)], capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 0, proc.stderr
+    text = readme.read_text()
+    assert text.startswith("intro\n<!-- tables:start -->") and text.endswith("<!-- tables:end -->\noutro\n")
+    assert "old" not in text
+    for name in ("table1_collision", "table2_ablation", "table3_retargeting"):
+        assert (run["report"] / f"{name}.md").read_text().strip() in text
+    assert "- **Collision energy**:" in text

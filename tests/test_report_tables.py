@@ -1,0 +1,69 @@
+"""Table renderings: number formatting, Markdown, booktabs LaTeX (compiled when pdflatex exists)."""
+
+from __future__ import annotations
+
+import math
+import shutil
+import subprocess
+
+import pandas as pd
+import pytest
+
+from embody.report.assemble import number
+from embody.report.tables import Table, format_cell, latex_escape
+
+
+@pytest.fixture()
+def table() -> Table:
+    frame = pd.DataFrame({"Metric": ["Improved sequences (%)", "ΔAccel MSE (median)", "a_b & 50%"],
+                          "Before": [math.nan, 1.5e-5, 3], "After": [88.88888, 2.0, 4.25]})
+    return Table("t_demo", "Demo: 100% of #1", frame)
+
+
+def test_format_cell() -> None:
+    assert format_cell(math.nan) == "" and format_cell(None) == ""
+    assert format_cell(88.8888) == "88.89"
+    assert format_cell(6.8e-4) == "6.80e-04"
+    assert format_cell(3.0) == "3" and format_cell(7) == "7"
+    assert format_cell(123456.0) == "123456" and format_cell(123456.7) == "1.23e+05"
+
+
+def test_latex_escape() -> None:
+    assert latex_escape(r"a_b & 50% #1 $x {y} ~ ^") == \
+        r"a\_b \& 50\% \#1 \$x \{y\} \textasciitilde{} \textasciicircum{}"
+    assert latex_escape("ΔAccel") == r"$\Delta$Accel"
+
+
+def test_number_parses_cells() -> None:
+    assert number("8/9 (88.9%)") == 88.9
+    assert number(" 21.66 %") == 21.66
+    assert number(6.8e-4) == 6.8e-4
+    assert math.isnan(number("")) and math.isnan(number(None))
+
+
+def test_renderings(table: Table, tmp_path) -> None:
+    paths = table.write(tmp_path)
+    assert set(paths) == {"csv", "md", "tex"}
+    back = pd.read_csv(paths["csv"])
+    assert back["After"].tolist() == [88.88888, 2.0, 4.25]
+    md = paths["md"].read_text().splitlines()
+    assert md[0] == "| Metric | Before | After |"
+    assert md[2] == "| Improved sequences (%) |  | 88.89 |"
+    tex = paths["tex"].read_text()
+    for word in (r"\toprule", r"\midrule", r"\bottomrule", r"a\_b \& 50\%", r"$\Delta$Accel",
+                 r"Demo: 100\% of \#1", "1.50e-05"):
+        assert word in tex
+    html = table.to_html()
+    assert html.count("<tr>") == 4 and 'id="t_demo"' in html and "a_b &amp; 50%" in html
+
+
+@pytest.mark.skipif(shutil.which("pdflatex") is None, reason="pdflatex not installed")
+def test_latex_compiles(table: Table, tmp_path) -> None:
+    table.write(tmp_path)
+    doc = tmp_path / "doc.tex"
+    doc.write_text("\\documentclass{article}\\usepackage{booktabs}\\begin{document}"
+                   "\\input{t_demo.tex}\\end{document}\n")
+    proc = subprocess.run(["pdflatex", "-interaction=nonstopmode", "-halt-on-error", "doc.tex"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stdout[-2000:]
+    assert (tmp_path / "doc.pdf").stat().st_size > 0

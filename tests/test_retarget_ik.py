@@ -1,0 +1,86 @@
+"""Whole-sequence IK: reaches reachable targets, keeps limits, removes a planted hand-hand collision."""
+
+import numpy as np
+import pytest
+import torch
+
+from embody.config.ik import IKConfig
+from embody.retarget.ik import IKSolution, solve
+from embody.retarget.limits import clamp_velocity, velocity_violations
+from embody.retarget.targets import Targets, robot_arm_length
+from embody.retarget.verify import self_collision_contacts, verify
+from embody.robot import load_robot
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot()
+
+
+def _targets_from_q(robot, q: np.ndarray, fps: float = 30.0) -> Targets:
+    with torch.no_grad():
+        p, r = robot.link_points(torch.tensor(q), ["left_wrist", "right_wrist", "left_elbow", "right_elbow"])
+    t = len(q)
+    eye = np.tile(np.eye(3), (t, 1, 1))
+    return Targets(wrist_pos=p[:, :2].numpy(), wrist_rot=r[:, :2].numpy(), elbow_pos=p[:, 2:].numpy(),
+                   torso_rot=eye, head_rot=eye, hand_q=np.zeros((t, 0)), hand_joints=[], fps=fps,
+                   arm_length=robot_arm_length(robot))
+
+
+def _smooth_random_q(robot, t: int, seed: int) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    ik = np.flatnonzero(robot.ik_mask)
+    knots = rng.uniform(-0.4, 0.4, size=(3, len(ik)))
+    s = np.linspace(0, 1, t)
+    q = np.tile(robot.tpose, (t, 1))
+    for k, j in enumerate(ik):
+        q[:, j] += np.interp(s, [0, 0.5, 1], knots[:, k])
+    return robot.clip(q)
+
+
+def test_reaches_reachable_targets_within_limits(robot):
+    targets = _targets_from_q(robot, _smooth_random_q(robot, 16, seed=1))
+    sol = solve(robot, targets, IKConfig())
+    assert sol.q.shape == (16, robot.n_joints)
+    assert sol.metrics["wrist_pos_err_mm"] < 5.0
+    assert sol.metrics["wrist_rot_err_deg"] < 3.0
+    assert np.all(sol.q >= robot.lower) and np.all(sol.q <= robot.upper)
+    assert sol.metrics["joint_limit_violations"] == 0
+    assert sol.metrics["velocity_violations"] == 0
+    # 16 frames at 30 fps = 0.5 s → 26 samples at 50 Hz
+    assert sol.q_control.shape == (26, robot.n_joints)
+    # warm start from the previous solution converges at least as well
+    again = solve(robot, targets, IKConfig(iterations=5), init=sol)
+    assert again.metrics["wrist_pos_err_mm"] <= sol.metrics["wrist_pos_err_mm"] + 0.5
+    back = IKSolution.from_arrays(sol.to_arrays(), sol.to_attrs())
+    assert np.array_equal(back.q, sol.q) and back.metrics == sol.metrics
+
+
+def test_unreachable_targets_never_violate_limits(robot):
+    targets = _targets_from_q(robot, np.tile(robot.tpose, (4, 1)))
+    targets.wrist_pos = targets.wrist_pos * 3.0  # far out of reach
+    sol = solve(robot, targets, IKConfig(iterations=15))
+    assert np.all(sol.q >= robot.lower) and np.all(sol.q <= robot.upper)
+
+
+def test_removes_planted_hand_collision(robot):
+    # Both wrists asked to meet at one point in front of the chest: the hands would overlap.
+    targets = _targets_from_q(robot, np.tile(robot.tpose, (4, 1)))
+    targets.wrist_pos[:] = np.array([0.30, 0.0, 0.10])
+    targets.elbow_pos[:, 0] = [0.10, 0.20, 0.05]
+    targets.elbow_pos[:, 1] = [0.10, -0.20, 0.05]
+    naive = solve(robot, targets, IKConfig(w_collision=0.0))
+    assert self_collision_contacts(robot, naive.q).sum() > 0  # the plant really collides
+    sol = solve(robot, targets, IKConfig())
+    table, metrics = verify(robot, sol, targets)
+    assert metrics["self_collision_frames"] == 0
+    assert (table["self_contacts"] == 0).all()
+    assert table["wrist_pos_err_mm_left"].max() < 150.0  # still reaching towards the target
+
+
+def test_velocity_clamp():
+    q = np.zeros((5, 2))
+    q[2:] = 1.0
+    out = clamp_velocity(q, np.array([3.0, 30.0]), fps=10.0)
+    assert velocity_violations(out, np.array([3.0, 30.0]), 10.0) == 0
+    assert np.allclose(out[:, 0], [0, 0, 0.3, 0.6, 0.9]) and np.allclose(out[:, 1], q[:, 1])

@@ -1,0 +1,61 @@
+"""Robot loading and FK parity: pytorch-kinematics chain vs mujoco.mj_kinematics."""
+
+import mujoco
+import numpy as np
+import pytest
+import torch
+
+from embody.config.robot import RobotConfig
+from embody.errors import ConfigError
+from embody.robot import load_robot
+
+
+@pytest.mark.parametrize("name,n_joints", [("unitree_g1_dex3", 43), ("unitree_h1", 19)])
+def test_fk_matches_mujoco(name, n_joints):
+    robot = load_robot(RobotConfig(name=name))
+    assert robot.n_joints == n_joints
+    rng = np.random.default_rng(0)
+    qs = rng.uniform(robot.lower, robot.upper, size=(100, robot.n_joints))
+    links = list(robot.spec.links)
+    pos, rot = robot.link_points(torch.tensor(qs), links)
+    data = mujoco.MjData(robot.model)
+    base = robot.torso_from_world
+    worst = 0.0
+    for i, q in enumerate(qs):
+        data.qpos[:] = robot.qpos(q)
+        mujoco.mj_kinematics(robot.model, data)
+        for k, link in enumerate(links):
+            ref = robot.spec.links[link]
+            b = robot.model.body(ref.body).id
+            r = data.xmat[b].reshape(3, 3)
+            p = data.xpos[b] + r @ np.array(ref.offset)
+            p_t = base[:3, :3] @ p + base[:3, 3]
+            worst = max(worst, np.abs(pos[i, k].numpy() - p_t).max(),
+                        np.abs(rot[i, k].numpy() - base[:3, :3] @ r).max())
+    assert worst <= 1e-6
+
+
+def test_limits_from_mujoco_and_tpose():
+    robot = load_robot()
+    assert robot.name == "unitree_g1_dex3"
+    assert np.all(robot.lower < robot.upper)  # pk would report (0, 0) for unlimited joints
+    assert np.all((robot.tpose >= robot.lower) & (robot.tpose <= robot.upper))
+    assert len(robot.hand_joint_names("left")) == 7
+    # T-pose: wrists straight out sideways at shoulder height, in the torso frame.
+    pos, _ = robot.link_points(torch.tensor(robot.tpose)[None], ["left_shoulder", "left_wrist", "right_wrist"])
+    assert pos[0, 1, 1] > 0.45 and pos[0, 2, 1] < -0.45
+    assert abs(pos[0, 1, 2] - pos[0, 0, 2]) < 0.02
+    assert robot.velocity_limits.min() > 0
+
+
+def test_bad_robot_file_names_key(tmp_path):
+    (tmp_path / "bad.yaml").write_text("mjcf: {file: unitree_g1/g1_with_hands.xml}\nroot_body: pelvis\n"
+                                       "torso_body: torso_link\nlinks: {left_wrist: {body: nope}, "
+                                       "right_wrist: {body: pelvis}}\nik_joints: ['*']\n")
+    with pytest.raises(ConfigError, match="links.left_wrist.body"):
+        load_robot(RobotConfig(name="bad", robots_dir=str(tmp_path)))
+    (tmp_path / "typo.yaml").write_text("mjcf: {file: x.xml}\nroot_bdy: pelvis\n")
+    with pytest.raises(ConfigError, match="typo.yaml"):
+        load_robot(RobotConfig(name="typo", robots_dir=str(tmp_path)))
+    with pytest.raises(ConfigError, match="robot.name"):
+        load_robot(RobotConfig(name="missing", robots_dir=str(tmp_path)))

@@ -1,0 +1,220 @@
+"""The artifact store: content keys, atomic publish (also under kill), verify, gc, manifests."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from embody.cli import main
+from embody.config import Config
+from store import ArtifactStore, Manifest, arrays_checksum, content_key, files_key
+from tasks.stages import COLLIDE, RETARGET, SHAPE_FIT
+
+K1, K2 = "a" * 64, "b" * 64
+
+
+def _arrays(seed: int = 0) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    return {"q": rng.normal(size=(20, 7)).astype(np.float32), "n": np.arange(5)}
+
+
+# -- content keys ------------------------------------------------------------------------------
+def test_content_key_changes_exactly_with_its_ingredients():
+    base = content_key("ik", "1", {"ik": '{"a":1}'}, {"collide": K1, "fit": K2})
+    assert base == content_key("ik", "1", {"ik": '{"a":1}'}, {"fit": K2, "collide": K1})
+    variants = [content_key("ik2", "1", {"ik": '{"a":1}'}, {"collide": K1, "fit": K2}),
+                content_key("ik", "2", {"ik": '{"a":1}'}, {"collide": K1, "fit": K2}),
+                content_key("ik", "1", {"ik": '{"a":2}'}, {"collide": K1, "fit": K2}),
+                content_key("ik", "1", {"ik": '{"a":1}'}, {"collide": K2, "fit": K2})]
+    assert len({base, *variants}) == 5
+
+
+def test_step_keys_follow_only_their_own_config_sections():
+    a = Config()
+    b = Config.model_validate({"robot": {"name": "some_other_robot"}})
+    inputs = {"source": K1}
+    assert COLLIDE.key(a, inputs) == COLLIDE.key(b, inputs)  # collide reads body + collision
+    assert SHAPE_FIT.key(a, {}) != SHAPE_FIT.key(b, {})
+    ret = {"collide": K1, "shape_fit": K2}
+    assert RETARGET.key(a, ret) != RETARGET.key(b, ret)
+    # downstream of a changed key changes too, even with the same config
+    assert RETARGET.key(a, ret) != RETARGET.key(a, {"collide": K1, "shape_fit": K1})
+
+
+def test_files_key_hashes_bytes_not_names(tmp_path):
+    (tmp_path / "a.npz").write_bytes(b"motion-1")
+    (tmp_path / "b.npz").write_bytes(b"motion-1")
+    (tmp_path / "c.npz").write_bytes(b"motion-2")
+    assert files_key([tmp_path / "a.npz"]) == files_key([tmp_path / "b.npz"])
+    assert files_key([tmp_path / "a.npz"]) != files_key([tmp_path / "c.npz"])
+    assert files_key([tmp_path / "a.npz"]) != files_key([tmp_path / "a.npz"], extra="hello")
+
+
+# -- publish / read ----------------------------------------------------------------------------
+def test_publish_roundtrip_and_metadata(tmp_path):
+    store = ArtifactStore(tmp_path)
+    arrays = _arrays()
+    assert not store.has("ik", K1)
+    assert store.publish("ik", K1, arrays, {"fps": 30.0, "x": np.float64(2.5)},
+                         {"inputs": {"collide": K2}, "metrics": {"err": np.float32(1.5)}})
+    assert store.has("ik", K1)
+    assert store.path("ik", K1) == tmp_path.resolve() / "artifacts" / "ik" / "aa" / K1
+    art = store.read("ik", K1)
+    for name, a in arrays.items():
+        np.testing.assert_array_equal(art.arrays[name], a)
+        assert art.arrays[name].dtype == a.dtype
+    assert art.attrs == {"fps": 30.0, "x": 2.5}
+    assert art.info["inputs"] == {"collide": K2}
+    assert art.info["metrics"] == {"err": 1.5}
+    assert art.info["checksum"] == arrays_checksum(arrays)
+    assert "numpy" in art.info["versions"] and art.info["host"]
+    assert store.info("ik", K1)["status"] == "ok"
+    assert not store.publish("ik", K1, _arrays(1), {}, {})  # already there: first writer wins
+    np.testing.assert_array_equal(store.read("ik", K1).arrays["q"], arrays["q"])
+    assert list(store.entries()) == [("ik", K1, store.path("ik", K1))]
+
+
+def test_store_rejects_urls():
+    from embody.errors import ConfigError
+    with pytest.raises(ConfigError):
+        ArtifactStore("s3://bucket/store")
+
+
+def test_concurrent_writers_one_winner_no_leftovers(tmp_path):
+    store = ArtifactStore(tmp_path)
+    results, barrier = [], threading.Barrier(6)
+
+    def write(i: int) -> None:
+        barrier.wait()
+        results.append(store.publish("collide", K1, _arrays(i), {"writer": i}, {}))
+
+    threads = [threading.Thread(target=write, args=(i,)) for i in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert sum(results) == 1
+    winner = store.read("collide", K1)
+    assert store.verify("collide", K1) is None
+    np.testing.assert_array_equal(winner.arrays["q"], _arrays(winner.attrs["writer"])["q"])
+    assert [p.name for p in store.path("collide", K1).parent.iterdir()] == [K1]
+
+
+_SLOW_WRITER = """
+import sys, numpy as np
+from store import ArtifactStore
+rng = np.random.default_rng(0)
+arrays = {f"a{i:03d}": rng.normal(size=(256, 1024)) for i in range(150)}
+ArtifactStore(sys.argv[1]).publish("render", sys.argv[2], arrays, {}, {})
+print("finished")
+"""
+
+
+def test_killed_writer_leaves_no_hit_and_rerun_completes(tmp_path):
+    store = ArtifactStore(tmp_path)
+    proc = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, str(tmp_path), K1],
+                            stdout=subprocess.PIPE)
+    parent = store.path("render", K1).parent
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not (parent.is_dir() and any(parent.iterdir())):
+        time.sleep(0.005)
+    time.sleep(0.05)
+    assert proc.poll() is None, "writer finished before it could be killed"
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not store.has("render", K1)
+    assert list(store.entries()) == []
+    temps = store.stale_temps()
+    assert len(temps) == 1 and temps[0].parent == parent
+    # a rerun publishes normally; gc clears the dead writer's temp
+    assert store.publish("render", K1, _arrays(), {}, {})
+    assert main(["store", "gc", "--store", str(tmp_path), "--json"]) == 0
+    assert not temps[0].exists()
+
+
+# -- verify and gc -----------------------------------------------------------------------------
+def test_verify_detects_a_corrupted_chunk(tmp_path, capsys):
+    store = ArtifactStore(tmp_path)
+    store.publish("ik", K1, _arrays(), {}, {})
+    store.publish("ik", K2, _arrays(1), {}, {})
+    assert main(["store", "verify", "--store", str(tmp_path)]) == 0
+    chunk = next(p for p in (store.path("ik", K2) / "q").rglob("*") if p.is_file()
+                 and p.name != "zarr.json")
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    chunk.write_bytes(bytes(data))
+    assert store.verify("ik", K1) is None
+    assert store.verify("ik", K2) is not None
+    capsys.readouterr()
+    assert main(["store", "verify", "--store", str(tmp_path), "--json"]) == 1
+    report = json.loads(capsys.readouterr().out)
+    assert report["checked"] == 2
+    assert [(c["step"], c["key"]) for c in report["corrupt"]] == [("ik", K2)]
+
+
+def test_gc_removes_only_unreferenced_artifacts(tmp_path, capsys):
+    store = ArtifactStore(tmp_path)
+    for step, key in [("source", K1), ("collide", K1), ("collide", K2), ("shape_fit", K2)]:
+        store.publish(step, key, _arrays(), {}, {})
+    m = Manifest(store, "r1")
+    m.start(["s1"])
+    m.update({"id": "s1", "keys": {"source": K1, "collide": K1}, "status": "ok"})
+    m.set_shared("shape_fit", K2)
+    m.finish_sequence("s1")
+    m.save(finished=True)
+    capsys.readouterr()
+    assert main(["store", "gc", "--store", str(tmp_path), "--dry-run", "--json"]) == 0
+    dry = json.loads(capsys.readouterr().out)
+    assert dry["removed"] == [{"step": "collide", "key": K2}]
+    assert store.has("collide", K2)
+    assert main(["store", "gc", "--store", str(tmp_path)]) == 0
+    assert sorted((s, k) for s, k, _ in store.entries()) == [
+        ("collide", K1), ("shape_fit", K2), ("source", K1)]
+    capsys.readouterr()
+    assert main(["store", "ls", "--store", str(tmp_path), "--json"]) == 0
+    listing = json.loads(capsys.readouterr().out)
+    assert listing["steps"]["collide"]["artifacts"] == 1
+    assert listing["runs"]["r1"] == {"sequences": 1, "ok": 1, "failed": 0, "pending": 0,
+                                     "finished": True}
+
+
+def test_manifest_is_rewritten_atomically(tmp_path):
+    store = ArtifactStore(tmp_path)
+    m = Manifest(store, "run-a")
+    m.start(["x", "y"], dataset="d")
+    m.update({"id": "x", "keys": {"source": K1}, "metrics": {"source": {"frames": 3}},
+              "status": "ok"})
+    m.update({"id": "y", "keys": {"source": K2}, "status": "failed", "error": "boom",
+              "failed_step": "collide"})
+    m.finish_sequence("x")
+    m.finish_sequence("y")
+    m.save()
+    loaded = Manifest.load(store, "run-a")
+    assert loaded.sequences["x"] == {"status": "ok", "error": None, "failed_step": None,
+                                     "steps": {"source": K1},
+                                     "metrics": {"source": {"frames": 3}}}
+    assert loaded.sequences["y"]["status"] == "failed"
+    assert loaded.keys() == {("source", K1), ("source", K2)}
+    assert [p.name for p in m.path.parent.iterdir()] == ["manifest.json"]
+
+
+def test_computation_counters_append_whole_lines(tmp_path):
+    store = ArtifactStore(tmp_path)
+    threads = [threading.Thread(target=lambda i=i: [store.record("ik", f"{i}-{j}", sequence="s")
+                                                    for j in range(50)]) for i in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    rows = store.computations("ik")
+    assert len(rows) == 200 and len({r["key"] for r in rows}) == 200
+    assert store.computations("nothing") == []

@@ -1,0 +1,126 @@
+"""Synthetic signing: determinism, metadata, real interpenetration, smoothness, CLI."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from embody.body import load_body_model
+from embody.cli import main
+from embody.io import load, load_dataset
+from embody.synth import GENERATOR_VERSION, default_dataset, generate_dataset
+from embody.synth.artifacts import PENETRATIONS
+
+KINDS = {"hand_torso", "hand_face", "hand_hand", "finger_overlap", "jitter"}
+
+
+@pytest.fixture(scope="module")
+def default_set(tmp_path_factory):
+    data = tmp_path_factory.mktemp("data")
+    return data, default_dataset(data)
+
+
+@pytest.fixture(scope="module")
+def motions(default_set):
+    return [load(p) for p in sorted(default_set[1].glob("seq_*.npz"))]
+
+
+def test_default_dataset_layout_and_reuse(default_set):
+    data, root = default_set
+    assert root == data / "synth-n24-s0"
+    files = sorted(root.glob("seq_*.npz"))
+    assert [f.name for f in files] == [f"seq_{i:03d}.npz" for i in range(24)]
+    assert [p.name for p in data.iterdir()] == ["synth-n24-s0"]  # no temp folder left behind
+    stamp = files[0].stat().st_mtime_ns
+    assert default_dataset(data) == root and files[0].stat().st_mtime_ns == stamp  # not regenerated
+    ds = load_dataset(root)
+    assert ds.ids == [f"seq_{i:03d}" for i in range(24)]
+    assert len(load_dataset(root / "manifest.csv")) == 24
+
+
+def test_same_seed_same_bytes_other_seed_differs(tmp_path):
+    a = generate_dataset(tmp_path / "a", n=2, seed=5)
+    b = generate_dataset(tmp_path / "b", n=2, seed=5)
+    c = generate_dataset(tmp_path / "c", n=2, seed=6)
+    for pa, pb, pc in zip(a, b, c):
+        assert pa.read_bytes() == pb.read_bytes()
+        assert pa.read_bytes() != pc.read_bytes()
+    assert (tmp_path / "a/manifest.csv").read_bytes() == (tmp_path / "b/manifest.csv").read_bytes()
+
+
+def test_sequences_are_sign_like_and_record_metadata(motions):
+    for m in motions:
+        assert 90 <= m.num_frames <= 180 and m.fps == 30.0
+        assert m.source.hand_convention == "absolute" and m.source.format == "embody"
+        assert np.all(m.transl == 0) and np.all(m.betas == 0)
+        meta = m.meta
+        assert meta["generator"] == GENERATOR_VERSION and meta["seed"] == 0
+        assert 3 <= len(meta["gloss"]) <= 6 and meta["text"] == " ".join(meta["gloss"])
+        for art in meta["artifacts"]:
+            assert art["kind"] in KINDS and 0 <= art["start"] < art["end"] <= m.num_frames
+        # hands move through several handshapes: finger poses vary over time
+        assert np.ptp(m.pose[:, 40:55], axis=0).max() > 0.5
+    with_pen = [m for m in motions if any(a["kind"] in PENETRATIONS for a in m.meta["artifacts"])]
+    assert len(with_pen) >= 0.6 * len(motions)  # most, ...
+    assert len(with_pen) < len(motions)         # ... not all
+    kinds = {a["kind"] for m in motions for a in m.meta["artifacts"]}
+    assert kinds == KINDS
+    assert any(s["hands"] != "one" for m in motions for s in m.meta["signs"])  # two-handed signs
+
+
+def test_transitions_are_smooth_outside_jitter(motions):
+    from scipy.spatial.transform import Rotation
+
+    for m in motions[:8]:
+        noisy = np.zeros(m.num_frames, bool)
+        for a in m.meta["artifacts"]:
+            if a["kind"] in ("jitter", "finger_overlap"):
+                noisy[max(a["start"] - 1, 0):a["end"] + 1] = True
+        for joint in (16, 17, 18, 19):
+            r = Rotation.from_rotvec(m.pose[:, joint].astype(np.float64))
+            step = np.degrees((r[1:] * r[:-1].inv()).magnitude())
+            assert step[~noisy[1:]].max() < 20.0, (m.meta["index"], joint)
+
+
+def _penetration(body, geometry, pose, hand_part, others):
+    """Deepest signed distance (m, <0 inside) over frames of a hand part's skinned vertices in
+    other parts' convex pieces."""
+    p = torch.as_tensor(pose, dtype=torch.float32)
+    verts = body.vertices(p, torch.zeros(10)).numpy()
+    transforms = body.joint_transforms(p, torch.zeros(10)).numpy()
+    mask = body.vertex_parts == body.part_names.index(hand_part)
+    deepest = 0.0
+    for piece in geometry:
+        if body.part_names[piece.part] in others:
+            for pts, tf in zip(verts[:, mask], transforms[:, piece.joint]):
+                local = (pts - tf[:3, 3]) @ tf[:3, :3]
+                sd = (local @ piece.planes[:, :3].T + piece.planes[:, 3]).max(axis=1)
+                deepest = min(deepest, float(sd.min()))
+    return deepest
+
+
+def test_injected_penetrations_really_penetrate_the_skinned_mesh(motions):
+    body = load_body_model()
+    geometry = body.collision_geometry(np.zeros(10))
+    others = {"hand_torso": ("spine1", "spine3"), "hand_face": ("head",), "hand_hand": ("left_wrist",)}
+    checked = 0
+    for m in motions[:8]:
+        for art in m.meta["artifacts"]:
+            if art["kind"] not in others:
+                continue
+            frames = np.linspace(art["start"], art["end"] - 1, 3).round().astype(int)
+            depth = _penetration(body, geometry, m.pose[frames], "right_wrist", others[art["kind"]])
+            assert depth < -0.01, (m.meta["index"], art)
+            checked += 1
+    assert checked >= 6
+
+
+def test_synth_cli(tmp_path, capsys):
+    assert main(["synth", str(tmp_path / "out"), "--n", "2", "--seed", "1", "--json"]) == 0
+    out = capsys.readouterr().out
+    assert '"seed": 1' in out and (tmp_path / "out" / "seq_001.npz").is_file()
+    assert main(["synth", str(tmp_path / "bad"), "--n", "0"]) == 2
+    assert not (tmp_path / "bad").exists()
+    (tmp_path / "file").write_text("x")
+    assert main(["synth", str(tmp_path / "file"), "--n", "1"]) == 2
