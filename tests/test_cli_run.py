@@ -53,6 +53,7 @@ def test_run_isolates_a_failure_then_resumes(prefect_harness, tmp_path, capsys, 
     args = ["run", str(data), "--store", str(tmp_path / "store"), "--name", "cli", *CHEAP]
     assert main([*args, "--set", "debug.fail_on=[seq001]", "--json", "--no-progress"]) == 1
     out = capsys.readouterr()
+    print("DEBUG-OUT", repr(out.out[:3000]), "DEBUG-ERR", repr(out.err[:3000]))
     summary = json.loads(out.out)
     assert (summary["ok"], summary["failed"]) == (1, 1)
     assert "seq001" in out.err and "InjectedFailure" in out.err  # the failure table

@@ -52,3 +52,21 @@ def test_inspect_relative_source(tmp_path, capsys):
     assert info["format"] == "signavatars" and info["hand_convention"] == "relative"
     # zero relative hands are the relaxed mean: non-zero once absolute
     assert info["joint_ranges"]["left_hand"]["max_deg"] > 10
+
+
+def test_inspect_fps_for_formats_without_one(tmp_path, capsys):
+    np.save(tmp_path / "p.npy", np.zeros((50, 165), np.float32))
+    assert main(["inspect", str(tmp_path / "p.npy"), "--fps", "25", "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["fps"] == 25.0 and info["duration_s"] == 2.0
+    assert main(["inspect", str(tmp_path / "p.npy"), "--fps", "0"]) == 2
+
+
+def test_inspect_dataset_lists_sequences(tmp_path, capsys):
+    _synthish(tmp_path / "b.npz")
+    _synthish(tmp_path / "sub" / "a.npz")
+    assert main(["inspect", str(tmp_path), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    assert info["kind"] == "folder" and info["ids"] == ["b", "sub/a"] and info["sequences"] == 2
+    assert main(["inspect", str(tmp_path), "--split", "train"]) == 2  # not a SOKE root
+    assert "split" in capsys.readouterr().err

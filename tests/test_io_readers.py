@@ -155,6 +155,19 @@ def test_plain_arrays(tmp_path, layout):
     assert np.all(m.transl == 0) and np.all(m.betas == 0)
 
 
+def test_soke_model_features(tmp_path):
+    feats = RNG.normal(scale=0.2, size=(T, 133)).astype(np.float32)
+    np.save(tmp_path / "gen.npy", feats)
+    m = load(tmp_path / "gen.npy")
+    assert m.source.format == "soke-features" and m.source.hand_convention == "relative"
+    pose = m.pose165()
+    assert np.all(pose[:, :36] == 0)                                     # root + joints 1-11
+    assert np.allclose(pose[:, 36:66], feats[:, 0:30])                   # neck ... wrists
+    assert np.allclose(pose[:, 75:120], feats[:, 30:75] + hand_mean()[:15].reshape(-1), atol=1e-6)
+    assert np.allclose(pose[:, 120:165], feats[:, 75:120] + hand_mean()[15:].reshape(-1), atol=1e-6)
+    assert np.allclose(pose[:, 66:69], feats[:, 120:123]) and np.all(pose[:, 69:75] == 0)
+
+
 def test_save_round_trip_does_not_rotate_again(tmp_path):
     poses = RNG.normal(scale=0.3, size=(T, 165))
     _amass(tmp_path / "a.npz", poses)

@@ -129,3 +129,12 @@ def test_render_config_validation():
         load_config(sets=["render.views=[front, front]"])
     with pytest.raises(ConfigError, match="render.width"):
         load_config(sets=["render.width=0"])
+
+
+def test_decimated_robot_meshes_keep_the_silhouette(robot, renderer):
+    q = robot.tpose.copy()
+    q[robot.joint_index("left_elbow_joint")] = 0.3
+    fast = renderer.robot_frames(q[None])[0].max(-1) > 0  # any lit pixel: shading may differ
+    with SceneRenderer(robot, RenderConfig(width=W, height=H, mesh_cell_m=0.0)) as full_renderer:
+        full = full_renderer.robot_frames(q[None])[0].max(-1) > 0
+    assert (fast & full).sum() / (fast | full).sum() > 0.95

@@ -116,6 +116,33 @@ def test_injected_penetrations_really_penetrate_the_skinned_mesh(motions):
     assert checked >= 6
 
 
+def _finger_joints(pose_left_hand):
+    from embody.synth.kinematics import _skeleton
+
+    skel = _skeleton()
+    pose = np.zeros((1, 55, 3))
+    pose[0, 25:40] = pose_left_hand
+    world = skel.forward_skeleton(pose[:, 1:22], pose[:, 22:25], pose[:, 25:55],
+                                  shape=np.zeros(10))[0, :, :3, 3]
+    return {name: world[i] for i, name in enumerate(skel.joint_names)}
+
+
+def test_handshapes_and_finger_overlap_geometry():
+    from embody.synth.handshapes import finger_overlap, handshape
+
+    flat, spread, fist = (_finger_joints(handshape(n, "left")) for n in ("flat", "spread", "fist"))
+    width = lambda j: np.linalg.norm(j["L_Index3"] - j["L_Pinky3"])  # noqa: E731
+    assert width(spread) > width(flat) + 0.02                  # spread fans the fingers out
+    reach = lambda j: j["L_Middle3"][0] - j["L_Wrist"][0]       # noqa: E731
+    assert reach(fist) < reach(flat) - 0.06                     # a fist is short
+    bad = _finger_joints(finger_overlap("left", 0.5))
+    # index and middle middle-joints sit side by side in a flat hand, on top of each other here
+    assert abs(flat["L_Index2"][2] - flat["L_Middle2"][2]) > 0.02
+    assert abs(bad["L_Index2"][2] - bad["L_Middle2"][2]) < 0.008
+    # right hands are the mirror image
+    assert np.allclose(handshape("point", "right"), handshape("point", "left") * [1, -1, -1])
+
+
 def test_synth_cli(tmp_path, capsys):
     assert main(["synth", str(tmp_path / "out"), "--n", "2", "--seed", "1", "--json"]) == 0
     out = capsys.readouterr().out

@@ -1,6 +1,10 @@
-"""`embody inspect PATH`: what a motion file holds, after conversion to embody's conventions."""
+"""`embody inspect PATH`: what a motion file (or dataset) holds, after conversion to embody's
+conventions."""
 
 from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
 
 import click
 
@@ -12,18 +16,21 @@ def _artifact_line(art: dict) -> str:
     return f"{art.get('kind')} [{art.get('start')}, {art.get('end')})" + (f" {extra}" if extra else "")
 
 
-@click.command("inspect")
-@click.argument("path", type=click.Path())
-@json_option
-def command(path: str, as_json: bool) -> int:
-    """Print format, frames, fps, hand convention, joint ranges, text and artifacts of PATH."""
-    from embody.io import load
-    from embody.io.summary import summarize
+def _is_dataset(path: Path) -> bool:
+    from embody.io.soke import is_sequence_dir
 
-    info = summarize(load(path))
-    if as_json:
-        emit_json(info)
-        return 0
+    return path.suffix.lower() == ".csv" or (path.is_dir() and any(path.iterdir())
+                                               and not is_sequence_dir(path))
+
+
+def _dataset_info(path: Path, split: str | None) -> dict[str, Any]:
+    from embody.io import load_dataset
+
+    ds = load_dataset(path, split)
+    return {"dataset": str(path), "kind": ds.kind, "sequences": len(ds), "ids": ds.ids}
+
+
+def _echo_motion(info: dict[str, Any]) -> None:
     click.echo(f"{info['path']}")
     click.echo(f"  format           {info['format']}")
     click.echo(f"  frames           {info['frames']} @ {info['fps']:g} fps ({info['duration_s']:.2f} s)")
@@ -41,4 +48,36 @@ def command(path: str, as_json: bool) -> int:
         click.echo(f"  artifacts        {len(info['artifacts'])}")
         for art in info["artifacts"]:
             click.echo(f"    {_artifact_line(art)}")
+
+
+@click.command("inspect")
+@click.argument("path", type=click.Path())
+@click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=None,
+              help="Frame rate of formats that store none (SOKE, SignAvatars, arrays). [30]")
+@click.option("--split", type=click.Choice(["train", "val", "test"]), default=None,
+              help="Split of a SOKE root (datasets only).")
+@json_option
+def command(path: str, fps: float | None, split: str | None, as_json: bool) -> int:
+    """Print format, frames, fps, hand convention, joint ranges, text and artifacts of PATH.
+
+    For a dataset (a folder of motion files, a SOKE root or a CSV manifest) list its sequences.
+    """
+    from embody.io import load
+    from embody.io.summary import summarize
+
+    target = Path(path)
+    if split is not None or _is_dataset(target):
+        info = _dataset_info(target, split)
+        if as_json:
+            emit_json(info)
+        else:
+            click.echo(f"{info['dataset']}: {info['kind']} dataset, {info['sequences']} sequences")
+            for seq_id in info["ids"]:
+                click.echo(f"  {seq_id}")
+        return 0
+    info = summarize(load(target, fps=fps))
+    if as_json:
+        emit_json(info)
+    else:
+        _echo_motion(info)
     return 0

@@ -1,7 +1,9 @@
-"""Plain pose arrays: `.npy` or `.npz` holding (T,165) or (T,55,3) SMPL-X axis-angle.
+"""Plain pose arrays: `.npy` or `.npz` holding (T,165) or (T,55,3) SMPL-X axis-angle, or SOKE's
+133-d model features (what its decoder emits).
 
-Assumed absolute hands, y-up, 30 fps, unless the npz says otherwise with the optional keys
-`fps`, `trans`/`transl`, `betas`, `hand_convention` ("relative"|"absolute"), `up_axis` ("y"|"z").
+Assumed absolute hands, y-up, 30 fps (or `load(path, fps=...)`), unless the npz says otherwise
+with the optional keys `fps`, `trans`/`transl`, `betas`, `hand_convention` ("relative" |
+"absolute") and `up_axis` ("y" | "z").
 """
 
 from __future__ import annotations
@@ -17,17 +19,34 @@ from embody.io.frames import Z_UP_TO_Y_UP, rotate_root
 from embody.io.hands import relative_to_absolute
 from embody.motion import NUM_JOINTS, Motion, MotionSource
 
-DEFAULT_FPS = 30.0
+
+#: SOKE features: upper body (joints 12-21) 0:30 | left hand 30:75 | right hand 75:120 |
+#: jaw 120:123 | expression 123:133. Root and joints 1-11 are zero (the decoder prepends 36
+#: zeros), shape is fixed, hands are mean-relative. Pairs: (feature slice, first 165-d index).
+SOKE_FEATURES = 133
+SOKE_PARTS = ((slice(0, 30), 36), (slice(30, 120), 75), (slice(120, 123), 66))
 
 
-def _poses(data: dict[str, Any], key: str, path: Path) -> np.ndarray:
+def soke_features_to_poses(feats: np.ndarray) -> np.ndarray:
+    """(T,133) SOKE features → (T,165) SMPL-X poses (hands still relative; expression dropped)."""
+    poses = np.zeros((feats.shape[0], 165), dtype=feats.dtype)
+    for src, start in SOKE_PARTS:
+        poses[:, start:start + src.stop - src.start] = feats[:, src]
+    return poses
+
+
+def _poses(data: dict[str, Any], key: str, path: Path) -> tuple[np.ndarray, str]:
+    """(T,165) poses and the format name."""
     raw = np.asarray(data[key])
     if raw.ndim == 3 and raw.shape[1:] == (NUM_JOINTS, 3):
-        return field({key: raw.reshape(raw.shape[0], -1)}, key, path, width=165)
-    return field(data, key, path, width=165)
+        return field({key: raw.reshape(raw.shape[0], -1)}, key, path, width=165), "array"
+    if raw.ndim == 2 and raw.shape[1] == SOKE_FEATURES:
+        feats = field(data, key, path, width=SOKE_FEATURES)
+        return soke_features_to_poses(feats), "soke-features"
+    return field(data, key, path, width=165), "array"
 
 
-def read(path: Path, data: dict[str, Any] | None = None) -> Motion:
+def read(path: Path, data: dict[str, Any] | None = None, fps: float = 30.0) -> Motion:
     if data is None:
         data = {"poses": read_npy(path)} if path.suffix == ".npy" else read_npz(path)
     arrays = [k for k in data if np.asarray(data[k]).ndim >= 2]
@@ -37,11 +56,11 @@ def read(path: Path, data: dict[str, Any] | None = None) -> Motion:
         key = arrays[0]
     else:
         raise InputError(path, "poses", f"missing (arrays present: {', '.join(sorted(data)) or 'none'})")
-    poses = _poses(data, key, path)
+    poses, fmt = _poses(data, key, path)
     t = poses.shape[0]
     tkey = "trans" if "trans" in data else "transl"
     transl = field(data, tkey, path, rows=t, width=3) if tkey in data else np.zeros((t, 3))
-    hands = text(data, "hand_convention", "absolute")
+    hands = text(data, "hand_convention", "relative" if fmt == "soke-features" else "absolute")
     up = text(data, "up_axis", "y")
     if hands not in ("absolute", "relative"):
         raise InputError(path, "hand_convention", f"expected 'absolute' or 'relative', got {hands!r}")
@@ -53,6 +72,6 @@ def read(path: Path, data: dict[str, Any] | None = None) -> Motion:
     if up == "z":
         pose, transl = rotate_root(pose, transl, Z_UP_TO_Y_UP)
     return Motion(pose=pose, transl=transl, betas=betas10(data, "betas", path),
-                  fps=scalar(data, ("fps", "mocap_frame_rate"), path, DEFAULT_FPS),
+                  fps=scalar(data, ("fps", "mocap_frame_rate"), path, fps),
                   gender=text(data, "gender", "neutral"),
-                  source=MotionSource(str(path), "array", hands))  # type: ignore[arg-type]
+                  source=MotionSource(str(path), fmt, hands))  # type: ignore[arg-type]

@@ -37,11 +37,11 @@ class Dataset:
     """An ordered, sized collection of `SequenceRef`s with unique ids."""
 
     def __init__(self, root: Path, refs: list[SequenceRef], kind: str) -> None:
-        seen: set[str] = set()
+        self._by_id: dict[str, SequenceRef] = {}
         for ref in refs:
-            if ref.id in seen:
+            if ref.id in self._by_id:
                 raise InputError(root, "id", f"duplicate sequence id {ref.id!r}")
-            seen.add(ref.id)
+            self._by_id[ref.id] = ref
         self.root = root
         self.kind = kind
         self._refs = tuple(refs)
@@ -60,10 +60,8 @@ class Dataset:
         return [r.id for r in self._refs]
 
     def get(self, seq_id: str) -> SequenceRef:
-        for ref in self._refs:
-            if ref.id == seq_id:
-                return ref
-        raise KeyError(seq_id)
+        """The sequence with id `seq_id` (KeyError if absent)."""
+        return self._by_id[seq_id]
 
     def __repr__(self) -> str:
         return f"Dataset({self.kind}, {self.root}, {len(self)} sequences)"

@@ -17,7 +17,6 @@ from embody.io.frames import CAMERA_TO_Y_UP, rotate_root
 from embody.io.hands import relative_to_absolute
 from embody.motion import NUM_JOINTS, Motion, MotionSource
 
-DEFAULT_FPS = 30.0
 WIDTH = 182
 #: (slice in the 182 layout, first index in the SMPL-X 165 layout)
 POSE_PARTS = ((slice(0, 66), 0), (slice(156, 159), 66), (slice(66, 156), 75))
@@ -27,7 +26,7 @@ def is_signavatars(data: Any) -> bool:
     return isinstance(data, dict) and "smplx" in data
 
 
-def read(path: Path, data: dict[str, Any]) -> Motion:
+def read(path: Path, data: dict[str, Any], fps: float = 30.0) -> Motion:
     raw = field(data, "smplx", path, width=WIDTH)
     poses = np.zeros((raw.shape[0], 165))
     for src, start in POSE_PARTS:
@@ -35,5 +34,5 @@ def read(path: Path, data: dict[str, Any]) -> Motion:
     pose = relative_to_absolute(poses.reshape(-1, NUM_JOINTS, 3))
     pose, transl = rotate_root(pose, raw[:, 179:182], CAMERA_TO_Y_UP)
     return Motion(pose=pose, transl=transl, betas=raw[:, 159:169].mean(axis=0),
-                  fps=scalar(data, ("fps",), path, DEFAULT_FPS),
+                  fps=scalar(data, ("fps",), path, fps),
                   source=MotionSource(str(path), "signavatars", "relative"))

@@ -17,7 +17,6 @@ from embody.io.frames import CAMERA_TO_Y_UP, rotate_root
 from embody.io.hands import relative_to_absolute
 from embody.motion import NUM_JOINTS, Motion, MotionSource
 
-DEFAULT_FPS = 30.0
 SPLITS = ("train", "val", "test")
 #: (key, width, first pose index) in SMPL-X 165 layout; eyes stay zero.
 FRAME_FIELDS = (("smplx_root_pose", 3, 0), ("smplx_body_pose", 63, 3), ("smplx_jaw_pose", 3, 66),
@@ -46,7 +45,7 @@ def _vector(data: dict[str, Any], key: str, width: int, path: Path) -> np.ndarra
     return arr
 
 
-def read(directory: Path, fps: float = DEFAULT_FPS) -> Motion:
+def read(directory: Path, fps: float = 30.0) -> Motion:
     files = frame_files(directory)
     if not files:
         raise InputError(directory, None, "no per-frame .pkl files (empty SOKE sequence)")

@@ -83,7 +83,10 @@ class Residuals:
         res.append(w_post * (qi - self.rest))
         if self.proxies is not None:
             centres = self.proxies.centres_from(tf[:, self.proxy_idx])
+            # Only pairs within the margin in some frame: the others contribute exactly zero.
             clear = self.proxies.clearances(centres)
+            near = torch.nonzero((cfg.collision_margin - clear > 0).any(0))[:, 0]
+            clear = clear[:, near]
             res.append(float(np.sqrt(cfg.w_collision)) * torch.relu(cfg.collision_margin - clear))
         r = torch.cat(res, 1)
         if not jacobian:
@@ -109,8 +112,8 @@ class Residuals:
         if self.proxies is not None:
             sm = self.mask[:, self.proxy_idx][:, torch.as_tensor(self.proxies.sphere_body)]  # (J,N)
             jc = point_jac(centres, sm)  # (T,N,3,J)
-            i = torch.as_tensor(self.proxies.pairs[:, 0])
-            k = torch.as_tensor(self.proxies.pairs[:, 1])
+            pairs = torch.as_tensor(self.proxies.pairs, device=q.device)[near]
+            i, k = pairs[:, 0], pairs[:, 1]
             diff = centres[:, i] - centres[:, k]
             u = diff / torch.linalg.norm(diff + 1e-12, dim=-1, keepdim=True)
             dclear = (u[..., None] * (jc[:, i] - jc[:, k])).sum(-2)  # (T,P,J)

@@ -137,22 +137,28 @@ class _Problem:
             return c, r.numpy(), j.numpy()
 
         cost, r, jac = evaluate(qi)
-        lam = 1e-2
+        lam, nu = 1e-3, 2.0  # Marquardt damping, Nielsen's update rule
         for _ in range(self.cfg.iterations):
             h = np.einsum("tmi,tmj->tij", jac, jac)
             g = np.einsum("tmi,tm->ti", jac, r) + self.smooth_grad(qi)
             step = self._step(h, g, lam)
             cand = np.clip(qi + step, lower, upper)
             c_new, r_new, j_new = evaluate(cand)
+            # predicted decrease of the damped model: ½ δᵀ(λ·diag(H)·δ − g)
+            scale = np.diagonal(h, axis1=1, axis2=2) + 1e-9
+            predicted = 0.5 * float((step * (lam * scale * step - g)).sum())
+            rho = (cost - c_new) / max(predicted, 1e-300)
             if c_new < cost:
-                done = cost - c_new < 1e-7 * cost
+                done = cost - c_new < 1e-6 * cost
                 qi, cost, r, jac = cand, c_new, r_new, j_new
-                lam = max(lam / 3.0, 1e-9)
+                lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
+                nu = 2.0
                 if done:
                     break
             else:
-                lam *= 5.0
-                if lam > 1e6:
+                lam *= nu
+                nu *= 2.0
+                if lam > 1e8:
                     break
         return qi
 

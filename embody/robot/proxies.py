@@ -1,8 +1,9 @@
 """Sphere-chain proxies of the robot's collision geoms, for a differentiable self-collision cost.
 
-Each proxy (hand, forearm, torso, ...) gets `spheres` spheres laid along the principal axis of
-its collision-geom points (mesh vertices, primitive extremes) taken at the T-pose, rigidly
-attached to its first body. Spheres are cheap to evaluate for every frame of a sequence and give
+Each proxy (hand, forearm, torso, ...) gets `spheres` spheres fitted to its collision-geom
+points (mesh vertices, primitive extremes) taken at the T-pose, rigidly attached to its first
+body: laid along the principal axis for limbs (`chain`) or a k-means cover for bulky parts
+(`cluster`). Spheres are cheap to evaluate for every frame of a sequence and give
 smooth gradients; MuJoCo's exact contacts remain the verdict (`embody.retarget.verify`).
 """
 
@@ -58,6 +59,22 @@ def _sphere_chain(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     return np.array(centres), np.array(radii)
 
 
+def _sphere_cluster(points: np.ndarray, k: int, iterations: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """k spheres from deterministic k-means (farthest-point init); radii cover 85% of each cluster (bulky meshes: a full cover over-approximates)."""
+    centres = [points.mean(0)]
+    for _ in range(1, k):
+        d = np.min([np.linalg.norm(points - c, axis=1) for c in centres], axis=0)
+        centres.append(points[int(np.argmax(d))])
+    c = np.array(centres)
+    for _ in range(iterations):
+        label = np.argmin(np.linalg.norm(points[:, None] - c[None], axis=-1), axis=1)
+        c = np.array([points[label == i].mean(0) if np.any(label == i) else c[i] for i in range(k)])
+    label = np.argmin(np.linalg.norm(points[:, None] - c[None], axis=-1), axis=1)
+    radii = np.array([np.percentile(np.linalg.norm(points[label == i] - c[i], axis=1), 85)
+                      if np.any(label == i) else 0.0 for i in range(k)])
+    return c, radii
+
+
 @dataclass
 class Proxies:
     """Spheres (local centres, radii) per proxy, attached to bodies; pairs to keep apart."""
@@ -90,7 +107,8 @@ class Proxies:
             points = np.vstack([_geom_points(model, data, g) for g in geoms])
             anchor = body_names.index(next(n for n in body_names if any(fnmatch.fnmatchcase(n, pat) for pat in ps.bodies)))
             r, pos = data.xmat[anchor].reshape(3, 3), data.xpos[anchor]
-            c, rad = _sphere_chain((points - pos) @ r, ps.spheres)
+            local = (points - pos) @ r
+            c, rad = (_sphere_chain if ps.layout == "chain" else _sphere_cluster)(local, ps.spheres)
             if body_names[anchor] not in bodies:
                 bodies.append(body_names[anchor])
             names.append(name)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -42,6 +43,8 @@ class ProxySpec(_Strict):
     #: Indices into the matched collision geoms (all when empty).
     geoms: list[int] = []
     spheres: int = Field(3, ge=1, le=16)
+    #: chain: spheres along the principal axis (limbs); cluster: k-means cover (torso, pelvis).
+    layout: Literal["chain", "cluster"] = "chain"
 
 
 class RobotSpec(_Strict):

@@ -15,8 +15,9 @@ from embody.io.hands import hand_mean
 
 FINGERS = ("index", "middle", "pinky", "ring")
 MIRROR = np.array([1.0, -1.0, -1.0])
-#: spread direction of each finger (about +y for the left hand): index toward thumb side.
-_SPREAD_SIGN = {"index": 1.0, "middle": 0.2, "ring": -0.6, "pinky": -1.0}
+#: spread direction of each finger about +y for the left hand, whose thumb side is +z: a
+#: positive angle turns a finger toward -z (the pinky), so the index spreads negative.
+_SPREAD_SIGN = {"index": -1.0, "middle": -0.2, "ring": 0.6, "pinky": 1.0}
 
 
 def _finger(flex: tuple[float, float, float], spread: float = 0.0) -> np.ndarray:
@@ -77,6 +78,6 @@ def finger_overlap(side: str, severity: float) -> np.ndarray:
     curl = 1.6 + 0.6 * severity
     fingers = {f: (curl, curl + 0.2, 1.2 + 0.4 * severity) for f in FINGERS}
     pose = _shape(fingers, thumb=2.2 + 0.6 * severity)
-    pose[0, 1] -= 0.5 + 0.4 * severity   # index swings toward middle...
-    pose[3, 1] += 0.5 + 0.4 * severity   # ...and middle toward index: they cross
+    pose[0, 1] += 0.8 + 0.5 * severity   # index swings toward the pinky side...
+    pose[3, 1] -= 0.8 + 0.5 * severity   # ...and middle toward the thumb side: they cross
     return pose if side == "left" else pose * MIRROR
