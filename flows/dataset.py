@@ -9,6 +9,7 @@ Shared steps (the shape fit) run once; steps that need them wait until they are 
 from __future__ import annotations
 
 import queue
+from collections import deque
 import re
 import time
 from pathlib import Path
@@ -20,7 +21,7 @@ from embody.config import Config
 from flows.progress import Progress
 from flows.runners import make_task_runner
 from store import ArtifactStore, Manifest
-from tasks.execute import new_record
+from tasks.execute import cached, new_record
 from tasks.pipeline import Context, Pipeline
 from tasks.stages import default_pipeline
 from tasks.steps import batch_task, shared_task
@@ -46,7 +47,12 @@ def default_run_name(dataset: Path, split: str | None) -> str:
 
 
 class _Driver:
-    """The event loop of one flow run: submits batch steps as their inputs become ready."""
+    """The event loop of one flow run: advances each batch step by step.
+
+    A step whose results are all in the store is resolved here without a task (warm reruns
+    submit nothing); otherwise one task run computes it for the batch. Work that becomes ready
+    goes through `ready`, so long chains of hits never recurse.
+    """
 
     def __init__(self, pipeline: Pipeline, ctx: Context, manifest: Manifest, progress: Progress,
                  max_inflight: int) -> None:
@@ -54,12 +60,29 @@ class _Driver:
         self.steps = pipeline.per_sequence
         self.max_inflight = max_inflight
         self.events: queue.Queue = queue.Queue()
+        self.ready: deque[tuple[int, int, list[dict[str, Any]]]] = deque()
         self.outstanding = 0
         self.shared: dict[str, dict[str, Any]] = {}
         self.parked: list[tuple[int, int, list[dict[str, Any]]]] = []
-        self.computed: dict[str, int] = {}
-        self.records: dict[str, dict[str, Any]] = {}
+        self.computed: dict[str, int] = {s.name: 0 for s in self.steps + pipeline.shared}
+        self.batches: list[list[dict[str, Any]]] = []
+        self.next_batch = self.inflight = 0
         self._saved = time.monotonic()
+
+    def run(self, batches: list[list[dict[str, Any]]]) -> None:
+        self.batches = batches
+        self._submit_shared()
+        self._fill()
+        while self.ready or self.outstanding:
+            while self.ready:
+                self._advance(*self.ready.popleft())
+            if self.outstanding:
+                tag, fut = self.events.get()
+                self.outstanding -= 1
+                if tag[0] == "shared":
+                    self._on_shared(tag[1], fut)
+                else:
+                    self._on_batch(tag[1], tag[2], fut)
 
     def _watch(self, future: Any, tag: tuple) -> None:
         self.outstanding += 1
@@ -76,7 +99,13 @@ class _Driver:
             fut = shared_task(step).submit(step, self.ctx, self._shared_keys())
             self._watch(fut, ("shared", step.name))
 
-    def _submit(self, b: int, i: int, records: list[dict[str, Any]]) -> None:
+    def _fill(self) -> None:
+        while self.inflight < self.max_inflight and self.next_batch < len(self.batches):
+            self.ready.append((self.next_batch, 0, self.batches[self.next_batch]))
+            self.next_batch += 1
+            self.inflight += 1
+
+    def _advance(self, b: int, i: int, records: list[dict[str, Any]]) -> None:
         step = self.steps[i]
         needs = [s.name for s in step.inputs if s.shared]
         if any(self.shared.get(n, {}).get("status") in (None, "running") for n in needs):
@@ -92,8 +121,11 @@ class _Driver:
         if not any(r["status"] == "ok" for r in records):  # nothing left to do in this batch
             self._complete(b, i, records)
             return
-        fut = batch_task(step, b).submit(step, self.ctx, records,
-                                         self._shared_keys())
+        hits = cached(step, self.ctx, records, self._shared_keys())
+        if hits is not None:
+            self._complete(b, i, hits)
+            return
+        fut = batch_task(step, b).submit(step, self.ctx, records, self._shared_keys())
         self._watch(fut, ("batch", b, i))
 
     def _complete(self, b: int, i: int, records: list[dict[str, Any]]) -> None:
@@ -101,40 +133,20 @@ class _Driver:
         ok = [r for r in records if r["status"] == "ok" and name in r["keys"]]
         computed = sum(name in r["computed"] for r in ok)
         failed = sum(r.get("failed_step") == name for r in records)
-        self.computed[name] = self.computed.get(name, 0) + computed
+        self.computed[name] += computed
         self.progress.add(name, done=len(ok), cached=len(ok) - computed, failed=failed)
         for rec in records:
             self.manifest.update(rec)
         if i + 1 < len(self.steps):
-            self._submit(b, i + 1, records)
+            self.ready.append((b, i + 1, records))
             return
         for rec in records:
             self.manifest.finish_sequence(rec["id"])
-            self.records[rec["id"]] = rec
         self.inflight -= 1
         self._fill()
         if time.monotonic() - self._saved > _SAVE_EVERY_S:
             self.manifest.save()
             self._saved = time.monotonic()
-
-    def _fill(self) -> None:
-        while self.inflight < self.max_inflight and self.next_batch < len(self.batches):
-            b = self.next_batch
-            self.next_batch += 1
-            self.inflight += 1
-            self._submit(b, 0, self.batches[b])
-
-    def run(self, batches: list[list[dict[str, Any]]]) -> None:
-        self.batches, self.next_batch, self.inflight = batches, 0, 0
-        self._submit_shared()
-        self._fill()
-        while self.outstanding:
-            tag, fut = self.events.get()
-            self.outstanding -= 1
-            if tag[0] == "shared":
-                self._on_shared(tag[1], fut)
-            else:
-                self._on_batch(tag[1], tag[2], fut)
 
     def _on_shared(self, name: str, fut: Any) -> None:
         try:
@@ -144,11 +156,10 @@ class _Driver:
                    "metrics": {}, "error": f"{name}: task crashed: {type(exc).__name__}: {exc}"}
         self.shared[name] = rec
         self.manifest.set_shared(name, rec.get("key"))
-        self.computed[name] = self.computed.get(name, 0) + int(bool(rec.get("computed")))
+        self.computed[name] += int(bool(rec.get("computed")))
         self._submit_shared()
-        parked, self.parked = self.parked, []
-        for b, i, records in parked:
-            self._submit(b, i, records)
+        self.ready.extend(self.parked)
+        self.parked = []
 
     def _on_batch(self, b: int, i: int, fut: Any) -> None:
         try:
@@ -157,12 +168,10 @@ class _Driver:
             name = self.steps[i].name
             records = [dict(r, status="failed", failed_step=name,
                             error=f"{name}: task crashed: {type(exc).__name__}: {exc}")
-                       if r["status"] == "ok" else r for r in self._batch_input(b, i)]
-            for r in records:
-                r.pop("ref", None)
+                       if r["status"] == "ok" else r for r in self._batch_input(b)]
         self._complete(b, i, records)
 
-    def _batch_input(self, b: int, i: int) -> list[dict[str, Any]]:
+    def _batch_input(self, b: int) -> list[dict[str, Any]]:
         # A crashed task returns nothing: fall back to the manifest's view of the batch.
         out = []
         for rec in self.batches[b]:
@@ -225,7 +234,9 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     driver.run(batches)
     manifest.save(finished=True)
     table = write_tables(store, run)
+    t_report = time.perf_counter()
     report, report_error = build_report(store, run)
+    report_s = time.perf_counter() - t_report
     seqs = manifest.sequences
     failures = [{"id": i, "step": s["failed_step"], "error": s["error"]}
                 for i, s in seqs.items() if s["status"] != "ok"]
@@ -235,7 +246,7 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
             "shared": {n: r.get("key") for n, r in driver.shared.items()},
             "manifest": str(manifest.path), "table": str(table),
             "report": report, "report_error": report_error,
-            "elapsed_s": round(time.perf_counter() - t0, 3)}
+            "report_s": round(report_s, 3), "elapsed_s": round(time.perf_counter() - t0, 3)}
 
 
 @flow(name="embody-dataset", persist_result=False, log_prints=False, validate_parameters=False)

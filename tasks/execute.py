@@ -15,7 +15,8 @@ from store.artifacts import jsonable
 from store.keys import files_key
 from tasks.pipeline import Context, Step
 
-__all__ = ["InjectedFailure", "new_record", "run_batch", "run_shared", "source_key"]
+__all__ = ["InjectedFailure", "cached", "new_record", "record_key", "run_batch", "run_shared",
+           "source_key"]
 
 
 class InjectedFailure(RuntimeError):
@@ -30,11 +31,52 @@ def new_record(ref: Any) -> dict[str, Any]:
 def source_key(step: Step, ctx: Context, ref: Any) -> str:
     """Source artifacts hash their files' bytes (and the text, which the files may lack)."""
     files = tuple(ref.source_files) or (ref.path,)
-    return step.key(ctx.cfg, {"files": files_key(files, extra=ref.text or "")})
+    return ctx.key(step, {"files": files_key(files, extra=ref.text or "")})
 
 
 def _input_keys(step: Step, keys: dict[str, str], shared: dict[str, str]) -> dict[str, str]:
     return {s.name: (shared if s.shared else keys)[s.name] for s in step.inputs}
+
+
+def record_key(step: Step, ctx: Context, rec: dict[str, Any],
+               shared: dict[str, str]) -> tuple[str, dict[str, str]]:
+    """(key, input keys) of `step` for one sequence record."""
+    if rec.get("ref") is not None:
+        return source_key(step, ctx, rec["ref"]), {}
+    input_keys = _input_keys(step, rec["keys"], shared)
+    return ctx.key(step, input_keys), input_keys
+
+
+def _copy(rec: dict[str, Any]) -> dict[str, Any]:
+    return dict(rec, keys=dict(rec["keys"]), metrics=dict(rec["metrics"]),
+                computed=list(rec["computed"]))
+
+
+def cached(step: Step, ctx: Context, records: list[dict[str, Any]],
+           shared: dict[str, str]) -> list[dict[str, Any]] | None:
+    """The records advanced past `step` when every still-ok one is a store hit, else None.
+
+    The flow's driver calls this before submitting a task, so a warm rerun runs no task at all.
+    """
+    store, out = ctx.store, []
+    for rec in records:
+        rec = _copy(rec)
+        out.append(rec)
+        if rec["status"] != "ok":
+            continue
+        if rec["id"] in ctx.cfg.debug.fail_on and step.name == ctx.cfg.debug.fail_step:
+            return None
+        try:
+            key, _ = record_key(step, ctx, rec, shared)
+        except Exception:  # let the task record the error
+            return None
+        if not store.has(step.name, key):
+            return None
+        rec["keys"][step.name] = key
+        rec["metrics"][step.name] = store.info(step.name, key).get("metrics", {})
+    for rec in out:
+        rec.pop("ref", None)
+    return out
 
 
 def _compute(step: Step, ctx: Context, key: str, inputs: dict[str, Any], input_keys: dict[str, str],
@@ -68,19 +110,14 @@ def run_batch(step: Step, ctx: Context, records: list[dict[str, Any]],
     fail_step = ctx.cfg.debug.fail_step
     out = []
     for rec in records:
-        rec = dict(rec, keys=dict(rec["keys"]), metrics=dict(rec["metrics"]),
-                   computed=list(rec["computed"]))
+        rec = _copy(rec)
         out.append(rec)
         if rec["status"] != "ok":
             continue
         try:
             if rec["id"] in ctx.cfg.debug.fail_on and step.name == fail_step:
                 raise InjectedFailure(f"debug.fail_on lists {rec['id']!r}")
-            if rec.get("ref") is not None:
-                key, input_keys = source_key(step, ctx, rec["ref"]), {}
-            else:
-                input_keys = _input_keys(step, rec["keys"], shared)
-                key = step.key(ctx.cfg, input_keys)
+            key, input_keys = record_key(step, ctx, rec, shared)
             if store.has(step.name, key):
                 metrics = store.info(step.name, key).get("metrics", {})
             else:
@@ -104,7 +141,7 @@ def run_shared(step: Step, ctx: Context, shared: dict[str, str]) -> dict[str, An
                            "metrics": {}, "computed": False}
     try:
         input_keys = _input_keys(step, {}, shared)
-        key = step.key(ctx.cfg, input_keys)
+        key = ctx.key(step, input_keys)
         if ctx.store.has(step.name, key):
             rec["metrics"] = ctx.store.info(step.name, key).get("metrics", {})
         else:

@@ -8,11 +8,12 @@ two callables: `compute(ctx, inputs) -> result` (one library call) and `load(arr
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from embody.config import Config
 from store.artifacts import ArtifactStore
-from store.keys import content_key
+from store.keys import content_key, files_key
 
 __all__ = ["Context", "Pipeline", "Step", "resource"]
 
@@ -49,12 +50,18 @@ class Step:
     #: Computed once per run (e.g. the shape fit per robot + body), not per sequence.
     shared: bool = False
     metrics: Callable[[Any], dict[str, Any]] = field(default=_default_metrics, repr=False)
+    #: Files the config points at whose bytes matter too (e.g. the robot definition YAML).
+    files: Callable[[Config], list[Path]] | None = field(default=None, repr=False)
 
     def key(self, cfg: Config, input_keys: Mapping[str, str]) -> str:
         return content_key(self.name, self.version, self.config(cfg), input_keys)
 
     def config(self, cfg: Config) -> dict[str, str]:
-        return {s: cfg.section_json(s) for s in self.sections}
+        """What of the configuration enters the key: section JSON, plus referenced files' bytes."""
+        out = {s: cfg.section_json(s) for s in self.sections}
+        if self.files is not None:
+            out["files"] = files_key(p for p in self.files(cfg) if Path(p).is_file())
+        return out
 
 
 @dataclass(frozen=True)
@@ -84,6 +91,14 @@ class Context:
     cfg: Config
     store_root: str
     run: str
+    _configs: dict[str, dict[str, str]] = field(default_factory=dict, init=False, repr=False,
+                                                compare=False)
+
+    def key(self, step: Step, input_keys: Mapping[str, str]) -> str:
+        """`step.key` with the step's config JSON computed once per context, not per sequence."""
+        if step.name not in self._configs:
+            self._configs[step.name] = step.config(self.cfg)
+        return content_key(step.name, step.version, self._configs[step.name], input_keys)
 
     @property
     def store(self) -> ArtifactStore:

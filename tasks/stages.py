@@ -7,6 +7,7 @@ inside the steps, so defining the pipeline costs nothing and never imports a sta
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -37,6 +38,13 @@ class Metrics:
 
 def _own_metrics(result: Metrics) -> dict[str, Any]:
     return result.metrics
+
+
+def _robot_files(cfg: Any) -> list[Path]:
+    """The robot definition (and MJCF override): editing them must invalidate robot steps."""
+    from embody.robot import robots_dir
+    files = [robots_dir(cfg.robot) / f"{cfg.robot.name}.yaml"]
+    return files + ([Path(cfg.robot.mjcf_path)] if cfg.robot.mjcf_path else [])
 
 
 def _load_source(ctx: Context, inputs: dict[str, Any]) -> Motion:
@@ -111,11 +119,12 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
 SOURCE = Step("source", "1", (), _load_source, Motion.from_arrays, metrics=_source_metrics)
 COLLIDE = Step("collide", "1", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
-                 shared=True)
+                 shared=True, files=_robot_files)
 RETARGET = Step("retarget", "1", ("body", "robot", "ik"), _retarget, _ik_solution,
-                (COLLIDE, SHAPE_FIT))
+                (COLLIDE, SHAPE_FIT), files=_robot_files)
 REFINE = Step("refine", "1", ("body", "robot", "ik", "render", "critic"), _refine,
-              _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics)
+              _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
+              files=_robot_files)
 METRICS = Step("metrics", "1", (), _trajectory_metrics, Metrics.from_arrays, (RETARGET,),
                metrics=_own_metrics)
 METRICS_REFINED = Step("metrics", "1", (), _trajectory_metrics, Metrics.from_arrays,

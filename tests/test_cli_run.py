@@ -51,17 +51,18 @@ def test_run_isolates_a_failure_then_resumes(prefect_harness, tmp_path, capsys, 
     monkeypatch.chdir(tmp_path)  # the report goes to ./reports/<run>
     data = _write(tmp_path / "data")
     args = ["run", str(data), "--store", str(tmp_path / "store"), "--name", "cli", *CHEAP]
-    assert main([*args, "--set", "debug.fail_on=[seq001]", "--json", "--no-progress"]) == 1
+    code = main([*args, "--set", "debug.fail_on=[seq001]", "--json", "--no-progress"])
     out = capsys.readouterr()
-    print("DEBUG-OUT", repr(out.out[:3000]), "DEBUG-ERR", repr(out.err[:3000]))
+    assert code == 1, out.err
     summary = json.loads(out.out)
     assert (summary["ok"], summary["failed"]) == (1, 1)
     assert "seq001" in out.err and "InjectedFailure" in out.err  # the failure table
     assert summary["computed"] == {"source": 2, "shape_fit": 1, "collide": 1, "retarget": 1,
                                    "metrics": 1}
 
-    assert main([*args, "--json"]) == 0
+    code = main([*args, "--json"])
     out = capsys.readouterr()
+    assert code == 0, out.err
     summary = json.loads(out.out)
     assert summary["failed"] == 0
     assert summary["computed"] == {"source": 0, "shape_fit": 0, "collide": 1, "retarget": 1,

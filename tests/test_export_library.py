@@ -37,11 +37,21 @@ def test_export_excludes_failing(tmp_path, fmt) -> None:
         np.testing.assert_array_equal(back.q, trajs[0].q)
         assert back.joint_names == NAMES and back.dt == 0.02 and back.text == "sign a"
         assert back.validation == trajs[0].validation and back.id == "a"
+        again = trajs[0].save_npz(tmp_path / "again.npz")
+        assert again.read_bytes() == (tmp_path / "a.npz").read_bytes()
     else:
         table = pd.read_csv(tmp_path / "a.csv")
         assert table.columns.tolist() == ["time", *NAMES]
         np.testing.assert_allclose(table["time"], np.arange(30) * 0.02, atol=1e-12)
         np.testing.assert_allclose(table[list(NAMES)].to_numpy(), trajs[0].q, atol=1e-8)
+
+
+def test_reexport_removes_stale_files(tmp_path) -> None:
+    export_library([_traj("a"), _traj("b")], tmp_path)
+    (tmp_path / "mine.txt").write_text("keep")
+    export_library([_traj("a"), _traj("b", velocity_violations=2)], tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "a.npz", "excluded.csv", "library.csv", "mine.txt"]
 
 
 def test_bad_inputs(tmp_path) -> None:

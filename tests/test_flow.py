@@ -83,6 +83,11 @@ def write_amass(folder: Path, n: int, frames: int = 6) -> Path:
     return folder
 
 
+@pytest.fixture(autouse=True)
+def _in_tmp(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the run's report goes to ./reports/<run>
+
+
 @pytest.fixture(scope="module")
 def data(tmp_path_factory) -> Path:
     return write_amass(tmp_path_factory.mktemp("toy") / "data", N_SEQ)

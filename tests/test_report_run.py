@@ -151,8 +151,9 @@ def test_report_files_and_page(run) -> None:
     assert seqs["status"].to_dict() == {"seq0": "ok", "seq1": "ok", "seq2": "failed"}
     assert "InjectedFailure" in seqs.loc["seq2", "error"]
     assert seqs.loc["seq0", "text"] == "sign 0 & more_50%"
-    assert {"collision.reduction_pct", "ik.wrist_pos_err_mm",
-            "refined.geometric.wrist_mm_mean"} <= set(seqs.columns)
+    assert {"collide.reduction_pct", "retarget.wrist_pos_err_mm", "refine.wrist_mm_mean",
+            "refine.accepted", "validation.self_collision_frames", "metrics.mean_jerk",
+            "source.frames"} <= set(seqs.columns)
     figures = {p.relative_to(report).as_posix() for p in (report / "figures").rglob("*.png")}
     assert {"figures/collision_energy.png", "figures/pose_vs_reduction.png",
             "figures/wrists/seq0.png", "figures/wrists/seq1.png",
@@ -191,7 +192,7 @@ def test_report_cli_is_deterministic(run, tmp_path) -> None:
 
 def test_ablation_reuses_cache(run, tmp_path) -> None:
     from embody.collision.metrics import table2
-    from embody.report.collect import metrics_frame, open_run
+    from embody.report.reader import metrics_frame, open_run
     from store import ArtifactStore
 
     st = ArtifactStore(run["store"])
@@ -219,7 +220,7 @@ def test_ablation_reuses_cache(run, tmp_path) -> None:
 
 @pytest.mark.parametrize("fmt", ["npz", "csv"])
 def test_export_library(run, tmp_path, fmt) -> None:
-    from embody.report.collect import run_trajectories
+    from embody.report.reader import run_trajectories
     from embody.report.library import VIOLATION_KEYS, Trajectory
 
     out = tmp_path / "lib"
@@ -252,7 +253,7 @@ def test_export_library(run, tmp_path, fmt) -> None:
 
 
 def test_play_writes_preview(run, tmp_path) -> None:
-    from embody.report.collect import run_trajectories
+    from embody.report.reader import run_trajectories
 
     traj = run_trajectories(run["store"], RUN, ROBOT)[0][0]
     npz = traj.save_npz(tmp_path / "t.npz")

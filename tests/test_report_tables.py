@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 import shutil
 import subprocess
+import sys
 
 import pandas as pd
 import pytest
@@ -67,3 +68,9 @@ def test_latex_compiles(table: Table, tmp_path) -> None:
                           cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout[-2000:]
     assert (tmp_path / "doc.pdf").stat().st_size > 0
+
+
+def test_report_modules_do_not_import_prefect() -> None:
+    code = ("import sys, embody.report, embody.report.reader, embody.cli.report, "
+            "embody.cli.export, embody.cli.play; assert 'prefect' not in sys.modules")
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=120)

@@ -28,13 +28,13 @@ def _targets_from_q(robot, q: np.ndarray, fps: float = 30.0) -> Targets:
 
 
 def _smooth_random_q(robot, t: int, seed: int) -> np.ndarray:
+    """Smooth random arm motion around a signing-like pose (half-way between rest and T-pose)."""
     rng = np.random.default_rng(seed)
     ik = np.flatnonzero(robot.ik_mask)
-    knots = rng.uniform(-0.4, 0.4, size=(3, len(ik)))
-    s = np.linspace(0, 1, t)
-    q = np.tile(robot.tpose, (t, 1))
-    for k, j in enumerate(ik):
-        q[:, j] += np.interp(s, [0, 0.5, 1], knots[:, k])
+    amp, phase = rng.uniform(-0.4, 0.4, len(ik)), rng.uniform(0, 2 * np.pi, len(ik))
+    s = np.linspace(0, 1, t)[:, None]
+    q = np.tile((robot.rest + robot.tpose) / 2, (t, 1))
+    q[:, ik] += amp * np.sin(np.pi * s + phase)
     return robot.clip(q)
 
 
@@ -64,11 +64,11 @@ def test_unreachable_targets_never_violate_limits(robot):
 
 
 def test_removes_planted_hand_collision(robot):
-    # Both wrists asked to meet at one point in front of the chest: the hands would overlap.
-    targets = _targets_from_q(robot, np.tile(robot.tpose, (4, 1)))
-    targets.wrist_pos[:] = np.array([0.30, 0.0, 0.10])
-    targets.elbow_pos[:, 0] = [0.10, 0.20, 0.05]
-    targets.elbow_pos[:, 1] = [0.10, -0.20, 0.05]
+    # From the rest pose (forearms forward), both wrists asked 6 cm apart in front of the chest:
+    # the hands would overlap.
+    targets = _targets_from_q(robot, np.tile(robot.rest, (4, 1)))
+    targets.wrist_pos[:, 0] = [0.30, 0.03, 0.10]
+    targets.wrist_pos[:, 1] = [0.30, -0.03, 0.10]
     naive = solve(robot, targets, IKConfig(w_collision=0.0))
     assert self_collision_contacts(robot, naive.q).sum() > 0  # the plant really collides
     sol = solve(robot, targets, IKConfig())
@@ -76,6 +76,7 @@ def test_removes_planted_hand_collision(robot):
     assert metrics["self_collision_frames"] == 0
     assert (table["self_contacts"] == 0).all()
     assert table["wrist_pos_err_mm_left"].max() < 150.0  # still reaching towards the target
+    assert solve(robot, targets, IKConfig()).q.tobytes() == sol.q.tobytes()  # deterministic
 
 
 def test_velocity_clamp():

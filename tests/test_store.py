@@ -218,3 +218,14 @@ def test_computation_counters_append_whole_lines(tmp_path):
     rows = store.computations("ik")
     assert len(rows) == 200 and len({r["key"] for r in rows}) == 200
     assert store.computations("nothing") == []
+
+
+def test_robot_definition_bytes_enter_robot_step_keys(tmp_path):
+    robots = tmp_path / "robots"
+    robots.mkdir()
+    (robots / "bot.yaml").write_text("a: 1\n")
+    cfg = Config.model_validate({"robot": {"name": "bot", "robots_dir": str(robots)}})
+    before = SHAPE_FIT.key(cfg, {}), COLLIDE.key(cfg, {"source": K1})
+    (robots / "bot.yaml").write_text("a: 2\n")
+    after = SHAPE_FIT.key(cfg, {}), COLLIDE.key(cfg, {"source": K1})
+    assert before[0] != after[0] and before[1] == after[1]

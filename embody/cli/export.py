@@ -22,7 +22,7 @@ def command(run: str, out: str, robot: str, store_root: str, fmt: str, as_json: 
     Sequences with joint-limit or velocity-limit violations or self-collision frames, and
     sequences the run failed, are excluded and listed. Exit 1 when any was excluded.
     """
-    from embody.report.collect import run_trajectories
+    from embody.report.reader import run_trajectories
     from embody.report.library import export_library
 
     trajectories, failed = run_trajectories(store_root, run, robot)

@@ -10,6 +10,7 @@ from typing import Any
 import click
 
 from embody.cli.common import emit_json, json_option
+from embody.errors import InputError
 
 
 def ablation_configs(base: Any) -> dict[str, Any]:
@@ -23,8 +24,9 @@ def ablation_configs(base: Any) -> dict[str, Any]:
     out = {}
     for setting, (close, smooth) in ABLATION_SETTINGS.items():
         data = base.model_dump(mode="json")
-        data["collision"]["lambda_close"] = (own.lambda_close or defaults.lambda_close) if close else 0.0
-        data["collision"]["lambda_smooth"] = (own.lambda_smooth or defaults.lambda_smooth) if smooth else 0.0
+        data["collision"].update(
+            lambda_close=(own.lambda_close or defaults.lambda_close) if close else 0.0,
+            lambda_smooth=(own.lambda_smooth or defaults.lambda_smooth) if smooth else 0.0)
         out[setting] = Config.model_validate(data)
     return out
 
@@ -32,7 +34,7 @@ def ablation_configs(base: Any) -> dict[str, Any]:
 def run_ablation(store_root: str, run: str) -> dict[str, Any]:
     """Run the Table II settings through the dataset flow (source + collide only: the source is
     a cache hit, and so is every setting already computed) → {setting: collision metrics}."""
-    from embody.report.collect import COLLIDE, metrics_frame, open_run, run_config
+    from embody.report.reader import COLLIDE, metrics_frame, open_run, run_config
     from flows.env import configure
 
     store, manifest = open_run(store_root, run)
@@ -43,7 +45,6 @@ def run_ablation(store_root: str, run: str) -> dict[str, Any]:
 
     dataset, split = manifest.data.get("dataset"), manifest.data.get("split")
     if not dataset:
-        from embody.errors import InputError
         raise InputError(manifest.path, "dataset", "the run does not record its dataset")
     out = {}
     for setting, cfg in ablation_configs(run_config(manifest)).items():
@@ -78,7 +79,8 @@ def command(run: str | None, store_root: str, out_dir: str | None, ablation: boo
     summary = json.loads(paths.summary.read_text())
     if as_json:
         emit_json({"run": run, "out_dir": str(paths.out_dir), "index": str(paths.index),
-                   "tables": {k: {e: str(p) for e, p in v.items()} for k, v in paths.tables.items()},
+                   "tables": {k: {e: str(p) for e, p in v.items()}
+                              for k, v in paths.tables.items()},
                    "figures": [str(p) for p in paths.figures], "summary": summary})
     else:
         for name, files in paths.tables.items():

@@ -1,12 +1,12 @@
 """Volumetric self-collision energy (Eq. 1): L_col = (1/T) Σ_t Σ_v max(0, −f(v; x_t))².
 
 Points are rest-mesh vertices (every `vertex_stride`-th of each part) carried rigidly by their
-part's joint, i.e. the skinned mesh with one-hot weights: it costs one transform per part and
-keeps every point inside its own part's pieces, so a positive energy always means that two
+part's joint, i.e. the skinned mesh with one-hot weights: it costs one transform per part, and
+with the points kept inside their own part's pieces a positive energy always means that two
 checked parts' volumes overlap. f is the signed distance to a part: the minimum over its convex
-pieces of max_f(n_f·q + d_f), exact inside. A two-level broad phase (part spheres, then piece
-spheres) picks the (frame, point, piece) triples without gradients; only the narrow phase on
-those triples is differentiable, so the cost follows the pairs that are actually close.
+pieces of max_f(n_f·q + d_f), exact inside. A three-level broad phase (part spheres, piece
+boxes, then exact planes) picks (frame, point chunk, piece) rows without gradients; only the
+narrow phase on those rows is differentiable, so the cost follows the pairs that are close.
 """
 
 from __future__ import annotations
@@ -28,6 +28,15 @@ _PAD_PLANE = (0.0, 0.0, 0.0, -1e9)
 def _sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
     center = 0.5 * (points.min(0) + points.max(0))
     return center, float(np.sqrt(((points - center) ** 2).sum(1).max()))
+
+
+def _inside_own(points: np.ndarray, pieces: list) -> np.ndarray:
+    """Points within their own part's pieces: the few that a simplified or decomposed piece
+    leaves outside are dropped, so a point inside another part always means overlapping
+    volumes (never a point floating outside its own volume)."""
+    f = np.min([np.max(points @ pc.planes[:, :3].T + pc.planes[:, 3], axis=1) for pc in pieces],
+               axis=0)
+    return f <= 1e-9
 
 
 def _chunks(points: np.ndarray, size: int) -> list[np.ndarray]:
@@ -105,6 +114,7 @@ def collision_model(body: BodyModel, betas: np.ndarray | None = None, *, vertex_
     chunk_part, chunk_pts = [], []
     for i, j in enumerate(vols.part_joints):
         local = to_local(rest[vols.vertex_parts == i][::vertex_stride], frames[j])
+        local = local[_inside_own(local, [pc for pc in vols.pieces if pc.part == i])]
         for idx in _chunks(local, CHUNK_SIZE):
             chunk_part.append(i)
             chunk_pts.append(local[idx])
@@ -213,7 +223,10 @@ def frame_energies(model: CollisionModel, transforms: torch.Tensor, tolerance: f
     """Per-frame Σ_v max(0, −f − tolerance)² (T,) from joint world transforms (T,J,4,4).
 
     `near` reuses a broad phase computed earlier with a margin (the optimiser refreshes it
-    every few steps); by default it is computed here, exactly.
+    every few steps); by default it is computed here, exactly. The deepest piece and plane of
+    each penetrating point are picked without gradients; the gradient of a max is that of its
+    argmax, so recomputing just that plane with autograd gives the exact gradient at a cost
+    that follows the penetrating points only.
     """
     d = model.tensors(transforms.dtype, transforms.device)
     t_frames = transforms.shape[0]
@@ -222,16 +235,28 @@ def frame_energies(model: CollisionModel, transforms: torch.Tensor, tolerance: f
     if c.t.numel() == 0:
         return zero
     rot, trans = _frames(d, transforms)
-    depth = torch.relu(-_chunk_sdf(d, _chunk_local(d, rot, trans, c), c) - tolerance)
-    depth = depth * d["chunk_mask"][c.h]
-    # a part's SDF is the min over its pieces: keep the deepest piece per (frame, point, part)
-    n_chunks, n_parts = d["chunk_part"].shape[0], d["part_radius"].shape[0]
-    key = (c.t * n_chunks + c.h) * n_parts + c.b
-    uniq, inv = torch.unique(key, return_inverse=True)
-    deepest = depth.new_zeros(uniq.shape[0], depth.shape[1]).scatter_reduce(
-        0, inv[:, None].expand_as(depth), depth, "amax")
-    frame_of = uniq // (n_chunks * n_parts)
-    return zero.index_add(0, frame_of, (deepest * deepest).sum(1))
+    with torch.no_grad():
+        q = _chunk_local(d, rot, trans, c)
+        planes = d["planes"][c.k]
+        f, plane = torch.baddbmm(planes[:, None, :, 3], q, planes[..., :3].transpose(-1, -2)).max(-1)
+        inside = (f < -tolerance) & d["chunk_mask"][c.h]
+        r, n = torch.nonzero(inside, as_tuple=True)
+        if r.numel() == 0:
+            return zero
+        # a part's SDF is the min over its pieces: keep the deepest piece per (frame, point, part)
+        n_chunks, n_parts, size = d["chunk_part"].shape[0], d["part_radius"].shape[0], q.shape[1]
+        key = ((c.t[r] * n_chunks + c.h[r]) * size + n) * n_parts + c.b[r]
+        order = torch.sort(f[r, n], stable=True).indices          # deepest first
+        order = order[torch.sort(key[order], stable=True).indices]  # grouped by key
+        first = torch.ones_like(order, dtype=torch.bool)
+        first[1:] = key[order][1:] != key[order][:-1]
+        r, n = r[order[first]], n[order[first]]
+        t, h, a, b = c.t[r], c.h[r], c.a[r], c.b[r]
+        nd = planes[r, plane[r, n]]                                 # (Q,4) the active plane
+    p = _apply(rot[t, a], trans[t, a], d["chunk_points"][h, n])
+    ql = ((p - trans[t, b]).unsqueeze(-2) @ rot[t, b]).squeeze(-2)
+    depth = torch.relu(-(ql * nd[:, :3]).sum(-1) - nd[:, 3] - tolerance)
+    return zero.index_add(0, t, depth * depth)
 
 
 def energy(model: CollisionModel, transforms: torch.Tensor, tolerance: float = 0.0) -> torch.Tensor:

@@ -27,6 +27,8 @@ ALWAYS_TOUCHING: tuple[tuple[str, str, str], ...] = (
     ("right_hip", "spine1", "hip flexion folds the thigh into the lower belly"),
     ("left_shoulder", "spine2", "armpit: upper arm against the ribs"),
     ("right_shoulder", "spine2", "armpit: upper arm against the ribs"),
+    ("left_shoulder", "spine1", "arms at the sides: upper arm against the waist"),
+    ("right_shoulder", "spine1", "arms at the sides: upper arm against the waist"),
     ("left_shoulder", "neck", "trapezius: shoulder top meets the neck"),
     ("right_shoulder", "neck", "trapezius: shoulder top meets the neck"),
     ("left_collar", "neck", "collar bones meet the neck"),

@@ -7,6 +7,8 @@ with Adam. Only the masked joints are parameters, so unmasked joints are x0 bit 
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -80,9 +82,25 @@ def _second_diff(x: torch.Tensor) -> torch.Tensor:
     return x[2:] - 2.0 * x[1:-1] + x[:-2]
 
 
+@contextmanager
+def _threads(n: int) -> Iterator[None]:
+    """Torch intra-op threads for the duration of one optimisation (process-wide setting)."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 def mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig | None = None) -> CollisionResult:
     """Reduce self-collision of `motion` by moving only the masked joints (Eq. 2–3)."""
     cfg = cfg or CollisionConfig()
+    with _threads(cfg.threads):
+        return _mitigate(motion, body, cfg)
+
+
+def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> CollisionResult:
     start = time.perf_counter()
     idx = mask_joints(cfg.mask, cfg.joints)
     model = model_for(body, motion, cfg)

@@ -19,13 +19,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import torch
-from scipy.spatial import ConvexHull, QhullError
+from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
 from embody.body.base import BodyModel, ConvexPiece
 from embody.body.parts import dominant_parts
 
 #: Bump when the construction changes, so stale disk caches are ignored.
-VERSION = 2
+VERSION = 4
 #: Vertices kept per convex piece: bounds the planes the energy evaluates per point.
 MAX_PIECE_VERTICES = 32
 #: CoACD concavity thresholds tried in turn until the part is tight enough.
@@ -104,6 +104,30 @@ def hull(points: np.ndarray, max_vertices: int = MAX_PIECE_VERTICES) -> tuple[np
     except QhullError:
         h = ConvexHull(verts, qhull_options="QJ")
     return verts[h.vertices], np.ascontiguousarray(h.equations)
+
+
+def cover(pieces: list[tuple[np.ndarray, np.ndarray]],
+          points: np.ndarray) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Push each piece's planes out just enough to contain the points nearest to it.
+
+    Simplified hulls and CoACD pieces leave some of the part's own vertices outside; keeping
+    the plane normals and moving the offsets keeps each piece convex and small, and guarantees
+    that every vertex lies inside its own part's volume.
+    """
+    f = np.stack([np.max(points @ pl[:, :3].T + pl[:, 3], axis=1) for _, pl in pieces])
+    owner = np.argmin(f, axis=0)
+    out = []
+    for k, (verts, planes) in enumerate(pieces):
+        mine = points[owner == k]
+        if len(mine) == 0 or f[k, owner == k].max() <= 0:
+            out.append((verts, planes))
+            continue
+        planes = planes.copy()
+        planes[:, 3] = np.minimum(planes[:, 3], -(mine @ planes[:, :3].T).max(0))
+        centre = np.concatenate([verts, mine]).mean(0)
+        corners = HalfspaceIntersection(planes, centre).intersections
+        out.append((corners[ConvexHull(corners).vertices], planes))
+    return out
 
 
 def _manifold(vertices: np.ndarray, faces: np.ndarray):
@@ -190,22 +214,23 @@ def _build(body: BodyModel, rest: np.ndarray, frames: np.ndarray, max_overfill: 
     for i, j in enumerate(parts.joints):
         frame = frames[j]
         world = rest[parts.vertex_parts == i]
-        v, planes = hull(to_local(world, frame))
-        candidates = [[(v, planes)]]
-        vol, over = _overfill([v @ frame[:3, :3].T + frame[:3, 3]], solid)
-        scores = [over]
-        if solid is not None and over > max_overfill:
+        local = to_local(world, frame)
+        to_world = lambda c: [pv @ frame[:3, :3].T + frame[:3, 3] for pv, _ in c]  # noqa: E731
+        single = hull(local)
+        candidates = [cover([single], local)]
+        vol, over = _overfill(to_world([single]), solid)
+        scores = [_overfill(to_world(candidates[0]), solid)[1]]
+        if solid is not None and scores[0] > max_overfill:
             import manifold3d as m3
 
-            inside = m3.Manifold.hull_points(v @ frame[:3, :3].T + frame[:3, 3]) ^ solid
+            inside = m3.Manifold.hull_points(to_world([single])[0]) ^ solid
             for thr in COACD_THRESHOLDS:
                 split = [hull(to_local(p, frame)) for p in _coacd(inside, thr, MAX_PIECE_VERTICES)]
                 if not split:
                     continue
-                _, o = _overfill([pv @ frame[:3, :3].T + frame[:3, 3] for pv, _ in split], solid)
-                candidates.append(split)
-                scores.append(o)
-                if o <= max_overfill:
+                candidates.append(cover(split, local))
+                scores.append(_overfill(to_world(candidates[-1]), solid)[1])
+                if scores[-1] <= max_overfill:
                     break
         best = int(np.nanargmin(scores)) if np.isfinite(scores).any() else 0
         pieces += [ConvexPiece(part=i, joint=int(j), vertices=pv, planes=pp)

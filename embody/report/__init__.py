@@ -9,7 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from embody.report.build import ReportPaths, default_out_dir, write_report
-from embody.report.collect import collect, latest_run
+from embody.report.reader import collect, latest_run
 from embody.report.data import RunData
 from embody.report.library import Trajectory, export_library
 from embody.report.tables import Table

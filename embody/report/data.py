@@ -1,6 +1,6 @@
 """What a report is made of: one run's per-sequence results as plain tables and arrays.
 
-`RunData` is the seam between the store (see `embody.report.collect`) and the report writers, so
+`RunData` is the seam between the store (see `embody.report.reader`) and the report writers, so
 the writers can be driven by any source of results, e.g. a notebook's DataFrames.
 """
 
@@ -21,8 +21,9 @@ class RunData:
     - `collision`: the `embody.collision.mitigate` metrics dict per sequence.
     - `retarget`: the IK-only `IKSolution.metrics` per sequence.
     - `refine`: critic name → the `RefineResult` objects (what `refine_table` consumes).
-    - `refined`: critic name → the final round's metrics per sequence.
+    - `refined`: critic name → the refine step's metrics per sequence (final round, accepted).
     - `validation`: critic name → validation counters of the refined trajectories.
+    - `other`: step name → metrics of the remaining steps (they only go to `sequences.csv`).
     - `ablation`: Table II setting → collision metrics DataFrame (only for `--ablation`).
     - `wrists`: sequence id → {"reference"|"IK only"|"refined": (T,2,3) wrist positions, m}.
     - `sheets`: sequence id → the critic's comparison sheet (PNG bytes).
@@ -35,17 +36,25 @@ class RunData:
     refine: dict[str, list[Any]] = field(default_factory=dict)
     refined: dict[str, pd.DataFrame] = field(default_factory=dict)
     validation: dict[str, pd.DataFrame] = field(default_factory=dict)
+    other: dict[str, pd.DataFrame] = field(default_factory=dict)
     ablation: dict[str, pd.DataFrame] = field(default_factory=dict)
     wrists: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     wrist_fps: dict[str, float] = field(default_factory=dict)
     sheets: dict[str, bytes] = field(default_factory=dict)
 
     def per_sequence(self) -> pd.DataFrame:
-        """Every metric of every sequence in one flat table (the `sequences.csv` rows)."""
+        """Every metric of every sequence in one flat table (the `sequences.csv` rows).
+
+        Columns are prefixed with the pipeline step that produced them, as in the store.
+        """
+        several = len(self.refined) > 1
+        parts = [("collide", self.collision), ("retarget", self.retarget)]
+        for critic in sorted(self.refined):
+            tag = f".{critic}" if several else ""
+            parts += [(f"refine{tag}", self.refined[critic]),
+                      (f"validation{tag}", self.validation.get(critic, pd.DataFrame()))]
+        parts += sorted(self.other.items())
         frame = self.sequences.copy()
-        parts = [("collision", self.collision), ("ik", self.retarget)]
-        parts += [(f"refined.{critic}", df) for critic, df in sorted(self.refined.items())]
-        parts += [(f"refined.{critic}", df) for critic, df in sorted(self.validation.items())]
         for prefix, df in parts:
             if len(df):
                 frame = frame.join(df.add_prefix(f"{prefix}."), how="left")

@@ -9,6 +9,7 @@ import html
 import os
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 from embody.report.tables import Table, format_cell
 
@@ -26,7 +27,8 @@ figure img{max-width:520px;border:1px solid #ddd}
 
 
 def _rel(path: Path, root: Path) -> str:
-    return Path(os.path.relpath(path, root)).as_posix()
+    """A relative URL (percent-encoded) from the page to `path`."""
+    return quote(Path(os.path.relpath(path, root)).as_posix())
 
 
 def _link(path: Path, root: Path, text: str | None = None) -> str:
@@ -42,22 +44,15 @@ def render_index(out_dir: Path, *, run: str, tables: dict[str, tuple[Table, dict
     parts = [f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
              f"<title>embody report: {esc(run)}</title><style>{_STYLE}</style></head><body>",
              f"<h1>embody report: {esc(run)}</h1>"]
-    parts.append("<h2>Summary</h2><table class=\"report\" id=\"summary\"><tbody>")
-    parts += [f"<tr><td>{esc(k)}</td><td>{esc(format_cell(v))}</td></tr>"
-              for k, v in summary.items()]
-    parts.append("</tbody></table>")
-    if failures:
-        parts.append("<h2>Failed sequences</h2><ul>")
-        parts += [f'<li class="failed">{esc(sid)}: {esc(err)}</li>' for sid, err in failures]
-        parts.append("</ul>")
     parts.append("<h2>Tables</h2>")
     for table, paths in tables.values():
         parts.append(table.to_html())
         parts.append("<p>" + " · ".join(_link(p, out_dir, ext) for ext, p in paths.items())
                      + "</p>")
-    parts.append("<h2>Files</h2><ul>")
-    parts += [f"<li>{_link(p, out_dir)}</li>" for p in files]
-    parts.append("</ul>")
+    if failures:
+        parts.append("<h2>Failed sequences</h2><ul>")
+        parts += [f'<li class="failed">{esc(sid)}: {esc(err)}</li>' for sid, err in failures]
+        parts.append("</ul>")
     for section, paths in figures.items():
         if not paths:
             continue
@@ -66,6 +61,13 @@ def render_index(out_dir: Path, *, run: str, tables: dict[str, tuple[Table, dict
             src = esc(_rel(p, out_dir), quote=True)
             parts.append(f'<figure><a href="{src}"><img src="{src}" alt="{esc(p.stem)}"></a>'
                          f"<figcaption>{esc(p.stem)}</figcaption></figure>")
+    parts.append("<h2>Summary</h2><table class=\"report\" id=\"summary\"><tbody>")
+    parts += [f"<tr><td>{esc(k)}</td><td>{esc(format_cell(v))}</td></tr>"
+              for k, v in summary.items()]
+    parts.append("</tbody></table>")
+    parts.append("<h2>Files</h2><ul>")
+    parts += [f"<li>{_link(p, out_dir)}</li>" for p in files]
+    parts.append("</ul>")
     parts.append("</body></html>\n")
     path = out_dir / "index.html"
     path.write_text("\n".join(parts), encoding="utf-8")

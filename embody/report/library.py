@@ -7,7 +7,9 @@ so a user can see what the library is missing and why.
 
 from __future__ import annotations
 
+import io
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Literal
@@ -54,9 +56,19 @@ class Trajectory:
         return out
 
     def save_npz(self, path: Path) -> Path:
-        np.savez(path, q=self.q, dt=np.float64(self.dt), joint_names=np.array(self.joint_names),
-                 source_id=np.array(self.id), robot=np.array(self.robot), text=np.array(self.text),
-                 validation=np.array(json.dumps(self.validation, sort_keys=True, default=float)))
+        """An `np.load`-able npz with fixed zip timestamps: equal trajectories, equal bytes."""
+        arrays = {"q": self.q, "dt": np.float64(self.dt), "joint_names": np.array(self.joint_names),
+                  "source_id": np.array(self.id), "robot": np.array(self.robot),
+                  "text": np.array(self.text),
+                  "validation": np.array(json.dumps(self.validation, sort_keys=True,
+                                                    default=float))}
+        with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+            for name, value in arrays.items():
+                buf = io.BytesIO()
+                np.lib.format.write_array(buf, np.asarray(value), allow_pickle=False)
+                info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+                info.compress_type = zipfile.ZIP_DEFLATED
+                zf.writestr(info, buf.getvalue())
         return path
 
     def save_csv(self, path: Path) -> Path:
@@ -104,6 +116,15 @@ def safe_name(sid: str) -> str:
     return "".join(c if c.isalnum() or c in "-_." else "_" for c in sid)
 
 
+def _remove_previous(out_dir: Path) -> None:
+    """Delete the files a previous export listed, so a re-export never leaves stale ones."""
+    index = out_dir / "library.csv"
+    if index.is_file():
+        for name in pd.read_csv(index, dtype=str, keep_default_na=False).get("file", []):
+            if name and Path(name).name == name:
+                (out_dir / name).unlink(missing_ok=True)
+
+
 def export_library(trajectories: Iterable[Trajectory], out_dir: str | Path,
                    fmt: Format = "npz", failed: Iterable[tuple[str, str]] = ()
                    ) -> tuple[pd.DataFrame, pd.DataFrame]:
@@ -114,6 +135,7 @@ def export_library(trajectories: Iterable[Trajectory], out_dir: str | Path,
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    _remove_previous(out_dir)
     kept = []
     excluded = [{"id": sid, "status": "failed", "reason": reason} for sid, reason in failed]
     for traj in trajectories:

@@ -59,14 +59,13 @@ class IKSolution:
 
 
 def _second_difference_normal(t: int) -> np.ndarray:
-    """Diagonals (3, t) of DᵀD for the second-difference operator D ((t-2)×t)."""
-    d = np.zeros((max(t - 2, 0), t))
-    for i in range(t - 2):
-        d[i, i:i + 3] = (1.0, -2.0, 1.0)
-    m = d.T @ d
+    """Diagonals (3, t) of DᵀD for the second-difference operator D ((t-2)×t), zero-padded."""
     out = np.zeros((3, t))
-    for k in range(min(3, t)):
-        out[k, : t - k] = np.diagonal(m, k)
+    rows = np.arange(max(t - 2, 0))
+    c = (1.0, -2.0, 1.0)
+    for a in range(3):  # row i of D has c at columns i, i+1, i+2
+        for k in range(3 - a):
+            np.add.at(out[k], rows + a, c[a] * c[a + k])
     return out
 
 
@@ -134,23 +133,24 @@ class _Problem:
             with torch.no_grad():
                 r, j = self.residuals(self.q_full(xt), jacobian=True)
                 c = 0.5 * float((r**2).sum()) + float(self.smooth(xt))
-            return c, r.numpy(), j.numpy()
+                jt = j.transpose(1, 2)
+                h, g = jt @ j, (jt @ r[..., None])[..., 0]  # per-frame JᵀJ and Jᵀr
+            return c, h.numpy(), g.numpy()
 
-        cost, r, jac = evaluate(qi)
+        cost, h, gr = evaluate(qi)
         lam, nu = 1e-3, 2.0  # Marquardt damping, Nielsen's update rule
         for _ in range(self.cfg.iterations):
-            h = np.einsum("tmi,tmj->tij", jac, jac)
-            g = np.einsum("tmi,tm->ti", jac, r) + self.smooth_grad(qi)
+            g = gr + self.smooth_grad(qi)
             step = self._step(h, g, lam)
             cand = np.clip(qi + step, lower, upper)
-            c_new, r_new, j_new = evaluate(cand)
+            c_new, h_new, gr_new = evaluate(cand)
             # predicted decrease of the damped model: ½ δᵀ(λ·diag(H)·δ − g)
             scale = np.diagonal(h, axis1=1, axis2=2) + 1e-9
             predicted = 0.5 * float((step * (lam * scale * step - g)).sum())
             rho = (cost - c_new) / max(predicted, 1e-300)
             if c_new < cost:
                 done = cost - c_new < 1e-6 * cost
-                qi, cost, r, jac = cand, c_new, r_new, j_new
+                qi, cost, h, gr = cand, c_new, h_new, gr_new
                 lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                 nu = 2.0
                 if done:
@@ -233,9 +233,15 @@ def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None, init: "IK
     problem = _Problem(robot, targets, cfg, torch.float64)
     t = targets.num_frames
     q0 = init.q if isinstance(init, IKSolution) else init
-    if q0 is None or np.shape(q0) != (t, robot.n_joints):
-        q0 = np.tile(robot.rest, (t, 1))
-    qi = _optimise(problem, np.asarray(q0, dtype=np.float64)[:, problem.ik], cfg)
+    qi0 = None if q0 is None or np.shape(q0) != (t, robot.n_joints) else np.asarray(q0, dtype=np.float64)[:, problem.ik]
+    if qi0 is None:
+        qi0 = np.tile(robot.rest[problem.ik], (t, 1))
+        if problem.residuals.proxies is not None:
+            # Cold start: track without the collision term first (smooth, fast to converge), then
+            # push apart from there; the hinge penalty alone stalls far from the solution.
+            free = cfg.model_copy(update={"w_collision": 0.0})
+            qi0 = _optimise(_Problem(robot, targets, free, torch.float64), qi0, free)
+    qi = _optimise(problem, qi0, cfg)
     q = problem.q_full(torch.as_tensor(qi, dtype=problem.dtype)).numpy()
     q = robot.clip(q)
     if cfg.enforce_velocity_limits:

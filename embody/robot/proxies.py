@@ -42,7 +42,7 @@ def _geom_points(model: mujoco.MjModel, data: mujoco.MjData, g: int) -> np.ndarr
     return pos + local @ mat.T
 
 
-def _sphere_chain(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+def _sphere_chain(points: np.ndarray, k: int, cover: float) -> tuple[np.ndarray, np.ndarray]:
     """k spheres along the principal axis that cover (most of) the points."""
     centre = points.mean(0)
     _, _, vt = np.linalg.svd(points - centre, full_matrices=False)
@@ -50,17 +50,17 @@ def _sphere_chain(points: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
     t = (points - centre) @ axis
     edges = np.linspace(t.min(), t.max(), k + 1)
     perp = np.linalg.norm((points - centre) - t[:, None] * axis, axis=1)
-    overall = float(np.percentile(perp, 90))
+    overall = float(np.percentile(perp, 100 * cover))
     centres, radii = [], []
     for i in range(k):
         sel = (t >= edges[i]) & (t <= edges[i + 1])
         centres.append(centre + axis * 0.5 * (edges[i] + edges[i + 1]))
-        radii.append(float(np.percentile(perp[sel], 90)) if sel.sum() >= 4 else overall)
+        radii.append(float(np.percentile(perp[sel], 100 * cover)) if sel.sum() >= 4 else overall)
     return np.array(centres), np.array(radii)
 
 
-def _sphere_cluster(points: np.ndarray, k: int, iterations: int = 20) -> tuple[np.ndarray, np.ndarray]:
-    """k spheres from deterministic k-means (farthest-point init); radii cover 85% of each cluster (bulky meshes: a full cover over-approximates)."""
+def _sphere_cluster(points: np.ndarray, k: int, cover: float, iterations: int = 20) -> tuple[np.ndarray, np.ndarray]:
+    """k spheres from deterministic k-means (farthest-point init), each covering `cover` of its points."""
     centres = [points.mean(0)]
     for _ in range(1, k):
         d = np.min([np.linalg.norm(points - c, axis=1) for c in centres], axis=0)
@@ -70,7 +70,7 @@ def _sphere_cluster(points: np.ndarray, k: int, iterations: int = 20) -> tuple[n
         label = np.argmin(np.linalg.norm(points[:, None] - c[None], axis=-1), axis=1)
         c = np.array([points[label == i].mean(0) if np.any(label == i) else c[i] for i in range(k)])
     label = np.argmin(np.linalg.norm(points[:, None] - c[None], axis=-1), axis=1)
-    radii = np.array([np.percentile(np.linalg.norm(points[label == i] - c[i], axis=1), 85)
+    radii = np.array([np.percentile(np.linalg.norm(points[label == i] - c[i], axis=1), 100 * cover)
                       if np.any(label == i) else 0.0 for i in range(k)])
     return c, radii
 
@@ -108,7 +108,7 @@ class Proxies:
             anchor = body_names.index(next(n for n in body_names if any(fnmatch.fnmatchcase(n, pat) for pat in ps.bodies)))
             r, pos = data.xmat[anchor].reshape(3, 3), data.xpos[anchor]
             local = (points - pos) @ r
-            c, rad = (_sphere_chain if ps.layout == "chain" else _sphere_cluster)(local, ps.spheres)
+            c, rad = (_sphere_chain if ps.layout == "chain" else _sphere_cluster)(local, ps.spheres, ps.cover)
             if body_names[anchor] not in bodies:
                 bodies.append(body_names[anchor])
             names.append(name)

@@ -45,6 +45,8 @@ class ProxySpec(_Strict):
     spheres: int = Field(3, ge=1, le=16)
     #: chain: spheres along the principal axis (limbs); cluster: k-means cover (torso, pelvis).
     layout: Literal["chain", "cluster"] = "chain"
+    #: Fraction of the points each sphere must cover (radius percentile): 1 = conservative.
+    cover: float = Field(0.9, gt=0.0, le=1.0)
 
 
 class RobotSpec(_Strict):

@@ -18,7 +18,8 @@ from embody.errors import InputError
 from embody.report.data import RunData
 
 #: Step names as the orchestrator stores them (tasks/stages.py).
-SOURCE, COLLIDE, SHAPE_FIT, RETARGET, REFINE = "source", "collide", "shape_fit", "retarget", "refine"
+SOURCE, COLLIDE, SHAPE_FIT = "source", "collide", "shape_fit"
+RETARGET, REFINE = "retarget", "refine"
 
 
 def open_run(store_root: str | Path, run: str) -> tuple[Any, Any]:
@@ -30,15 +31,22 @@ def open_run(store_root: str | Path, run: str) -> tuple[Any, Any]:
     path = store.runs_dir / run / "manifest.json"
     if not path.is_file():
         runs = sorted(p.parent.name for p in store.runs_dir.glob("*/manifest.json"))
-        raise InputError(path, None, f"no run {run!r} in the store (runs: {', '.join(runs) or 'none'})")
+        known = ", ".join(runs) or "none"
+        raise InputError(path, None, f"no run {run!r} in the store (runs: {known})")
     return store, Manifest.load(store, run)
 
 
 def run_config(manifest: Any) -> Any:
     """The config the run used (recorded in its manifest)."""
+    from pydantic import ValidationError
+
     from embody.config import Config
 
-    return Config.model_validate(manifest.data.get("config") or {})
+    try:
+        return Config.model_validate(manifest.data.get("config") or {})
+    except ValidationError as exc:
+        raise InputError(manifest.path, "config", "the recorded config does not validate with "
+                         f"this version (rerun `embody run`): {exc.errors()[0]['msg']}") from None
 
 
 def latest_run(store_root: str | Path) -> str:
@@ -139,6 +147,9 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
         index=pd.Index(ids, name="id"))
     data = RunData(name=run, sequences=sequences, collision=metrics_frame(manifest, COLLIDE),
                    retarget=metrics_frame(manifest, RETARGET))
+    steps = {step for seq in seqs.values() for step in seq.get("metrics", {})}
+    data.other = {step: metrics_frame(manifest, step) for step in sorted(steps)
+                  if step not in (COLLIDE, RETARGET, REFINE)}
     ok = [i for i in ids if seqs[i]["status"] == "ok" and RETARGET in seqs[i]["steps"]]
     if not ok:
         return data
@@ -152,8 +163,7 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
             {i: v["self_collision_frames"] for i, v in extra.items()})
     if refined:
         data.refine[critic] = [refined[i] for i in sorted(refined)]
-        data.refined[critic] = pd.DataFrame.from_dict(
-            {i: r.final.metrics for i, r in refined.items()}, orient="index")
+        data.refined[critic] = metrics_frame(manifest, REFINE)
         data.validation[critic] = pd.DataFrame.from_dict(
             {i: validate(robotics.robot, r.q, ik[i].fps) for i, r in refined.items()},
             orient="index")

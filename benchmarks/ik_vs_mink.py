@@ -1,0 +1,179 @@
+"""Our whole-sequence IK vs mink (the IK behind GMR) on the same robot, targets and sequences.
+
+mink runs per frame like GMR: FrameTasks for both wrists (and elbows, position only), a
+PostureTask, `solve_ik(..., solver="daqp", limits=[ConfigurationLimit, VelocityLimit])` with
+`limits=` passed BY KEYWORD (GMR passes it positionally, so its velocity limits never apply),
+10 iterations per frame. The robot base is fixed for both (mink gets the MJCF without its free
+joint), legs are pinned, and fingers take the same retargeted hand values, so contacts compare.
+
+Usage: python benchmarks/ik_vs_mink.py [--sequences 4] [--seed 0]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+import xml.etree.ElementTree as ET
+from collections import Counter
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import mink  # noqa: E402
+import mujoco  # noqa: E402
+import numpy as np  # noqa: E402
+import torch  # noqa: E402
+
+from embody.body import load_body_model  # noqa: E402
+from embody.config.ik import IKConfig  # noqa: E402
+from embody.retarget import build_targets, shape_fit, solve  # noqa: E402
+from embody.retarget.targets import Targets  # noqa: E402
+from embody.retarget.verify import verify  # noqa: E402
+from embody.robot import Robot, load_robot  # noqa: E402
+from embody.synth import generate_sequence  # noqa: E402
+
+
+def fixed_base_model(robot: Robot) -> mujoco.MjModel:
+    """The robot's MJCF without its free joint; legs and fingers pinned to a tiny range."""
+    root = ET.parse(robot.mjcf_path).getroot()
+    for parent in root.iter():
+        for child in list(parent):
+            if child.tag == "freejoint" or (child.tag == "joint" and child.get("type") == "free"):
+                parent.remove(child)
+    compiler = root.find("compiler")
+    if compiler is not None and compiler.get("meshdir"):
+        compiler.set("meshdir", str(robot.mjcf_path.parent / compiler.get("meshdir")))
+    for key in root.findall("keyframe"):
+        root.remove(key)
+    model = mujoco.MjModel.from_xml_string(ET.tostring(root, encoding="unicode"))
+    for j, name in enumerate(robot.joint_names):
+        jid = model.joint(name).id
+        assert model.jnt_qposadr[jid] == j, "hinge order must match"
+        if not robot.ik_mask[j]:
+            model.jnt_range[jid] = (robot.rest[j] - 1e-6, robot.rest[j] + 1e-6)
+            model.jnt_limited[jid] = 1
+    return model
+
+
+def run_mink(robot: Robot, model: mujoco.MjModel, targets: Targets, iterations: int = 10) -> np.ndarray:
+    world_from_torso = np.linalg.inv(robot.torso_from_world)
+    conf = mink.Configuration(model, q=robot.rest.copy())
+    cfg = IKConfig()
+    wrists = [mink.FrameTask(robot.spec.links[f"{s}_wrist"].body, "body", position_cost=1.0,
+                             orientation_cost=float(np.sqrt(cfg.w_wrist_rot)), lm_damping=1.0)
+              for s in ("left", "right")]
+    elbows = [mink.FrameTask(robot.spec.links[f"{s}_elbow"].body, "body",
+                             position_cost=float(np.sqrt(cfg.w_elbow_pos)), orientation_cost=0.0)
+              for s in ("left", "right")]
+    posture = mink.PostureTask(model, cost=1e-2)
+    posture.set_target(robot.rest.copy())
+    tasks = [*wrists, *elbows, posture]
+    limits = [mink.ConfigurationLimit(model),
+              mink.VelocityLimit(model, {n: float(v) for n, v, m in
+                                         zip(robot.joint_names, robot.velocity_limits, robot.ik_mask) if m})]
+    dt = 1.0 / targets.fps
+    out = np.zeros((targets.num_frames, robot.n_joints))
+    for t in range(targets.num_frames):
+        for k, task in enumerate(wrists):
+            pose = np.eye(4)
+            pose[:3, :3] = targets.wrist_rot[t, k]
+            pose[:3, 3] = targets.wrist_pos[t, k]
+            task.set_target(mink.SE3.from_matrix(world_from_torso @ pose))
+        for k, task in enumerate(elbows):
+            pose = np.eye(4)
+            pose[:3, 3] = targets.elbow_pos[t, k]
+            task.set_target(mink.SE3.from_matrix(world_from_torso @ pose))
+        for _ in range(iterations):
+            vel = mink.solve_ik(conf, tasks, dt, solver="daqp", damping=1e-3, limits=limits)
+            conf.integrate_inplace(vel, dt)
+        out[t] = conf.q
+    if targets.hand_joints:  # same fingers as ours
+        cols = [robot.joint_index(n) for n in targets.hand_joints]
+        out[:, cols] = targets.hand_q
+    return out
+
+
+def contact_pairs(robot: Robot, q: np.ndarray) -> Counter:
+    """Frames per penetrating body pair (same filtering as `verify`), for the breakdown."""
+    from embody.retarget.verify import _subtree_ids
+
+    model, data = robot.model, mujoco.MjData(robot.model)
+    ignored = [_subtree_ids(model, b) for b in robot.spec.collision.ignore_subtrees]
+    skip = {frozenset((model.body(a).id, model.body(b).id)) for a, b in robot.spec.collision.ignore_pairs}
+    out: Counter = Counter()
+    for qt in q:
+        data.qpos[:] = robot.qpos(qt)
+        mujoco.mj_forward(model, data)
+        seen = set()
+        for c in data.contact[: data.ncon]:
+            b1, b2 = model.geom_bodyid[c.geom1], model.geom_bodyid[c.geom2]
+            if c.dist >= 0 or model.body_parentid[b1] == b2 or model.body_parentid[b2] == b1:
+                continue
+            if any(b1 in s and b2 in s for s in ignored) or frozenset((b1, b2)) in skip:
+                continue
+            seen.add(tuple(sorted((model.body(b1).name, model.body(b2).name))))
+        out.update(seen)
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser()
+    parser.add_argument("--sequences", type=int, default=4)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    robot, body = load_robot(), load_body_model()
+    cfg = IKConfig()
+    fit = shape_fit(robot, body, cfg)
+    model = fixed_base_model(robot)
+    seqs = [generate_sequence(args.seed, i) for i in range(args.sequences)]
+    all_targets = [build_targets(m, body, fit, robot) for m in seqs]
+    solve(robot, all_targets[0], IKConfig(iterations=1))  # warm-up (chain build, proxies)
+    run_mink(robot, model, all_targets[0], iterations=1)
+    totals = {k: 0.0 for k in ("ours_t", "mink_t", "frames")}
+    rows = {"ours": [], "mink": []}
+    free_err: list[float] = []  # ours without the collision term: what collision avoidance costs
+    pairs = {"ours": Counter(), "mink": Counter()}
+    print(f"{'seq':>4} {'frames':>6} {'solver':>6} {'fps':>8} {'wrist_mm':>9} {'rot_deg':>8} {'jerk':>9} "
+          f"{'vel_viol':>8} {'coll_frames':>11}")
+    for i, targets in enumerate(all_targets):
+        t0 = time.perf_counter()
+        ours = solve(robot, targets, cfg).q
+        t1 = time.perf_counter()
+        theirs = run_mink(robot, model, targets)
+        t2 = time.perf_counter()
+        totals["ours_t"] += t1 - t0
+        totals["mink_t"] += t2 - t1
+        totals["frames"] += targets.num_frames
+        free = solve(robot, targets, cfg.model_copy(update={"w_collision": 0.0}))
+        free_err.append(free.metrics["wrist_pos_err_mm"])
+        for name, q, dt in (("ours", ours, t1 - t0), ("mink", theirs, t2 - t1)):
+            _, m = verify(robot, q, targets)
+            rows[name].append(m)
+            pairs[name].update(contact_pairs(robot, q))
+            print(f"{i:>4} {targets.num_frames:>6} {name:>6} {targets.num_frames / dt:>8.1f} "
+                  f"{m['wrist_pos_err_mm']:>9.2f} {m['wrist_rot_err_deg']:>8.2f} {m['jerk']:>9.1f} "
+                  f"{int(m['velocity_violations']):>8} {int(m['self_collision_frames']):>11}")
+
+    def mean(name: str, key: str) -> float:
+        return float(np.mean([m[key] for m in rows[name]]))
+
+    for name in pairs:
+        print(f"contact frames by body pair ({name}):",
+              ", ".join(f"{a}/{b}={n}" for (a, b), n in pairs[name].most_common(6)))
+    print(f"ours without the collision term: wrist {np.mean(free_err):.2f} mm")
+    ours_fps = totals["frames"] / totals["ours_t"]
+    mink_fps = totals["frames"] / totals["mink_t"]
+    coll = {n: int(sum(m["self_collision_frames"] for m in rows[n])) for n in rows}
+    print(f"RESULT ours_fps={ours_fps:.1f} mink_fps={mink_fps:.1f} fps_ratio={ours_fps / mink_fps:.3f} "
+          f"ours_wrist_mm={mean('ours', 'wrist_pos_err_mm'):.2f} mink_wrist_mm={mean('mink', 'wrist_pos_err_mm'):.2f} "
+          f"ours_rot_deg={mean('ours', 'wrist_rot_err_deg'):.2f} mink_rot_deg={mean('mink', 'wrist_rot_err_deg'):.2f} "
+          f"ours_jerk={mean('ours', 'jerk'):.1f} mink_jerk={mean('mink', 'jerk'):.1f} "
+          f"ours_collision_frames={coll['ours']} mink_collision_frames={coll['mink']} "
+          f"ours_free_wrist_mm={np.mean(free_err):.2f} ours_vel_viol={mean('ours', 'velocity_violations'):.1f} "
+          f"mink_vel_viol={mean('mink', 'velocity_violations'):.1f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,147 @@
+"""The self-collision energy (Eq. 1) on the mannequin: zeros, a brute-force reference, gradients."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from embody.body import MannequinBody
+from embody.collision import collision_model, frame_energies, part_volumes
+from embody.collision.exclusions import checked_pairs, group_name, part_groups
+from embody.errors import ConfigError
+from embody.motion import JOINT_NAMES
+
+J = JOINT_NAMES.index
+
+
+def reference_energies(body, pose: np.ndarray, stride: int, tolerance: float = 0.0,
+                       allow=()) -> np.ndarray:
+    """Eq. 1 by brute force: every point against every piece of every checked part."""
+    vols = part_volumes(body)
+    groups, part_group = part_groups(vols.part_names)
+    checked = checked_pairs(groups, body.joint_names, body.parents, allow)
+    betas = torch.zeros(10, dtype=torch.float64)
+    rest = body.rest_vertices(betas).numpy()
+    g_rest = body.joint_transforms(torch.zeros(1, 55, 3, dtype=torch.float64), betas)[0].numpy()
+    g = body.joint_transforms(torch.as_tensor(pose, dtype=torch.float64), betas).numpy()
+    out = np.zeros(len(pose))
+    for a, ja in enumerate(vols.part_joints):
+        local = (rest[vols.vertex_parts == a][::stride] - g_rest[ja, :3, 3]) @ g_rest[ja, :3, :3]
+        for t in range(len(pose)):
+            world = local @ g[t, ja, :3, :3].T + g[t, ja, :3, 3]
+            for b, jb in enumerate(vols.part_joints):
+                if not checked[part_group[a], part_group[b]]:
+                    continue
+                q = (world - g[t, jb, :3, 3]) @ g[t, jb, :3, :3]
+                f = np.min([np.max(q @ pc.planes[:, :3].T + pc.planes[:, 3], axis=1)
+                            for pc in vols.pieces if pc.part == b], axis=0)
+                out[t] += (np.maximum(0.0, -f - tolerance) ** 2).sum()
+    return out
+
+
+def crossing_poses() -> np.ndarray:
+    """Arms down into the hips, hands through the chest, hands clasped, fingers curled."""
+    pose = np.zeros((5, 55, 3))
+    pose[1, J("left_shoulder"), 2], pose[1, J("right_shoulder"), 2] = -1.6, 1.6
+    for t, bend in ((2, 2.4), (3, 2.0)):
+        pose[t, J("left_shoulder")] = (0.0, -1.0, -0.3)
+        pose[t, J("right_shoulder")] = (0.0, 1.0, 0.3)
+        pose[t, J("left_elbow"), 1], pose[t, J("right_elbow"), 1] = -bend, bend
+    pose[4] = pose[3]
+    pose[4, 25:40, 2], pose[4, 40:55, 2] = -1.2, 1.2
+    return pose
+
+
+@pytest.fixture(scope="module")
+def body() -> MannequinBody:
+    return MannequinBody()
+
+
+@pytest.fixture(scope="module")
+def model(body):
+    return collision_model(body, vertex_stride=4)
+
+
+def energies(body, model, pose, tolerance=0.0) -> np.ndarray:
+    p = torch.as_tensor(pose, dtype=torch.float64)
+    return frame_energies(model, body.joint_transforms(p, torch.zeros(10, dtype=torch.float64)),
+                          tolerance).numpy()
+
+
+def test_tpose_and_relaxed_poses_are_free(body, model):
+    pose = np.zeros((3, 55, 3))
+    pose[1, J("left_shoulder"), 2], pose[1, J("right_shoulder"), 2] = -1.2, 1.2  # arms down
+    pose[2, J("left_elbow"), 1], pose[2, J("right_elbow"), 1] = -1.0, 1.0        # elbows bent
+    assert np.array_equal(energies(body, model, pose), np.zeros(3))
+
+
+def test_matches_brute_force_reference(body, model):
+    pose = crossing_poses()
+    ours = energies(body, model, pose)
+    ref = reference_energies(body, pose, stride=4)
+    assert ours[0] == 0.0 and (ours[1:] > 1e-4).all()
+    np.testing.assert_allclose(ours, ref, rtol=1e-9, atol=1e-12)
+    tol = 0.005
+    np.testing.assert_allclose(energies(body, model, pose, tol),
+                               reference_energies(body, pose, 4, tol), rtol=1e-9, atol=1e-12)
+
+
+def test_gradient_matches_finite_differences(body, model):
+    pose = torch.as_tensor(crossing_poses()[2:4], dtype=torch.float64)
+    betas = torch.zeros(10, dtype=torch.float64)
+    joints = [J("left_shoulder"), J("right_elbow")]
+
+    def f(x: torch.Tensor) -> torch.Tensor:
+        p = pose.clone()
+        p[:, joints] = x
+        return frame_energies(model, body.joint_transforms(p, betas)).sum()
+
+    x = pose[:, joints].clone().requires_grad_(True)
+    (grad,) = torch.autograd.grad(f(x), x)
+    eps = 1e-6
+    fd = torch.zeros_like(grad)
+    with torch.no_grad():
+        for idx in np.ndindex(*x.shape):
+            dx = torch.zeros_like(x)
+            dx[idx] = eps
+            fd[idx] = (f(x + dx) - f(x - dx)) / (2 * eps)
+    assert grad.abs().max() > 1e-3
+    torch.testing.assert_close(grad, fd, rtol=1e-4, atol=1e-7)
+
+
+def test_device_and_dtype_follow_the_input(body, model):
+    pose = torch.as_tensor(crossing_poses(), dtype=torch.float32)
+    e = frame_energies(model, body.joint_transforms(pose, torch.zeros(10)))
+    assert e.dtype == torch.float32 and e.device == pose.device
+    np.testing.assert_allclose(e.numpy(), energies(body, model, crossing_poses()), rtol=1e-3,
+                               atol=1e-7)
+
+
+def test_allow_pairs_and_group_names(body):
+    assert group_name("left_index2") == "left_hand" and group_name("right_wrist") == "right_hand"
+    pose = crossing_poses()[2:3]
+    base = collision_model(body, vertex_stride=4)
+    allowed = collision_model(body, vertex_stride=4,
+                              allow_pairs=[("left_hand", "spine3"), ("right_hand", "spine3"),
+                                           ("left_elbow", "spine3"), ("right_elbow", "spine3"),
+                                           ("left_hand", "right_hand"),
+                                           ("left_elbow", "right_elbow"),
+                                           ("left_hand", "right_elbow"),
+                                           ("right_hand", "left_elbow")])
+    assert energies(body, base, pose)[0] > 0
+    assert energies(body, allowed, pose)[0] < energies(body, base, pose)[0]
+    with pytest.raises(ConfigError, match="allow_pairs"):
+        collision_model(body, allow_pairs=[("left_hand", "tail")])
+
+
+def test_exclusions_cover_the_skeleton(body, model):
+    groups = model.groups
+    checked = checked_pairs(groups, body.joint_names, body.parents)
+    idx = groups.index
+    assert np.array_equal(checked, checked.T) and not checked.diagonal().any()
+    # parent-child, through joints that own no vertices (collar): upper arm-chest excluded
+    assert not checked[idx("left_shoulder"), idx("spine3")]
+    assert not checked[idx("left_hand"), idx("left_elbow")]
+    assert not checked[idx("left_hip"), idx("right_hip")]
+    assert checked[idx("left_hand"), idx("head")] and checked[idx("left_hand"), idx("right_hand")]
