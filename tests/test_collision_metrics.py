@@ -15,7 +15,7 @@ def test_sequence_metrics_by_hand():
     x[1, 0, 0] = 1.0      # one frame moved by 1 rad on one axis
     x[2, 1, 2] = 2.0      # another by 2 rad
     assert pose_mse(x, x0) == pytest.approx((1 + 4) / 4)
-    # second differences of x: frame1: x0-2x1+x2 → (−2 on [0,0,0]) + (2 on [1,2]) ; frame2: x1-2x2+x3
+    # second differences: frame 1 → −2 on [0,0] and +2 on [1,2]; frame 2 → +1 and −4
     acc1 = 4 + 4          # (−2)² + 2²
     acc2 = 1 + 16         # 1² + (−4)²
     assert accel_mse(x) == pytest.approx((acc1 + acc2) / 2)

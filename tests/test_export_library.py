@@ -54,6 +54,13 @@ def test_reexport_removes_stale_files(tmp_path) -> None:
         "a.npz", "excluded.csv", "library.csv", "mine.txt"]
 
 
+def test_safe_names_stay_distinct() -> None:
+    from embody.report.library import safe_name
+
+    assert safe_name("seq_001") == "seq_001"
+    assert safe_name("a/b") != safe_name("a_b") and safe_name("a/b").startswith("a_b-")
+
+
 def test_bad_inputs(tmp_path) -> None:
     with pytest.raises(InputError, match="q"):
         Trajectory(id="x", robot="r", joint_names=NAMES, q=np.zeros((5, 2)), dt=0.02)

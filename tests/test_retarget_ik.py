@@ -39,16 +39,16 @@ def _smooth_random_q(robot, t: int, seed: int) -> np.ndarray:
 
 
 def test_reaches_reachable_targets_within_limits(robot):
-    targets = _targets_from_q(robot, _smooth_random_q(robot, 16, seed=1))
+    targets = _targets_from_q(robot, _smooth_random_q(robot, 24, seed=1))
     sol = solve(robot, targets, IKConfig())
-    assert sol.q.shape == (16, robot.n_joints)
+    assert sol.q.shape == (24, robot.n_joints)
     assert sol.metrics["wrist_pos_err_mm"] < 5.0
     assert sol.metrics["wrist_rot_err_deg"] < 3.0
     assert np.all(sol.q >= robot.lower) and np.all(sol.q <= robot.upper)
     assert sol.metrics["joint_limit_violations"] == 0
     assert sol.metrics["velocity_violations"] == 0
-    # 16 frames at 30 fps = 0.5 s → 26 samples at 50 Hz
-    assert sol.q_control.shape == (26, robot.n_joints)
+    # 24 frames at 30 fps span 23/30 s → 39 samples at 50 Hz
+    assert sol.q_control.shape == (39, robot.n_joints)
     # warm start from the previous solution converges at least as well
     again = solve(robot, targets, IKConfig(iterations=5), init=sol)
     assert again.metrics["wrist_pos_err_mm"] <= sol.metrics["wrist_pos_err_mm"] + 0.5

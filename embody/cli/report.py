@@ -65,14 +65,18 @@ def run_ablation(store_root: str, run: str) -> dict[str, Any]:
               help="Output folder [default: reports/<run>].")
 @click.option("--ablation", is_flag=True,
               help="Also run the three Table II collision settings (cached like any run).")
+@click.option("--max-figures", type=click.IntRange(min=0), default=12, show_default=True,
+              help="Wrist-trajectory figures, for the sequences with the largest IK error.")
+@click.option("--max-sheets", type=click.IntRange(min=0), default=4, show_default=True,
+              help="Critic comparison sheets to render (about 2 s each).")
 @json_option
 def command(run: str | None, store_root: str, out_dir: str | None, ablation: bool,
-            as_json: bool) -> int:
+            max_figures: int, max_sheets: int, as_json: bool) -> int:
     """Write the report of RUN (default: the store's latest run) to reports/RUN/."""
     from embody.report import collect, default_out_dir, latest_run, write_report
 
     run = run or latest_run(store_root)
-    data = collect(store_root, run)
+    data = collect(store_root, run, max_figures=max_figures, max_sheets=max_sheets)
     if ablation:
         data.ablation = run_ablation(store_root, run)
     paths = write_report(data, Path(out_dir) if out_dir else default_out_dir(run))

@@ -11,6 +11,7 @@ narrow phase on those rows is differentiable, so the cost follows the pairs that
 
 from __future__ import annotations
 
+import weakref
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 
@@ -31,9 +32,9 @@ def _sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
 
 
 def _inside_own(points: np.ndarray, pieces: list) -> np.ndarray:
-    """Points within their own part's pieces: the few that a simplified or decomposed piece
-    leaves outside are dropped, so a point inside another part always means overlapping
-    volumes (never a point floating outside its own volume)."""
+    """Guard: `volumes.cover` puts every vertex inside its own part's pieces; any point that
+    rounding leaves outside is dropped, so a point inside another part always means that the
+    two parts' volumes overlap."""
     f = np.min([np.max(points @ pc.planes[:, :3].T + pc.planes[:, 3], axis=1) for pc in pieces],
                axis=0)
     return f <= 1e-9
@@ -83,15 +84,19 @@ class CollisionModel:
         cache = self.__dict__.setdefault("_tensors", {})
         key = (dtype, device)
         if key not in cache:
-            cache[key] = {name: torch.as_tensor(getattr(self, name), device=device).to(
-                dtype if getattr(self, name).dtype == np.float64 else None)
-                for name in ("part_joints", "checked", "chunk_part", "chunk_points",
-                             "chunk_mask", "chunk_center", "chunk_radius", "part_center", "part_radius",
-                             "part_pieces", "planes", "piece_box")}
+            out = {}
+            for name in ("part_joints", "checked", "chunk_part", "chunk_points", "chunk_mask",
+                         "chunk_center", "chunk_radius", "part_center", "part_radius",
+                         "part_pieces", "planes", "piece_box"):
+                a = getattr(self, name)
+                out[name] = torch.as_tensor(a, device=device,
+                                            dtype=dtype if a.dtype == np.float64 else None)
+            cache[key] = out
         return cache[key]
 
 
-_models: dict[tuple, CollisionModel] = {}
+_models: weakref.WeakKeyDictionary[BodyModel, dict[tuple, CollisionModel]] = \
+    weakref.WeakKeyDictionary()
 #: Points per broad-phase chunk.
 CHUNK_SIZE = 24
 
@@ -103,9 +108,10 @@ def collision_model(body: BodyModel, betas: np.ndarray | None = None, *, vertex_
     betas = np.zeros(10) if betas is None else np.asarray(betas, dtype=np.float64)
     vols = part_volumes(body, betas, max_overfill=max_overfill)
     allow = tuple(tuple(p) for p in allow_pairs)
-    key = (id(body), vols.key, vertex_stride, allow)
-    if key in _models:
-        return _models[key]
+    key = (vols.key, vertex_stride, allow)
+    models = _models.setdefault(body, {})
+    if key in models:
+        return models[key]
     groups, part_group = part_groups(vols.part_names)
     gchecked = checked_pairs(groups, body.joint_names, body.parents, allow)
     rest = body.rest_vertices(torch.as_tensor(betas)).double().numpy()
@@ -115,6 +121,8 @@ def collision_model(body: BodyModel, betas: np.ndarray | None = None, *, vertex_
     for i, j in enumerate(vols.part_joints):
         local = to_local(rest[vols.vertex_parts == i][::vertex_stride], frames[j])
         local = local[_inside_own(local, [pc for pc in vols.pieces if pc.part == i])]
+        if len(local) == 0:
+            continue
         for idx in _chunks(local, CHUNK_SIZE):
             chunk_part.append(i)
             chunk_pts.append(local[idx])
@@ -137,11 +145,12 @@ def collision_model(body: BodyModel, betas: np.ndarray | None = None, *, vertex_
         groups=groups, part_names=vols.part_names, part_joints=vols.part_joints,
         part_group=part_group, checked=gchecked[part_group[:, None], part_group[None, :]],
         chunk_part=np.array(chunk_part), chunk_points=points, chunk_mask=mask,
-        chunk_center=np.array([c for c, _ in chunk_s]), chunk_radius=np.array([r for _, r in chunk_s]),
+        chunk_center=np.array([c for c, _ in chunk_s]),
+        chunk_radius=np.array([r for _, r in chunk_s]),
         part_center=np.array([c for c, _ in part_s]), part_radius=np.array([r for _, r in part_s]),
         part_pieces=part_pieces, planes=planes,
         piece_box=np.array([box(pc.vertices) for pc in vols.pieces]))
-    _models[key] = model
+    models[key] = model
     return model
 
 
@@ -166,7 +175,8 @@ class Contacts:
     k: torch.Tensor
 
 
-def _frames(d: dict[str, torch.Tensor], transforms: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def _frames(d: dict[str, torch.Tensor],
+            transforms: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     g = transforms[:, d["part_joints"]]                        # (T,C,4,4)
     return g[..., :3, :3], g[..., :3, 3]
 
@@ -179,9 +189,8 @@ def _chunk_local(d: dict[str, torch.Tensor], rot: torch.Tensor, trans: torch.Ten
     return d["chunk_points"][c.h] @ rel.transpose(-1, -2) + off
 
 
-def _chunk_sdf(d: dict[str, torch.Tensor], q: torch.Tensor, c: Contacts) -> torch.Tensor:
-    """Signed distance (R,S) of local points q (R,S,3) to piece k, via one batched matmul."""
-    planes = d["planes"][c.k]                                  # (R,F,4)
+def _rows_sdf(q: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
+    """max_f (n_f·q + d_f) (R,S) for chunks of local points (R,S,3) and one piece per row."""
     return torch.baddbmm(planes[:, None, :, 3], q, planes[..., :3].transpose(-1, -2)).amax(-1)
 
 
@@ -213,7 +222,7 @@ def contacts(model: CollisionModel, transforms: torch.Tensor, margin: float = 0.
                 d["chunk_mask"][c.h]
             hit = pts.any(dim=1)
             c = Contacts(c.t[hit], c.h[hit], c.a[hit], c.b[hit], c.k[hit])
-            hit = ((_chunk_sdf(d, q[hit], c) < margin) & pts[hit]).any(dim=1)
+            hit = ((_rows_sdf(q[hit], d["planes"][c.k]) < margin) & pts[hit]).any(dim=1)
             c = Contacts(c.t[hit], c.h[hit], c.a[hit], c.b[hit], c.k[hit])
     return c
 
@@ -237,22 +246,26 @@ def frame_energies(model: CollisionModel, transforms: torch.Tensor, tolerance: f
     rot, trans = _frames(d, transforms)
     with torch.no_grad():
         q = _chunk_local(d, rot, trans, c)
-        planes = d["planes"][c.k]
-        f, plane = torch.baddbmm(planes[:, None, :, 3], q, planes[..., :3].transpose(-1, -2)).max(-1)
-        inside = (f < -tolerance) & d["chunk_mask"][c.h]
-        r, n = torch.nonzero(inside, as_tuple=True)
+        inbox = (_box_distance(q, d["piece_box"][c.k][:, None]) <= 0) & d["chunk_mask"][c.h]
+        r, n = torch.nonzero(inbox, as_tuple=True)
+        planes = d["planes"][c.k[r]]                                # (Q,F,4)
+        f, plane = (torch.bmm(planes[..., :3], q[r, n].unsqueeze(-1)).squeeze(-1)
+                    + planes[..., 3]).max(-1)
+        inside = f < -tolerance
+        r, n, f, plane, planes = r[inside], n[inside], f[inside], plane[inside], planes[inside]
         if r.numel() == 0:
             return zero
         # a part's SDF is the min over its pieces: keep the deepest piece per (frame, point, part)
         n_chunks, n_parts, size = d["chunk_part"].shape[0], d["part_radius"].shape[0], q.shape[1]
         key = ((c.t[r] * n_chunks + c.h[r]) * size + n) * n_parts + c.b[r]
-        order = torch.sort(f[r, n], stable=True).indices          # deepest first
+        order = torch.sort(f, stable=True).indices                  # deepest first
         order = order[torch.sort(key[order], stable=True).indices]  # grouped by key
         first = torch.ones_like(order, dtype=torch.bool)
         first[1:] = key[order][1:] != key[order][:-1]
-        r, n = r[order[first]], n[order[first]]
+        keep = order[first]
+        r, n = r[keep], n[keep]
         t, h, a, b = c.t[r], c.h[r], c.a[r], c.b[r]
-        nd = planes[r, plane[r, n]]                                 # (Q,4) the active plane
+        nd = planes[keep, plane[keep]]                              # (Q,4) the active plane
     p = _apply(rot[t, a], trans[t, a], d["chunk_points"][h, n])
     ql = ((p - trans[t, b]).unsqueeze(-2) @ rot[t, b]).squeeze(-2)
     depth = torch.relu(-(ql * nd[:, :3]).sum(-1) - nd[:, 3] - tolerance)

@@ -88,7 +88,8 @@ def checked_pairs(groups: Sequence[str], joint_names: Sequence[str], parents: np
         drop(a, b)
     for pair in allow_pairs:
         if len(pair) != 2:
-            raise ConfigError("collision.allow_pairs", f"expected pairs of part names, got {pair!r}")
+            raise ConfigError("collision.allow_pairs",
+                              f"expected pairs of part names, got {pair!r}")
         for name in pair:
             if name not in index:
                 raise ConfigError("collision.allow_pairs",

@@ -25,9 +25,11 @@ from embody.body.base import BodyModel, ConvexPiece
 from embody.body.parts import dominant_parts
 
 #: Bump when the construction changes, so stale disk caches are ignored.
-VERSION = 4
+VERSION = 5
 #: Vertices kept per convex piece: bounds the planes the energy evaluates per point.
 MAX_PIECE_VERTICES = 32
+#: Parts with fewer vertices (or flat ones) get no volume.
+MIN_PART_VERTICES = 8
 #: CoACD concavity thresholds tried in turn until the part is tight enough.
 COACD_THRESHOLDS = (0.1, 0.05)
 
@@ -51,7 +53,7 @@ class PartVolumes:
 
     part_names: tuple[str, ...]
     part_joints: np.ndarray
-    #: Rest-mesh vertex → part (V,), -1 never occurs.
+    #: Rest-mesh vertex → part (V,); -1 for the vertices of parts too small for a volume.
     vertex_parts: np.ndarray
     pieces: tuple[ConvexPiece, ...]
     hull_volume: np.ndarray
@@ -91,7 +93,8 @@ def _fps(points: np.ndarray, k: int) -> np.ndarray:
     return points[np.sort(chosen)]
 
 
-def hull(points: np.ndarray, max_vertices: int = MAX_PIECE_VERTICES) -> tuple[np.ndarray, np.ndarray]:
+def hull(points: np.ndarray,
+         max_vertices: int = MAX_PIECE_VERTICES) -> tuple[np.ndarray, np.ndarray]:
     """(vertices, planes) of the convex hull, reduced to at most `max_vertices` vertices."""
     points = np.asarray(points, dtype=np.float64)
     try:
@@ -211,9 +214,14 @@ def _build(body: BodyModel, rest: np.ndarray, frames: np.ndarray, max_overfill: 
     solid = closed_body(rest, body.faces)
     pieces: list[ConvexPiece] = []
     hull_vol, overfill = [], []
+    kept: list[int] = []
     for i, j in enumerate(parts.joints):
         frame = frames[j]
         world = rest[parts.vertex_parts == i]
+        if len(world) < MIN_PART_VERTICES or np.linalg.matrix_rank(world - world.mean(0)) < 3:
+            continue  # too small to enclose a volume (only in toy meshes)
+        kept.append(i)
+        i = len(kept) - 1
         local = to_local(world, frame)
         to_world = lambda c: [pv @ frame[:3, :3].T + frame[:3, 3] for pv, _ in c]  # noqa: E731
         single = hull(local)
@@ -237,8 +245,12 @@ def _build(body: BodyModel, rest: np.ndarray, frames: np.ndarray, max_overfill: 
                    for pv, pp in candidates[best]]
         hull_vol.append(vol)
         overfill.append(scores[best])
-    return PartVolumes(tuple(body.joint_names[j] for j in parts.joints), parts.joints,
-                       parts.vertex_parts, tuple(pieces), np.array(hull_vol), np.array(overfill), key)
+    remap = np.full(len(parts.joints), -1, dtype=np.int64)
+    remap[kept] = np.arange(len(kept))
+    joints = parts.joints[kept]
+    return PartVolumes(tuple(body.joint_names[j] for j in joints), joints,
+                       remap[parts.vertex_parts], tuple(pieces), np.array(hull_vol),
+                       np.array(overfill), key)
 
 
 def _save(vols: PartVolumes, path: Path) -> None:
@@ -280,5 +292,6 @@ def _load(path: Path, key: str) -> PartVolumes | None:
 
 def overfill_report(body: BodyModel, betas: np.ndarray | None = None, *,
                     max_overfill: float = 0.10) -> pd.DataFrame:
-    """Per part: pieces, hull volume (cm³) and overfill (% of the pieces' volume outside the body)."""
+    """Per part: pieces, single-hull volume (cm³) and overfill (% of the pieces' union outside
+    the closed body mesh; NaN when the mesh is not closed)."""
     return part_volumes(body, betas, max_overfill=max_overfill).report()

@@ -24,7 +24,7 @@ class IKConfig(Section):
     w_torso_rot: float = Field(0.005, ge=0)
     w_head_rot: float = Field(0.0, ge=0)
     #: Second differences of q (rad²): smoothness over the whole sequence.
-    w_smooth: float = Field(0.2, ge=0)
+    w_smooth: float = Field(1.0, ge=0)
     #: Pull towards the T-pose: resolves redundancy (elbow swivel, waist) gently.
     w_posture: float = Field(1e-4, ge=0)
     w_collision: float = Field(50.0, ge=0)

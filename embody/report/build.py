@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -32,6 +33,7 @@ def default_out_dir(run_name: str) -> Path:
 
 def _figures(data: RunData, out_dir: Path) -> dict[str, list[Path]]:
     fig_dir = out_dir / "figures"
+    shutil.rmtree(fig_dir, ignore_errors=True)  # ours: no stale figures of an earlier report
     out: dict[str, list[Path]] = {"Collision": [], "Wrist trajectories": [],
                                   "Critic comparison sheets": []}
     if len(data.collision):

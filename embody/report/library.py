@@ -7,6 +7,7 @@ so a user can see what the library is missing and why.
 
 from __future__ import annotations
 
+import hashlib
 import io
 import json
 import zipfile
@@ -112,8 +113,12 @@ def validate(robot: Any, q: np.ndarray, fps: float) -> dict[str, float]:
 
 
 def safe_name(sid: str) -> str:
-    """A sequence id as a file name (ids may hold slashes or spaces)."""
-    return "".join(c if c.isalnum() or c in "-_." else "_" for c in sid)
+    """A sequence id as a file name; ids with slashes or spaces get a short hash so that
+    "a/b" and "a_b" stay distinct."""
+    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in sid)
+    if safe == sid:
+        return sid
+    return f"{safe}-{hashlib.sha1(sid.encode('utf-8')).hexdigest()[:8]}"
 
 
 def _remove_previous(out_dir: Path) -> None:

@@ -8,6 +8,7 @@ retargeting stage's own functions on the stored trajectories.
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 from typing import Any
 
@@ -16,6 +17,8 @@ import pandas as pd
 
 from embody.errors import InputError
 from embody.report.data import RunData
+
+log = logging.getLogger(__name__)
 
 #: Step names as the orchestrator stores them (tasks/stages.py).
 SOURCE, COLLIDE, SHAPE_FIT = "source", "collide", "shape_fit"
@@ -134,6 +137,7 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
     comparison sheets for the first `max_sheets` of those (rendering costs ~2 s each), so a
     20k-sequence run still gets a readable page in bounded time.
     """
+    from embody.render import RenderError
     from embody.report.library import validate
 
     store, manifest = open_run(store_root, run)
@@ -175,7 +179,11 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
                       "refined": robotics.wrists(r.final.q)}
             if rank < max_sheets:
                 motion = load_result(store, seqs[sid], COLLIDE).motion
-                data.sheets[sid] = robotics.sheet(motion, r, f"{sid}: final round")
+                try:
+                    data.sheets[sid] = robotics.sheet(motion, r, f"{sid}: final round")
+                except RenderError as exc:  # no offscreen GL here: the rest of the report stands
+                    log.warning("comparison sheet of %s not rendered: %s", sid, exc)
+                    max_sheets = 0
         else:
             motion = load_result(store, seqs[sid], COLLIDE).motion
             tracks = {"reference": robotics.reference_wrists(motion),

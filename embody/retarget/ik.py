@@ -227,14 +227,16 @@ def evaluate(robot: Robot, q: np.ndarray, targets: Targets) -> tuple[dict[str, n
     return frames, metrics
 
 
-def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None, init: "IKSolution | np.ndarray | None" = None) -> IKSolution:
+def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
+          init: IKSolution | np.ndarray | None = None) -> IKSolution:
     """Solve all frames jointly; `init` (previous solution or (T,n) q) warm-starts the solver."""
     cfg = cfg or IKConfig()
     problem = _Problem(robot, targets, cfg, torch.float64)
     t = targets.num_frames
     q0 = init.q if isinstance(init, IKSolution) else init
-    qi0 = None if q0 is None or np.shape(q0) != (t, robot.n_joints) else np.asarray(q0, dtype=np.float64)[:, problem.ik]
-    if qi0 is None:
+    if q0 is not None and np.shape(q0) == (t, robot.n_joints):
+        qi0 = np.asarray(q0, dtype=np.float64)[:, problem.ik]
+    else:
         qi0 = np.tile(robot.rest[problem.ik], (t, 1))
         if problem.residuals.proxies is not None:
             # Cold start: track without the collision term first (smooth, fast to converge), then

@@ -93,12 +93,13 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot) 
         return axes @ rot[:, idx(joint)] @ axes.T @ rest
 
     sides = ("left", "right")
+    identity = np.tile(np.eye(3), (len(pos), 1, 1))
     hand_q, hand_joints = retarget_hands(motion.pose, robot)
     return Targets(
         wrist_pos=np.stack([pos[:, idx(f"{s}_wrist")] for s in sides], axis=1),
         wrist_rot=np.stack([mapped_rot(f"{s}_wrist", f"{s}_wrist") for s in sides], axis=1),
         elbow_pos=np.stack([pos[:, idx(f"{s}_elbow")] for s in sides], axis=1),
-        torso_rot=mapped_rot("spine3", "spine3") if "spine3" in robot.spec.links else np.tile(np.eye(3), (len(pos), 1, 1)),
-        head_rot=mapped_rot("head", "head") if "head" in robot.spec.links else np.tile(np.eye(3), (len(pos), 1, 1)),
+        torso_rot=mapped_rot("spine3", "spine3") if "spine3" in robot.spec.links else identity,
+        head_rot=mapped_rot("head", "head") if "head" in robot.spec.links else identity,
         hand_q=hand_q, hand_joints=hand_joints, fps=motion.fps, arm_length=robot_arm_length(robot),
     )

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import fnmatch
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
@@ -40,7 +40,6 @@ class Robot:
     rest: np.ndarray
     ik_mask: np.ndarray
     qpos_adr: np.ndarray
-    _kin: dict[str, Kinematics] = field(default_factory=dict, repr=False)
 
     @property
     def n_joints(self) -> int:
@@ -57,11 +56,10 @@ class Robot:
     def joint_index(self, name: str) -> int:
         return self.joint_names.index(name)
 
-    @property
+    @cached_property
     def kinematics(self) -> Kinematics:
-        if "k" not in self._kin:
-            self._kin["k"] = Kinematics(self.mjcf_path, self.spec.root_body, self.joint_names)
-        return self._kin["k"]
+        """The pytorch-kinematics chain, built on first use (float64)."""
+        return Kinematics(self.mjcf_path, self.spec.root_body, self.joint_names)
 
     # --- frames -------------------------------------------------------------------------
 

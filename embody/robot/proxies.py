@@ -97,7 +97,8 @@ class Proxies:
         body_names = [model.body(b).name for b in range(model.nbody)]
         names, bodies, s_body, s_part, centres, radii = [], [], [], [], [], []
         for p, (name, ps) in enumerate(robot.spec.proxies.items()):
-            matched = [b for b, n in enumerate(body_names) if any(fnmatch.fnmatchcase(n, pat) for pat in ps.bodies)]
+            matched = [b for b, n in enumerate(body_names)
+                       if any(fnmatch.fnmatchcase(n, pat) for pat in ps.bodies)]
             geoms = [g for b in matched for g in range(model.ngeom)
                      if model.geom_bodyid[g] == b and model.geom_group[g] in groups]
             if ps.geoms:
@@ -105,7 +106,7 @@ class Proxies:
             if not geoms:
                 raise ValueError(f"proxy {name!r}: no collision geoms")
             points = np.vstack([_geom_points(model, data, g) for g in geoms])
-            anchor = body_names.index(next(n for n in body_names if any(fnmatch.fnmatchcase(n, pat) for pat in ps.bodies)))
+            anchor = matched[0]  # spheres ride on the first matching body
             r, pos = data.xmat[anchor].reshape(3, 3), data.xpos[anchor]
             local = (points - pos) @ r
             c, rad = (_sphere_chain if ps.layout == "chain" else _sphere_cluster)(local, ps.spheres, ps.cover)
@@ -119,10 +120,12 @@ class Proxies:
         s_part_arr = np.array(s_part)
         pairs = []
         for a, b in robot.spec.proxy_pairs:
-            ia, ib = np.flatnonzero(s_part_arr == names.index(a)), np.flatnonzero(s_part_arr == names.index(b))
+            ia = np.flatnonzero(s_part_arr == names.index(a))
+            ib = np.flatnonzero(s_part_arr == names.index(b))
             pairs += [(i, j) for i in ia for j in ib]
         return cls(names=names, bodies=bodies, sphere_body=np.array(s_body), sphere_part=s_part_arr,
-                   centres=np.vstack(centres), radii=np.concatenate(radii), pairs=np.array(pairs, dtype=np.int64))
+                   centres=np.vstack(centres), radii=np.concatenate(radii),
+                   pairs=np.array(pairs, dtype=np.int64))
 
     def world_centres(self, robot: Robot, q: torch.Tensor) -> torch.Tensor:
         """Sphere centres (B,N,3) in the torso frame."""

@@ -1,0 +1,60 @@
+"""`write_report` from plain DataFrames (no store): tables, summary and page for in-memory data."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+
+from embody.collision.metrics import sequence_metrics, table1
+from embody.report import RunData, write_report
+from embody.report.assemble import number, table1_slot
+
+
+def _data() -> RunData:
+    rng = np.random.default_rng(0)
+    ids = ["s0", "s1", "s2", "s3"]
+    coll = {}
+    for k, sid in enumerate(ids[:3]):
+        x0 = rng.normal(size=(12, 55, 3))
+        x = x0 + 0.01 * k * rng.normal(size=x0.shape)
+        coll[sid] = sequence_metrics(x0, x, energy_before=[0.0, 2.0, 1.0][k],
+                                     energy_after=[0.0, 0.5, 1.2][k], runtime_s=1.0 + k, steps=50)
+    retarget = pd.DataFrame({"wrist_pos_err_mm": [10.0, 20.0, 30.0],
+                             "wrist_rot_err_deg": [1.0, 2.0, 3.0],
+                             "joint_limit_violations": [0.0, 0.0, 0.0],
+                             "velocity_violations": [0.0, 1.0, 0.0],
+                             "self_collision_frames": [0.0, 0.0, 2.0]}, index=ids[:3])
+    sequences = pd.DataFrame({"status": ["ok", "ok", "ok", "failed"],
+                              "error": ["", "", "", "collide: boom"], "text": ["a", "b", "c", "d"]},
+                             index=pd.Index(ids, name="id"))
+    return RunData("mem", sequences, collision=pd.DataFrame.from_dict(coll, orient="index"),
+                   retarget=retarget)
+
+
+def test_report_from_dataframes(tmp_path) -> None:
+    data = _data()
+    paths = write_report(data, tmp_path / "r")
+    assert set(paths.tables) == {"table1_collision", "table2_ablation", "table3_retargeting"}
+    t1 = pd.read_csv(paths.tables["table1_collision"]["csv"]).set_index("Metric")
+    for label, value in table1(data.collision)["value"].items():
+        row, column = table1_slot(str(label))
+        assert number(t1.loc[row, column]) == number(value) or (
+            np.isnan(number(value)) and np.isnan(number(t1.loc[row, column]))), label
+    t3 = pd.read_csv(paths.tables["table3_retargeting"]["csv"]).set_index("Method")
+    assert t3.loc["IK only", "Wrist pos. mean (mm)"] == 20.0
+    assert t3.loc["IK only", "Vel. viol."] == 1 and t3.loc["IK only", "Self-coll. frames"] == 2
+    assert np.isnan(t3.loc["IK only", "Wrist pos. p95 (mm)"])  # only the critic measures it
+    summary = json.loads(paths.summary.read_text())
+    assert summary["collision.improved_pct"] == 50.0  # s1 improved, s2 got worse, s0 no collision
+    assert summary["collision.reduction_median_pct"] == number(
+        table1(data.collision).loc["Reduction (median, %)", "value"])
+    assert summary["retarget.self_collision_frames"] == 2
+    assert summary["sequences.failed"] == 1
+    assert "retarget.refined.wrist_pos_mean_mm" not in summary  # no critic ran
+    seqs = pd.read_csv(paths.sequences, keep_default_na=False).set_index("id")
+    assert seqs.loc["s3", "error"] == "collide: boom" and seqs.loc["s1", "collide.improved"]
+    html = paths.index.read_text()
+    assert html.count('<table class="report"') == 4  # three tables + the summary
+    assert "s3: collide: boom" in html
