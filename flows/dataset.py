@@ -9,9 +9,9 @@ Shared steps (the shape fit) run once; steps that need them wait until they are 
 from __future__ import annotations
 
 import queue
-from collections import deque
 import re
 import time
+from collections import deque
 from pathlib import Path
 from typing import Any
 
@@ -68,6 +68,7 @@ class _Driver:
         self.batches: list[list[dict[str, Any]]] = []
         self.next_batch = self.inflight = 0
         self._saved = time.monotonic()
+        self._save_every = _SAVE_EVERY_S
 
     def run(self, batches: list[list[dict[str, Any]]]) -> None:
         self.batches = batches
@@ -144,9 +145,12 @@ class _Driver:
             self.manifest.finish_sequence(rec["id"])
         self.inflight -= 1
         self._fill()
-        if time.monotonic() - self._saved > _SAVE_EVERY_S:
+        if time.monotonic() - self._saved > self._save_every:
+            t0 = time.monotonic()
             self.manifest.save()
             self._saved = time.monotonic()
+            # Big manifests take long to write: keep saving under ~5% of the driver's time.
+            self._save_every = max(_SAVE_EVERY_S, 20 * (self._saved - t0))
 
     def _on_shared(self, name: str, fut: Any) -> None:
         try:

@@ -59,6 +59,8 @@ class Manifest:
         seq["metrics"].update(record.get("metrics", {}))
         if record.get("status") == "failed":
             seq.update(status="failed", error=record.get("error"), failed_step=record.get("failed_step"))
+            if record.get("traceback"):
+                seq["traceback"] = record["traceback"]
 
     def set_shared(self, step: str, key: str | None) -> None:
         if key is not None:

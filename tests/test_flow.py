@@ -224,3 +224,32 @@ def test_dask_matches_threads(prefect_harness, data, tmp_path):
         i: s["steps"] for i, s in mb.sequences.items()}
     assert _artifact_bytes(a) == _artifact_bytes(b)
     assert len({r["pid"] for r in b.computations()} - {os.getpid()}) >= 1  # ran in workers
+
+
+def test_progress_lines_and_terminal_bars():
+    import io
+
+    from flows.progress import Progress
+
+    plain = io.StringIO()
+    bar = Progress(["source", "collide"], 20, stream=plain)
+    for _ in range(20):
+        bar.add("source", done=1, cached=1)
+    bar.add("collide", failed=20)
+    lines = plain.getvalue().splitlines()
+    assert len(lines) == 12  # every tenth, not every batch
+    assert lines[-2].split() == ["source", "[########################]", "20/20", "cached", "20",
+                                 "failed", "0"]
+    assert lines[-1].endswith("20/20  cached 0  failed 20")
+
+    class Tty(io.StringIO):
+        def isatty(self):
+            return True
+
+    tty = Tty()
+    bar = Progress(["source", "collide"], 4, stream=tty)
+    bar.add("source", done=2)
+    bar.add("collide", done=1)
+    assert tty.getvalue().count("\x1b[2F") == 1  # redrawn in place
+    assert tty.getvalue().rstrip("\n").endswith("collide [######                  ] 1/4  "
+                                                 "cached 0  failed 0\x1b[K")

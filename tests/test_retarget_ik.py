@@ -5,6 +5,7 @@ import pytest
 import torch
 
 from embody.config.ik import IKConfig
+from embody.retarget.banded import block_pentadiagonal_solve
 from embody.retarget.ik import IKSolution, solve
 from embody.retarget.limits import clamp_velocity, velocity_violations
 from embody.retarget.targets import Targets, robot_arm_length
@@ -85,3 +86,21 @@ def test_velocity_clamp():
     out = clamp_velocity(q, np.array([3.0, 30.0]), fps=10.0)
     assert velocity_violations(out, np.array([3.0, 30.0]), 10.0) == 0
     assert np.allclose(out[:, 0], [0, 0, 0.3, 0.6, 0.9]) and np.allclose(out[:, 1], q[:, 1])
+
+
+@pytest.mark.parametrize("t", [1, 2, 7, 8])
+def test_block_pentadiagonal_solve_matches_dense(t):
+    rng = np.random.default_rng(t)
+    n = 3
+    jac = rng.normal(size=(t, n + 2, n))
+    diag = np.einsum("tmi,tmj->tij", jac, jac) + np.eye(n)
+    off1 = np.tile(-0.4 * np.eye(n), (max(t - 1, 0), 1, 1))
+    off2 = np.tile(0.1 * np.eye(n), (max(t - 2, 0), 1, 1))
+    dense = np.zeros((t * n, t * n))
+    for k, blocks in ((0, diag), (1, off1), (2, off2)):
+        for i, blk in enumerate(blocks):
+            dense[i * n:(i + 1) * n, (i + k) * n:(i + k + 1) * n] = blk
+            dense[(i + k) * n:(i + k + 1) * n, i * n:(i + 1) * n] = blk.T
+    rhs = rng.normal(size=(t, n))
+    x = block_pentadiagonal_solve(diag, off1, off2, rhs)
+    assert np.allclose(dense @ x.reshape(-1), rhs.reshape(-1), atol=1e-10)

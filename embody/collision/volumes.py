@@ -176,7 +176,7 @@ def _coacd(solid, threshold: float, max_vertices: int) -> list[np.ndarray]:
         coacd.Mesh(np.asarray(mesh.vert_properties[:, :3], np.float64),
                    np.asarray(mesh.tri_verts, np.int64)),
         threshold=threshold, seed=0, max_ch_vertex=max_vertices, preprocess_mode="off",
-        mcts_iterations=100)
+        mcts_iterations=40, mcts_nodes=10, resolution=1000)
     return [np.asarray(v, np.float64) for v, _ in parts if len(v) >= 4]
 
 

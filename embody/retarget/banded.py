@@ -35,13 +35,14 @@ def block_pentadiagonal_solve(diag: np.ndarray, off1: np.ndarray, off2: np.ndarr
         b[:, n:, :n] = off1[1::2][: k - 1]
         b[:, n:, n:] = off2[1::2][: k - 1]
     y = rhs.reshape(k, m).copy()
-    s = a.copy()  # Schur complements, eliminated top to bottom
+    inv = np.empty_like(a)  # inverses of the Schur complements, eliminated top to bottom
+    inv[0] = np.linalg.inv(a[0])
     for i in range(1, k):
-        solved = np.linalg.solve(s[i - 1], np.concatenate([b[i - 1], y[i - 1][:, None]], axis=1))
-        s[i] = a[i] - b[i - 1].T @ solved[:, :m]
-        y[i] = y[i] - b[i - 1].T @ solved[:, m]
+        bt_inv = b[i - 1].T @ inv[i - 1]
+        inv[i] = np.linalg.inv(a[i] - bt_inv @ b[i - 1])
+        y[i] -= bt_inv @ y[i - 1]
     x = np.zeros_like(y)
-    x[-1] = np.linalg.solve(s[-1], y[-1])
+    x[-1] = inv[-1] @ y[-1]
     for i in range(k - 2, -1, -1):
-        x[i] = np.linalg.solve(s[i], y[i] - b[i] @ x[i + 1])
+        x[i] = inv[i] @ (y[i] - b[i] @ x[i + 1])
     return x.reshape(-1, n)[:t]
