@@ -36,10 +36,6 @@ class Metrics:
         return cls(dict(attrs.get("metrics", {})))
 
 
-def _own_metrics(result: Metrics) -> dict[str, Any]:
-    return result.metrics
-
-
 def _robot_files(cfg: Any) -> list[Path]:
     """The robot definition (and MJCF override): editing them must invalidate robot steps."""
     from embody.robot import robots_dir
@@ -125,10 +121,9 @@ RETARGET = Step("retarget", "1", ("body", "robot", "ik"), _retarget, _ik_solutio
 REFINE = Step("refine", "1", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
-METRICS = Step("metrics", "1", (), _trajectory_metrics, Metrics.from_arrays, (RETARGET,),
-               metrics=_own_metrics)
+METRICS = Step("metrics", "1", (), _trajectory_metrics, Metrics.from_arrays, (RETARGET,))
 METRICS_REFINED = Step("metrics", "1", (), _trajectory_metrics, Metrics.from_arrays,
-                       (RETARGET, REFINE), metrics=_own_metrics)
+                       (RETARGET, REFINE))
 
 
 def default_pipeline(critic: bool = False) -> Pipeline:

@@ -4,9 +4,10 @@ Points are rest-mesh vertices (every `vertex_stride`-th of each part) carried ri
 part's joint, i.e. the skinned mesh with one-hot weights: it costs one transform per part, and
 with the points kept inside their own part's pieces a positive energy always means that two
 checked parts' volumes overlap. f is the signed distance to a part: the minimum over its convex
-pieces of max_f(n_f·q + d_f), exact inside. A three-level broad phase (part spheres, piece
-boxes, then exact planes) picks (frame, point chunk, piece) rows without gradients; only the
-narrow phase on those rows is differentiable, so the cost follows the pairs that are close.
+pieces of max_f(n_f·q + d_f), exact inside. A broad phase (part spheres, piece boxes, point
+boxes) picks (frame, point chunk, piece) rows without gradients; the narrow phase evaluates the
+planes of points inside a box and differentiates only the penetrating ones, so the cost follows
+the pairs that are actually close.
 """
 
 from __future__ import annotations
@@ -189,16 +190,12 @@ def _chunk_local(d: dict[str, torch.Tensor], rot: torch.Tensor, trans: torch.Ten
     return d["chunk_points"][c.h] @ rel.transpose(-1, -2) + off
 
 
-def _rows_sdf(q: torch.Tensor, planes: torch.Tensor) -> torch.Tensor:
-    """max_f (n_f·q + d_f) (R,S) for chunks of local points (R,S,3) and one piece per row."""
-    return torch.baddbmm(planes[:, None, :, 3], q, planes[..., :3].transpose(-1, -2)).amax(-1)
-
-
 def contacts(model: CollisionModel, transforms: torch.Tensor, margin: float = 0.0) -> Contacts:
     """Broad phase (no gradients): chunk-piece rows with a point within `margin` of the piece.
 
     Level 1 tests chunk spheres against part spheres, level 2 chunk spheres against piece boxes
-    in the piece's joint frame, level 3 the exact plane test of the chunk's points.
+    in the piece's joint frame, level 3 the chunk's points against those boxes; the exact plane
+    test is left to `frame_energies`, point by point.
     """
     d = model.tensors(transforms.dtype, transforms.device)
     with torch.no_grad():
@@ -216,13 +213,11 @@ def contacts(model: CollisionModel, transforms: torch.Tensor, margin: float = 0.
         close = (close < d["chunk_radius"][fh, None] + margin) & (pieces >= 0)
         m, ks = torch.nonzero(close, as_tuple=True)
         c = Contacts(ft[m], fh[m], d["chunk_part"][fh[m]], fb[m], pk[m, ks])
-        if m.numel():  # level 3: points against the piece's box, then its planes
+        if m.numel():  # level 3: the chunk's points against the piece's box
             q = _chunk_local(d, rot, trans, c)
-            pts = (_box_distance(q, d["piece_box"][c.k][:, None]) < margin + 1e-9) & \
+            pts = (_box_distance(q, d["piece_box"][c.k][:, None]) <= margin) & \
                 d["chunk_mask"][c.h]
             hit = pts.any(dim=1)
-            c = Contacts(c.t[hit], c.h[hit], c.a[hit], c.b[hit], c.k[hit])
-            hit = ((_rows_sdf(q[hit], d["planes"][c.k]) < margin) & pts[hit]).any(dim=1)
             c = Contacts(c.t[hit], c.h[hit], c.a[hit], c.b[hit], c.k[hit])
     return c
 

@@ -25,7 +25,7 @@ from embody.body.base import BodyModel, ConvexPiece
 from embody.body.parts import dominant_parts
 
 #: Bump when the construction changes, so stale disk caches are ignored.
-VERSION = 5
+VERSION = 6
 #: Vertices kept per convex piece: bounds the planes the energy evaluates per point.
 MAX_PIECE_VERTICES = 32
 #: Parts with fewer vertices (or flat ones) get no volume.

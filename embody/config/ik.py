@@ -19,26 +19,29 @@ class IKConfig(Section):
     shape_fit_scale: bool = True
     # --- IK costs (targets in metres / radians, torso frame) ---
     w_wrist_pos: float = Field(1.0, ge=0)
+    #: Wrist orientation error (rad², rotation vector) against position (m²).
     w_wrist_rot: float = Field(0.02, ge=0)
-    w_elbow_pos: float = Field(0.05, ge=0)
-    w_torso_rot: float = Field(0.005, ge=0)
+    w_elbow_pos: float = Field(0.01, ge=0)
+    w_torso_rot: float = Field(0.0, ge=0)
     w_head_rot: float = Field(0.0, ge=0)
-    #: Second differences of q (rad²): smoothness over the whole sequence (halves jerk vs 0.2
-    #: for ~1 mm more wrist error on the synthetic set, benchmarks/ik_vs_mink.py).
-    w_smooth: float = Field(1.0, ge=0)
-    #: Pull towards the robot's `rest` pose: resolves redundancy (elbow swivel, waist) gently.
-    w_posture: float = Field(1e-4, ge=0)
-    #: Sphere-proxy self-collision penalty (10 leaves planted hand-hand contacts unresolved).
+    #: Second differences of q (rad²): smoothness over the whole sequence. Redundant motion
+    #: (elbow swivel, waist) is smoothed for free; tracking barely pays at this weight.
+    w_smooth: float = Field(1e-3, ge=0)
+    #: Pull of the arm joints towards the robot's `rest` pose: resolves redundancy gently.
+    w_posture: float = Field(1e-5, ge=0)
+    #: Pull of the waist joints towards rest: the torso stays upright unless the arms need it.
+    w_waist_posture: float = Field(1e-3, ge=0)
+    #: Sphere-proxy self-collision penalty.
     w_collision: float = Field(50.0, ge=0)
     #: Clearance (m) the collision proxies must keep.
     collision_margin: float = Field(0.01, ge=0, le=0.1)
-    # --- solver ---
-    #: lm: Levenberg-Marquardt over the banded whole-sequence system; lbfgs/adam: first-order baselines.
-    optimizer: Literal["lm", "lbfgs", "adam"] = "lm"
-    #: Per stage: a cold start first solves without the collision term, then with it.
-    iterations: int = Field(20, ge=1, le=100_000)
-    #: Step size of lbfgs/adam (unused by lm).
-    lr: float = Field(1.0, gt=0, le=10)
+    # --- solver (Levenberg-Marquardt over the banded whole-sequence system) ---
+    #: Cold start: iterations that track without the collision term before it comes on.
+    tracking_iterations: int = Field(6, ge=0, le=10_000)
+    #: Iterations with every term on (the only phase when warm-started).
+    iterations: int = Field(10, ge=1, le=10_000)
+    #: Stop a phase once an accepted step lowers the cost by less than this fraction.
+    tolerance: float = Field(1e-4, ge=0, le=1)
     # --- output ---
     #: Retarget fingers (robots without hands skip it).
     hands: bool = True

@@ -3,24 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import torch
-
-
-class BoxMap:
-    """q = mid + half·tanh(u): every u maps inside [lower, upper], so limits hold by construction."""
-
-    def __init__(self, lower: np.ndarray, upper: np.ndarray, shrink: float = 1e-6) -> None:
-        self.mid = (upper + lower) / 2.0
-        self.half = (upper - lower) / 2.0 * (1.0 - shrink)
-
-    def to_q(self, u: torch.Tensor) -> torch.Tensor:
-        mid = torch.as_tensor(self.mid, dtype=u.dtype, device=u.device)
-        half = torch.as_tensor(self.half, dtype=u.dtype, device=u.device)
-        return mid + half * torch.tanh(u)
-
-    def to_u(self, q: np.ndarray) -> np.ndarray:
-        x = np.clip((q - self.mid) / self.half, -0.999999, 0.999999)
-        return np.arctanh(x)
 
 
 def clamp_velocity(q: np.ndarray, vmax: np.ndarray, fps: float) -> np.ndarray:

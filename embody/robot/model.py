@@ -14,6 +14,7 @@ import torch
 from embody.errors import ConfigError
 from embody.robot.kinematics import Kinematics, check_joint_pivots
 from embody.robot.spec import RobotSpec
+from embody.robot.tree import KinematicTree
 
 
 def _match(name: str, patterns: list[str]) -> bool:
@@ -50,6 +51,10 @@ class Robot:
         return [n for n, m in zip(self.joint_names, self.ik_mask) if m]
 
     @property
+    def waist_joint_names(self) -> list[str]:
+        return [n for n in self.ik_joint_names if _match(n, self.spec.waist_joints)]
+
+    @property
     def has_hands(self) -> bool:
         return bool(self.spec.hands)
 
@@ -80,6 +85,19 @@ class Robot:
         t[:3, :3] = data.xmat[b].reshape(3, 3)
         t[:3, 3] = data.xpos[b]
         return np.linalg.inv(t)
+
+    def tree(self, bodies: list[str]) -> KinematicTree:
+        """NumPy FK of `bodies` in the torso frame (the IK's fast path)."""
+        return KinematicTree(self.model, self.joint_names, self.torso_from_world, bodies)
+
+    def link_poses(self, q: np.ndarray, links: list[str]) -> tuple[np.ndarray, np.ndarray]:
+        """NumPy `link_points`: positions (T,L,3) and rotations (T,L,3,3) in the torso frame."""
+        refs = [self.spec.links[n] for n in links]
+        tree = self.tree([r.body for r in refs])
+        rot, pos = tree.forward(np.atleast_2d(np.asarray(q, dtype=np.float64)))
+        idx = [tree.index[r.body] for r in refs]
+        off = np.array([r.offset for r in refs])
+        return pos[:, idx] + np.einsum("tlab,lb->tla", rot[:, idx], off), rot[:, idx]
 
     def link_points(self, q: torch.Tensor, links: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         """Positions (B,L,3) and rotations (B,L,3,3) of mapped links (SMPL-X names) in the torso frame."""

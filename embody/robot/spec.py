@@ -60,6 +60,8 @@ class RobotSpec(_Strict):
     #: G1/H1: close to a signer's neutral pose, unlike the T-pose.
     rest: dict[str, float] = {}
     ik_joints: list[str]
+    #: IK joints that bend the torso (fnmatch): a stronger posture prior keeps them near rest.
+    waist_joints: list[str] = []
     hands: dict[str, dict[str, list[str]]] = {}
     velocity_limits: dict[str, float] = {"*": 5.0}
     collision: CollisionSpec = CollisionSpec()
