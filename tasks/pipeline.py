@@ -113,3 +113,11 @@ class Context:
     def robot(self) -> Any:
         from embody.robot import load_robot
         return resource("robot", self.cfg.section_json("robot"), lambda: load_robot(self.cfg.robot))
+
+    @property
+    def critic(self) -> Any:
+        """One critic per process and critic config, so the VLM request budget spans the run
+        (per worker process under the process and Dask runners), not each sequence."""
+        from embody.critic import make_critic
+        return resource("critic", self.cfg.section_json("critic"),
+                        lambda: make_critic(self.cfg.critic))

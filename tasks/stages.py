@@ -89,7 +89,7 @@ def _refine(ctx: Context, inputs: dict[str, Any]) -> Any:
     motion, fit = inputs["collide"].motion, inputs["shape_fit"]
     targets = build_targets(motion, ctx.body, fit, ctx.robot)
     return refine(motion, ctx.body, fit, ctx.robot, targets, inputs["retarget"], ctx.cfg.critic,
-                  ctx.cfg.ik, ctx.cfg.render)
+                  ctx.cfg.ik, ctx.cfg.render, critic=ctx.critic)
 
 
 def _refine_metrics(result: Any) -> dict[str, Any]:

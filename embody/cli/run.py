@@ -24,7 +24,8 @@ def run_options(f):
         click.option("--runner", type=click.Choice(["threads", "processes", "dask"]), default=None),
         click.option("--dask-address", default=None, help="tcp://host:port of a Dask scheduler."),
         click.option("--batch-size", type=int, default=None, help="Sequences per task run."),
-        click.option("--critic/--no-critic", default=None, help="Run the critic refinement."),
+        click.option("--critic", type=click.Choice(["geometric", "vlm", "none"]), default=None,
+                     help="Critic of the refinement loop [default: critic.kind; none skips it]."),
         click.option("--robot", default=None, help="Robot definition name (robot.name)."),
         click.option("--name", default=None, help="Run name [default: from the dataset]."),
         config_options,
@@ -38,10 +39,14 @@ def config_from_options(config_files: tuple[str, ...], sets: tuple[str, ...],
     """Config files and `--set`s, then the dedicated options on top (validated the same way)."""
     keys = {"store": "run.store", "limit": "run.limit", "workers": "run.workers",
             "runner": "run.runner", "dask_address": "run.dask_address",
-            "batch_size": "run.batch_size", "critic": "run.critic", "robot": "robot.name",
-            "name": "run.name"}
+            "batch_size": "run.batch_size", "robot": "robot.name", "name": "run.name"}
     extra = [f"{keys[k]}={json.dumps(v)}" for k, v in options.items()
              if k in keys and v is not None]
+    critic = options.get("critic")
+    if critic == "none":
+        extra.append("run.critic=false")
+    elif critic is not None:
+        extra += ["run.critic=true", f"critic.kind={critic}"]
     return build_config(config_files, tuple(sets) + tuple(extra))
 
 

@@ -31,10 +31,15 @@ class IKConfig(Section):
     w_posture: float = Field(1e-5, ge=0)
     #: Pull of the waist joints towards rest: the torso stays upright unless the arms need it.
     w_waist_posture: float = Field(1e-3, ge=0)
-    #: Sphere-proxy self-collision penalty.
+    #: Hinge on joint speeds past their limits (rad² per step): tracking stays within the limits
+    #: instead of lagging behind a clamp applied afterwards.
+    w_velocity: float = Field(100.0, ge=0)
+    #: Fraction of each velocity limit kept free inside the solve (the clamp keeps the rest).
+    velocity_headroom: float = Field(0.02, ge=0, lt=1)
+    #: Self-collision penalty on the proxies.
     w_collision: float = Field(50.0, ge=0)
     #: Clearance (m) the collision proxies must keep.
-    collision_margin: float = Field(0.01, ge=0, le=0.1)
+    collision_margin: float = Field(0.004, ge=0, le=0.1)
     # --- solver (Levenberg-Marquardt over the banded whole-sequence system) ---
     #: Cold start: iterations that track without the collision term before it comes on.
     tracking_iterations: int = Field(6, ge=0, le=10_000)

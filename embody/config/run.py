@@ -20,8 +20,8 @@ class RunConfig(Section):
     #: Sequences per task submission: 20k sequences become 20k/batch_size task runs per step.
     batch_size: int = Field(8, ge=1, le=10_000)
     limit: int | None = Field(None, ge=1)
-    #: Run the critic refinement step after IK.
-    critic: bool = False
+    #: Run the critic refinement step after IK (`embody run --critic none` skips it).
+    critic: bool = True
     seed: int = 0
     synth_n: int = Field(24, ge=1)
 

@@ -88,6 +88,8 @@ class _Problem:
         waist = np.array([robot.joint_names[j] in robot.waist_joint_names for j in self.ik])
         self.w_post = np.where(waist, cfg.w_waist_posture, cfg.w_posture)
         self.dtd = _second_difference_normal(t) * cfg.w_smooth
+        #: per-step joint change allowed by the velocity limits, with a little headroom
+        self.step_limit = robot.velocity_limits[self.ik] / targets.fps * (1.0 - cfg.velocity_headroom)
 
     def q_full(self, qi: np.ndarray) -> np.ndarray:
         q = self.base.copy()
@@ -103,25 +105,39 @@ class _Problem:
                 g[k:] += self.dtd[k, : len(qi) - k, None] * qi[:-k]
         return g
 
-    def evaluate(self, qi: np.ndarray, collision: bool) -> tuple[float, np.ndarray, np.ndarray]:
-        """Cost, per-frame Gauss-Newton blocks JᵀJ (T,n,n) and gradient (T,n) incl. linear terms."""
+    def evaluate(self, qi: np.ndarray, collision: bool) -> tuple[float, tuple[np.ndarray, ...], np.ndarray]:
+        """Cost, Gauss-Newton blocks (per-frame JᵀJ (T,n,n), velocity-hinge diagonal (T,n) and
+        off-diagonal (T-1,n)) and the gradient (T,n), linear terms included."""
         r, j = self.residuals(self.q_full(qi), jacobian=True, collision=collision)
         dq = qi - self.rest
         sg = self._smooth_grad(qi)
-        cost = 0.5 * float((r**2).sum() + (self.w_post * dq**2).sum() + (qi * sg).sum())
-        h = np.einsum("tmi,tmj->tij", j, j)
+        d = np.diff(qi, axis=0)
+        over = np.maximum(np.abs(d) - self.step_limit, 0.0)  # velocity hinge: only past the limit
+        cost = 0.5 * float((r**2).sum() + (self.w_post * dq**2).sum() + (qi * sg).sum()
+                           + self.cfg.w_velocity * (over**2).sum())
         g = np.einsum("tmi,tm->ti", j, r) + self.w_post * dq + sg
-        return cost, h, g
+        gv = self.cfg.w_velocity * over * np.sign(d)
+        g[1:] += gv
+        g[:-1] -= gv
+        active = self.cfg.w_velocity * (over > 0)
+        vdiag = np.zeros_like(qi)
+        vdiag[1:] += active
+        vdiag[:-1] += active
+        return cost, (np.einsum("tmi,tmj->tij", j, j), vdiag, -active), g
 
-    def step(self, h: np.ndarray, g: np.ndarray, lam: float) -> np.ndarray:
-        """Solve (JᵀJ + W_post + λ·diag + w_s·DᵀD⊗I) δ = −g for all frames at once."""
-        t, n, _ = h.shape
+    def step(self, h: tuple[np.ndarray, ...], g: np.ndarray, lam: float) -> np.ndarray:
+        """Solve (JᵀJ + W_post + W_vel + λ·diag + w_s·DᵀD⊗I) δ = −g for all frames at once."""
+        jtj, vdiag, voff = h
+        t, n, _ = jtj.shape
         eye = np.eye(n)
-        hd = np.diagonal(h, axis1=1, axis2=2) + self.w_post
-        diag = h + (self.w_post + lam * (hd + 1e-9))[:, :, None] * eye + self.dtd[0][:, None, None] * eye
-        off1 = self.dtd[1, : t - 1, None, None] * eye
+        diag = jtj + (self.w_post + vdiag + lam * self.damping(h) + self.dtd[0][:, None])[:, :, None] * eye
+        off1 = (self.dtd[1, : t - 1, None] + voff)[:, :, None] * eye
         off2 = self.dtd[2, : max(t - 2, 0), None, None] * eye
         return -block_pentadiagonal_solve(diag, off1, off2, g)
+
+    def damping(self, h: tuple[np.ndarray, ...]) -> np.ndarray:
+        """Marquardt's scaling: the diagonal of the Gauss-Newton matrix (T,n)."""
+        return np.diagonal(h[0], axis1=1, axis2=2) + self.w_post + h[1] + 1e-9
 
     def solve(self, qi0: np.ndarray, cold: bool) -> np.ndarray:
         """Levenberg-Marquardt (Nielsen's damping rule); from a cold start, the collision term
@@ -138,8 +154,7 @@ class _Problem:
                 step = self.step(h, g, lam)
                 cand = np.clip(qi + step, lower, upper)
                 c_new, h_new, g_new = self.evaluate(cand, collision)
-                hd = np.diagonal(h, axis1=1, axis2=2) + self.w_post + 1e-9
-                predicted = 0.5 * float((step * (lam * hd * step - g)).sum())
+                predicted = 0.5 * float((step * (lam * self.damping(h) * step - g)).sum())
                 if c_new < cost:
                     rho = (cost - c_new) / max(predicted, 1e-300)
                     done = cost - c_new < self.cfg.tolerance * cost

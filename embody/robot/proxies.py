@@ -1,10 +1,18 @@
-"""Sphere-chain proxies of the robot's collision geoms, for a differentiable self-collision cost.
+"""Proxies of the robot's collision geoms, for a differentiable self-collision cost.
 
-Each proxy (hand, forearm, torso, ...) gets `spheres` spheres fitted to its collision-geom
-points (mesh vertices, primitive extremes) taken at the T-pose, rigidly attached to its first
-body: laid along the principal axis for limbs (`chain`) or a k-means cover for bulky parts
-(`cluster`). Spheres are cheap to evaluate for every frame of a sequence and give
-smooth gradients; MuJoCo's exact contacts remain the verdict (`embody.retarget.verify`).
+Two kinds, both fitted to the collision geoms (mesh vertices, primitive extremes) at the T-pose:
+
+* spheres: `chain` (along a limb's principal axis) or `cluster` (k-means cover), rigidly attached
+  to the proxy's first body; or `points`: `spheres` surface points (radius 0) per geom on the
+  geom's own body, sampled from its convex hull, which follow a limb's exact surface.
+* `hull`: each geom's convex hull (MuJoCo collides meshes as their hulls) as a polytope of at
+  most `planes` planes, each pushed out to touch the full hull, so the polytope contains it.
+  The signed distance of a point is the largest plane distance: exact inside and on faces, an
+  underestimate near edges (the safe side).
+
+Sphere/sphere pairs keep hands apart; sphere/hull pairs keep arm surfaces off the torso shell
+whose 8 mm gap to the hanging upper arm no sphere cover can resolve. All of it is cheap to
+evaluate for every frame; MuJoCo's exact contacts remain the verdict (`embody.robot.contacts`).
 """
 
 from __future__ import annotations
@@ -14,7 +22,7 @@ from dataclasses import dataclass
 
 import mujoco
 import numpy as np
-import torch
+from scipy.spatial import ConvexHull
 
 from embody.robot.model import Robot
 
@@ -75,9 +83,29 @@ def _sphere_cluster(points: np.ndarray, k: int, cover: float, iterations: int = 
     return c, radii
 
 
+def _farthest_points(points: np.ndarray, k: int) -> np.ndarray:
+    """k well-spread points (deterministic farthest-point sampling from the first)."""
+    chosen = [0]
+    d = np.linalg.norm(points - points[0], axis=1)
+    for _ in range(1, min(k, len(points))):
+        chosen.append(int(np.argmax(d)))
+        d = np.minimum(d, np.linalg.norm(points - points[chosen[-1]], axis=1))
+    return points[chosen]
+
+
+def _hull_planes(points: np.ndarray, planes: int) -> np.ndarray:
+    """≤ `planes` planes (n, d), n·x + d ≤ 0 inside, whose polytope contains `points`' hull."""
+    verts = points[ConvexHull(points).vertices]
+    k = max(4, planes // 2 + 2)  # a hull of k points has at most 2k − 4 faces
+    eq = ConvexHull(_farthest_points(verts, k)).equations
+    eq = np.unique(np.round(eq, 9), axis=0)[:planes]
+    eq[:, 3] = -(verts @ eq[:, :3].T).max(0)  # push each plane out to touch the full hull
+    return eq
+
+
 @dataclass
 class Proxies:
-    """Spheres (local centres, radii) per proxy, attached to bodies; pairs to keep apart."""
+    """Spheres and hulls per proxy, attached to bodies; sphere/sphere and sphere/hull pairs."""
 
     names: list[str]
     bodies: list[str]
@@ -85,7 +113,12 @@ class Proxies:
     sphere_part: np.ndarray
     centres: np.ndarray
     radii: np.ndarray
-    pairs: np.ndarray  # (P, 2) sphere index pairs from the configured proxy pairs
+    pairs: np.ndarray  # (P, 2) sphere index pairs
+    hull_body: np.ndarray  # (H,) index into bodies
+    hull_planes: np.ndarray  # (H, F, 4) in the body frame, padded by repeating a plane
+    hull_centre: np.ndarray  # (H, 3) bounding-sphere centre in the body frame
+    hull_radius: np.ndarray  # (H,)
+    hull_pairs: np.ndarray  # (Q, 2) (sphere, hull) pairs
 
     @classmethod
     def fit(cls, robot: Robot) -> "Proxies":
@@ -95,7 +128,17 @@ class Proxies:
         mujoco.mj_kinematics(model, data)
         groups = set(robot.spec.collision.geom_groups)
         body_names = [model.body(b).name for b in range(model.nbody)]
-        names, bodies, s_body, s_part, centres, radii = [], [], [], [], [], []
+        names: list[str] = list(robot.spec.proxies)
+        bodies: list[str] = []
+        s_body, s_part, centres, radii = [], [], [], []
+        h_body, h_part, h_planes, h_centre, h_radius = [], [], [], [], []
+
+        def local(points: np.ndarray, b: int) -> tuple[np.ndarray, int]:
+            if body_names[b] not in bodies:
+                bodies.append(body_names[b])
+            r, pos = data.xmat[b].reshape(3, 3), data.xpos[b]
+            return (points - pos) @ r, bodies.index(body_names[b])
+
         for p, (name, ps) in enumerate(robot.spec.proxies.items()):
             matched = [b for b, n in enumerate(body_names)
                        if any(fnmatch.fnmatchcase(n, pat) for pat in ps.bodies)]
@@ -105,49 +148,46 @@ class Proxies:
                 geoms = [geoms[i] for i in ps.geoms if i < len(geoms)]
             if not geoms:
                 raise ValueError(f"proxy {name!r}: no collision geoms")
+            if ps.layout in ("hull", "points"):
+                for g in geoms:
+                    pts, bi = local(_geom_points(model, data, g), int(model.geom_bodyid[g]))
+                    if ps.layout == "hull":
+                        h_planes.append(_hull_planes(pts, ps.planes))
+                        h_centre.append(pts.mean(0))
+                        h_radius.append(float(np.linalg.norm(pts - pts.mean(0), axis=1).max()))
+                        h_body.append(bi)
+                        h_part.append(p)
+                    else:
+                        c = _farthest_points(pts[ConvexHull(pts).vertices], ps.spheres)
+                        centres.append(c)
+                        radii.append(np.zeros(len(c)))
+                        s_body += [bi] * len(c)
+                        s_part += [p] * len(c)
+                continue
             points = np.vstack([_geom_points(model, data, g) for g in geoms])
-            anchor = matched[0]  # spheres ride on the first matching body
-            r, pos = data.xmat[anchor].reshape(3, 3), data.xpos[anchor]
-            local = (points - pos) @ r
-            c, rad = (_sphere_chain if ps.layout == "chain" else _sphere_cluster)(local, ps.spheres, ps.cover)
-            if body_names[anchor] not in bodies:
-                bodies.append(body_names[anchor])
-            names.append(name)
-            s_body += [bodies.index(body_names[anchor])] * len(c)
+            pts, bi = local(points, matched[0])  # spheres ride on the first matching body
+            c, rad = (_sphere_chain if ps.layout == "chain" else _sphere_cluster)(pts, ps.spheres, ps.cover)
+            s_body += [bi] * len(c)
             s_part += [p] * len(c)
             centres.append(c)
             radii.append(rad)
-        s_part_arr = np.array(s_part)
-        pairs = []
+        s_part_arr, h_part_arr = np.array(s_part), np.array(h_part)
+        pairs, hull_pairs = [], []
         for a, b in robot.spec.proxy_pairs:
-            ia = np.flatnonzero(s_part_arr == names.index(a))
-            ib = np.flatnonzero(s_part_arr == names.index(b))
+            ia, ib = np.flatnonzero(s_part_arr == names.index(a)), np.flatnonzero(s_part_arr == names.index(b))
+            ha, hb = np.flatnonzero(h_part_arr == names.index(a)), np.flatnonzero(h_part_arr == names.index(b))
+            if (len(ha) and len(hb)) or (len(ha) and len(ia)) or (len(hb) and len(ib)):
+                raise ValueError(f"proxy pair {a}/{b}: hulls pair only with sphere proxies")
             pairs += [(i, j) for i in ia for j in ib]
+            hull_pairs += [(i, h) for i in ia for h in hb] + [(i, h) for i in ib for h in ha]
+        n_planes = max((len(e) for e in h_planes), default=1)
+        planes = np.array([np.vstack([e, np.repeat(e[:1], n_planes - len(e), 0)]) for e in h_planes])
         return cls(names=names, bodies=bodies, sphere_body=np.array(s_body), sphere_part=s_part_arr,
                    centres=np.vstack(centres), radii=np.concatenate(radii),
-                   pairs=np.array(pairs, dtype=np.int64))
-
-    def world_centres(self, robot: Robot, q: torch.Tensor) -> torch.Tensor:
-        """Sphere centres (B,N,3) in the torso frame."""
-        return self.centres_from(robot.body_transforms(q, self.bodies))
-
-    def centres_from(self, transforms: torch.Tensor) -> torch.Tensor:
-        """Sphere centres (B,N,3) from torso-frame transforms (B,len(bodies),4,4) of `bodies`."""
-        t = transforms[:, torch.as_tensor(self.sphere_body, device=transforms.device)]
-        c = torch.as_tensor(self.centres, dtype=t.dtype, device=t.device)
-        return (t[..., :3, :3] @ c[..., None])[..., 0] + t[..., :3, 3]
-
-    def clearances(self, centres: torch.Tensor) -> torch.Tensor:
-        """Signed sphere-pair clearances (B,P): distance minus both radii (negative = overlap)."""
-        i = torch.as_tensor(self.pairs[:, 0], device=centres.device)
-        j = torch.as_tensor(self.pairs[:, 1], device=centres.device)
-        r = torch.as_tensor(self.radii, dtype=centres.dtype, device=centres.device)
-        d = torch.linalg.norm(centres[:, i] - centres[:, j] + 1e-12, dim=-1)
-        return d - r[i] - r[j]
-
-    def penalty(self, centres: torch.Tensor, margin: float) -> torch.Tensor:
-        """Per-frame penalty (B,): Σ relu(margin − clearance)², zero when every pair is clear."""
-        return torch.relu(margin - self.clearances(centres)).pow(2).sum(-1)
+                   pairs=np.array(pairs, dtype=np.int64).reshape(-1, 2),
+                   hull_body=np.array(h_body, dtype=np.int64), hull_planes=planes.reshape(-1, n_planes, 4),
+                   hull_centre=np.array(h_centre).reshape(-1, 3), hull_radius=np.array(h_radius),
+                   hull_pairs=np.array(hull_pairs, dtype=np.int64).reshape(-1, 2))
 
 
 _CACHE: dict[int, Proxies] = {}

@@ -37,14 +37,18 @@ class CollisionSpec(_Strict):
 
 
 class ProxySpec(_Strict):
-    """Sphere chain fitted to the collision geoms of `bodies` (fnmatch patterns)."""
+    """A collision proxy fitted to the collision geoms of `bodies` (fnmatch patterns)."""
 
     bodies: list[str]
     #: Indices into the matched collision geoms (all when empty).
     geoms: list[int] = []
-    spheres: int = Field(3, ge=1, le=16)
-    #: chain: spheres along the principal axis (limbs); cluster: k-means cover (torso, pelvis).
-    layout: Literal["chain", "cluster"] = "chain"
+    #: Spheres of a chain/cluster, or surface points per geom of `points`.
+    spheres: int = Field(3, ge=1, le=64)
+    #: chain: spheres along the principal axis (limbs); cluster: k-means cover (bulky parts);
+    #: points: hull surface points per geom (radius 0); hull: each geom's convex polytope.
+    layout: Literal["chain", "cluster", "points", "hull"] = "chain"
+    #: Most planes per geom polytope (`hull`).
+    planes: int = Field(48, ge=4, le=512)
     #: Fraction of the points each sphere must cover (radius percentile): 1 = conservative.
     cover: float = Field(0.9, gt=0.0, le=1.0)
 
