@@ -17,7 +17,8 @@ J = JOINT_NAMES.index
 
 def reference_energies(body, pose: np.ndarray, stride: int, tolerance: float = 0.0,
                        allow=()) -> np.ndarray:
-    """Eq. 1 by brute force: every point against every piece of every checked part."""
+    """Eq. 1 by brute force: every point (mesh vertices inside their own part, and the pieces'
+    corners) against every piece of every checked part."""
     vols = part_volumes(body)
     groups, part_group = part_groups(vols.part_names)
     checked = checked_pairs(groups, body.joint_names, body.parents, allow)
@@ -27,7 +28,11 @@ def reference_energies(body, pose: np.ndarray, stride: int, tolerance: float = 0
     g = body.joint_transforms(torch.as_tensor(pose, dtype=torch.float64), betas).numpy()
     out = np.zeros(len(pose))
     for a, ja in enumerate(vols.part_joints):
+        own = [pc for pc in vols.pieces if pc.part == a]
         local = (rest[vols.vertex_parts == a][::stride] - g_rest[ja, :3, 3]) @ g_rest[ja, :3, :3]
+        f_own = np.min([np.max(local @ pc.planes[:, :3].T + pc.planes[:, 3], axis=1)
+                        for pc in own], axis=0)
+        local = np.concatenate([local[f_own <= 1e-9], *[pc.vertices[::stride] for pc in own]])
         for t in range(len(pose)):
             world = local @ g[t, ja, :3, :3].T + g[t, ja, :3, 3]
             for b, jb in enumerate(vols.part_joints):

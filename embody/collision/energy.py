@@ -1,9 +1,10 @@
 """Volumetric self-collision energy (Eq. 1): L_col = (1/T) Σ_t Σ_v max(0, −f(v; x_t))².
 
-Points are rest-mesh vertices (every `vertex_stride`-th of each part) carried rigidly by their
-part's joint, i.e. the skinned mesh with one-hot weights: it costs one transform per part, and
-with the points kept inside their own part's pieces a positive energy always means that two
-checked parts' volumes overlap. f is the signed distance to a part: the minimum over its convex
+Points are rest-mesh vertices plus the corners of the part's pieces (every `vertex_stride`-th
+of each), carried rigidly by their part's joint, i.e. the skinned mesh with one-hot weights:
+it costs one transform per part, and with the points kept inside their own part's pieces a
+positive energy always means that two checked parts' volumes overlap. f is the signed
+distance to a part: the minimum over its convex
 pieces of max_f(n_f·q + d_f), exact inside. A broad phase (part spheres, piece boxes, point
 boxes) picks (frame, point chunk, piece) rows without gradients; the narrow phase evaluates the
 planes of points inside a box and differentiates only the penetrating ones, so the cost follows
@@ -102,7 +103,7 @@ _models: weakref.WeakKeyDictionary[BodyModel, dict[tuple, CollisionModel]] = \
 CHUNK_SIZE = 24
 
 
-def collision_model(body: BodyModel, betas: np.ndarray | None = None, *, vertex_stride: int = 4,
+def collision_model(body: BodyModel, betas: np.ndarray | None = None, *, vertex_stride: int = 8,
                     allow_pairs: Iterable[Sequence[str]] = (),
                     max_overfill: float = 0.10) -> CollisionModel:
     """Build (once per body, shape and settings) what the energy evaluates."""
@@ -120,8 +121,11 @@ def collision_model(body: BodyModel, betas: np.ndarray | None = None, *, vertex_
     n_parts = len(vols.part_names)
     chunk_part, chunk_pts = [], []
     for i, j in enumerate(vols.part_joints):
+        own = [pc for pc in vols.pieces if pc.part == i]
         local = to_local(rest[vols.vertex_parts == i][::vertex_stride], frames[j])
-        local = local[_inside_own(local, [pc for pc in vols.pieces if pc.part == i])]
+        # the pieces' corners too: they catch overlaps across a piece's flat (vertex-free) faces
+        local = np.concatenate([local[_inside_own(local, own)],
+                                *[pc.vertices[::vertex_stride] for pc in own]])
         if len(local) == 0:
             continue
         for idx in _chunks(local, CHUNK_SIZE):

@@ -1,11 +1,13 @@
 """Part volumes: convex pieces per rigid body part, tight enough to stand in for the body.
 
 Every joint that owns vertices by dominant skinning weight (fingers segment by segment, so the
-pieces follow the hand's articulation) gets the convex hull of its rest vertices, expressed in its
-joint frame. A hull that overfills its part (volume outside the closed body mesh) by more than
-`max_overfill` is replaced by a CoACD decomposition of hull ∩ body. Results are cached in memory
-and on disk (`$EMBODY_CACHE` or `~/.cache/embody`), keyed by a hash of the rest mesh.
-"""
+pieces follow the hand's articulation) gets the convex hull of its rest vertices in its joint
+frame, reduced to `MAX_PIECE_VERTICES` corners (bounded planes keep the energy cheap). A hull
+that overfills its part (volume outside the closed body mesh) by more than `max_overfill` is
+replaced by a deterministic CoACD decomposition (seed 0) of hull ∩ body. `cover` then moves the
+planes out just enough that every vertex of the part lies inside its own pieces. Results are
+cached in memory and on disk (`$EMBODY_CACHE` or `~/.cache/embody`), keyed by a hash of the
+shaped rest mesh, skinning and construction settings."""
 
 from __future__ import annotations
 

@@ -27,7 +27,7 @@ class CollisionConfig(Section):
     lambda_close: float = Field(1e-4, ge=0)
     lambda_smooth: float = Field(0.1, ge=0)
     #: Every n-th rest vertex of each part is tested (deterministic subsample).
-    vertex_stride: int = Field(4, ge=1, le=64)
+    vertex_stride: int = Field(8, ge=1, le=64)
     #: Penetration (m) below which a vertex counts as touching (below the mesh resolution).
     tolerance: float = Field(1e-3, ge=0, le=0.05)
     #: Part pairs allowed to touch on purpose (e.g. [[right_hand, head]]); names as in

@@ -26,7 +26,7 @@ class IKConfig(Section):
     w_head_rot: float = Field(0.0, ge=0)
     #: Second differences of q (rad²): smoothness over the whole sequence. Redundant motion
     #: (elbow swivel, waist) is smoothed for free; tracking barely pays at this weight.
-    w_smooth: float = Field(1e-3, ge=0)
+    w_smooth: float = Field(0.02, ge=0)
     #: Pull of the arm joints towards the robot's `rest` pose: resolves redundancy gently.
     w_posture: float = Field(1e-5, ge=0)
     #: Pull of the waist joints towards rest: the torso stays upright unless the arms need it.
@@ -37,16 +37,16 @@ class IKConfig(Section):
     #: Fraction of each velocity limit kept free inside the solve (the clamp keeps the rest).
     velocity_headroom: float = Field(0.02, ge=0, lt=1)
     #: Self-collision penalty on the proxies.
-    w_collision: float = Field(50.0, ge=0)
+    w_collision: float = Field(20.0, ge=0)
     #: Clearance (m) the collision proxies must keep.
-    collision_margin: float = Field(0.004, ge=0, le=0.1)
+    collision_margin: float = Field(0.008, ge=0, le=0.1)
     # --- solver (Levenberg-Marquardt over the banded whole-sequence system) ---
     #: Cold start: iterations that track without the collision term before it comes on.
-    tracking_iterations: int = Field(6, ge=0, le=10_000)
+    tracking_iterations: int = Field(8, ge=0, le=10_000)
     #: Iterations with every term on (the only phase when warm-started).
-    iterations: int = Field(10, ge=1, le=10_000)
+    iterations: int = Field(24, ge=1, le=10_000)
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.
-    tolerance: float = Field(1e-4, ge=0, le=1)
+    tolerance: float = Field(3e-3, ge=0, le=1)
     # --- output ---
     #: Retarget fingers (robots without hands skip it).
     hands: bool = True

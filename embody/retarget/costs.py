@@ -10,6 +10,8 @@ every point or frame downstream of j. One `KinematicTree` pass feeds everything.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
 
 from embody.config.ik import IKConfig
@@ -53,6 +55,8 @@ class Residuals:
         self.mask = self.tree.moves(list(self.ik))  # (J, bodies)
         if self.proxies is not None:
             self._group_hull_pairs()
+            # unpadded plane sets (padding repeats a plane)
+            self.hull_planes = [np.unique(p, axis=0) for p in self.proxies.hull_planes]
         self.target_pos = np.concatenate([targets.wrist_pos, targets.elbow_pos], 1).astype(np.float64)
         rots = [np.asarray(targets.wrist_rot, dtype=np.float64)]
         rots += [np.asarray(targets.torso_rot if n == "spine3" else targets.head_rot, dtype=np.float64)[:, None]
@@ -67,6 +71,11 @@ class Residuals:
     def __call__(self, q: np.ndarray, jacobian: bool = False,
                  collision: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
         """q: full joint vectors (T, n_joints). `collision=False` leaves the proxy term out."""
+        r, jac = self.lazy(q, collision)
+        return r, (jac() if jacobian else None)
+
+    def lazy(self, q: np.ndarray, collision: bool = True) -> tuple[np.ndarray, Callable[[], np.ndarray]]:
+        """r(q) now, J(q) on demand: a rejected step never pays for its Jacobian."""
         rot, pos = self.tree.forward(q)
         r_link = rot[:, self.link_body]
         p_link = pos[:, self.link_body] + np.einsum("tlab,lb->tla", r_link, self.link_offset)
@@ -77,9 +86,10 @@ class Residuals:
         col = self._collision(rot, pos) if self.proxies is not None and collision else None
         if col is not None:
             res.append(col[0])
-        r = np.concatenate(res, 1)
-        if not jacobian:
-            return r, None
+        return np.concatenate(res, 1), lambda: self._jacobian(q, rot, pos, p_link, r_rot, col)
+
+    def _jacobian(self, q: np.ndarray, rot: np.ndarray, pos: np.ndarray, p_link: np.ndarray,
+                  r_rot: np.ndarray, col: tuple[np.ndarray, Callable] | None) -> np.ndarray:
         z, o = self.tree.joint_frames(rot, pos, list(self.ik))  # (T,J,3) each
 
         def point_jac(p: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -93,72 +103,90 @@ class Residuals:
         blocks = [jp.reshape(len(q), -1, len(self.ik)), jr.reshape(len(q), -1, len(self.ik))]
         if col is not None:
             blocks.append(col[1](z, o))
-        return r, np.concatenate(blocks, 1)
+        return np.concatenate(blocks, 1)
 
     def _group_hull_pairs(self) -> None:
-        """Bounding spheres of the sphere/hull pairs grouped by (sphere body, hull): a cheap first
-        broad phase, so per-point plane tests run only where a whole body part is near a hull."""
+        """Sphere/hull pairs grouped by (sphere body, hull) with a bounding sphere per sphere body:
+        a cheap first broad phase, so per-point tests run only where a body part is near a hull."""
         px = self.proxies
-        key = px.sphere_body[px.hull_pairs[:, 0]] * (len(px.hull_body) + 1) + px.hull_pairs[:, 1]
+        s_body = self.sphere_body[px.hull_pairs[:, 0]]
+        key = s_body * (len(px.hull_body) + 1) + px.hull_pairs[:, 1]
         groups, inverse = np.unique(key, return_inverse=True)
         members = [np.flatnonzero(inverse == g) for g in range(len(groups))]
         width = max((len(m) for m in members), default=1)
         self.group_members = np.array([np.concatenate([m, np.full(width - len(m), -1)]) for m in members],
                                       dtype=np.int64).reshape(-1, width)
-        first = px.hull_pairs[[m[0] for m in members]] if members else np.zeros((0, 2), dtype=np.int64)
-        self.group_hull = first[:, 1]
-        self.group_body = self.sphere_body[first[:, 0]] if members else np.zeros(0, dtype=np.int64)
+        first = np.array([m[0] for m in members], dtype=np.int64)
+        self.group_hull = px.hull_pairs[first, 1] if len(first) else np.zeros(0, dtype=np.int64)
+        self.part_body = np.unique(s_body)  # tree indices of bodies carrying paired spheres
+        self.group_part = np.searchsorted(self.part_body, s_body[first]) if len(first) else first
         centre, radius = [], []
-        for m in members:
-            c = px.centres[px.hull_pairs[m, 0]]
-            centre.append(c.mean(0))
-            radius.append(float((np.linalg.norm(c - c.mean(0), axis=1) + px.radii[px.hull_pairs[m, 0]]).max()))
-        self.group_centre = np.array(centre).reshape(-1, 3)
-        self.group_radius = np.array(radius)
+        for b in self.part_body:
+            k = np.flatnonzero(self.sphere_body == b)
+            c = px.centres[k].mean(0)
+            centre.append(c)
+            radius.append(float((np.linalg.norm(px.centres[k] - c, axis=1) + px.radii[k]).max()))
+        self.part_centre = np.array(centre).reshape(-1, 3)
+        self.part_radius = np.array(radius)
+        self.group_reach = (self.part_radius[self.group_part] + px.hull_radius[self.group_hull]
+                            + self.cfg.collision_margin)
+        self.box_mid = px.hull_box.mean(1)
+        self.box_half = (px.hull_box[:, 1] - px.hull_box[:, 0]) / 2
 
-    def _collision(self, rot: np.ndarray, pos: np.ndarray):
+    def _collision(self, rot: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, Callable]:
         """Hinge residuals w·relu(margin − clearance) (T,P+Q) over the sphere/sphere and sphere/hull
         pairs within the margin somewhere, and a function of (axes, pivots) giving their Jacobian."""
         px, margin, w = self.proxies, self.cfg.collision_margin, self.w_col
-        t = len(rot)
+        t, n_ik = len(rot), len(self.ik)
         sb, hb = self.sphere_body, self.hull_body
-        centres = pos[:, sb] + np.einsum("tsab,sb->tsa", rot[:, sb], px.centres)
+        # sphere/sphere
         i, k = px.pairs[:, 0], px.pairs[:, 1]
+        centres = pos[:, sb] + (rot[:, sb] @ px.centres[..., None])[..., 0] if len(i) else np.zeros((t, 0, 3))
         diff = centres[:, i] - centres[:, k]
         dist = np.linalg.norm(diff, axis=-1)
         clear = dist - px.radii[i] - px.radii[k]
         near = np.flatnonzero((clear < margin).any(0))  # the other pairs contribute exactly zero
         i, k, diff, dist, clear = i[near], k[near], diff[:, near], dist[:, near], clear[:, near]
-        # sphere/hull: broad phase per (body part, hull), then per point, then plane distances
-        hb_g = hb[self.group_hull]
-        gc = pos[:, self.group_body] + np.einsum("tgab,gb->tga", rot[:, self.group_body], self.group_centre)
-        hc = pos[:, hb_g] + np.einsum("tgab,gb->tga", rot[:, hb_g], px.hull_centre[self.group_hull])
-        gd = np.linalg.norm(gc - hc, axis=-1) - self.group_radius - px.hull_radius[self.group_hull]
-        tg, gg = np.nonzero(gd < margin)
-        members = self.group_members[gg]
-        tc = np.repeat(tg, members.shape[1])
-        qc = members.reshape(-1)
-        tc, qc = tc[qc >= 0], qc[qc >= 0]
-        si, hi = px.hull_pairs[:, 0], px.hull_pairs[:, 1]
-        r_h, p_h = rot[tc, hb[hi[qc]]], pos[tc, hb[hi[qc]]]
-        x = centres[tc, si[qc]]
-        xl = np.einsum("cba,cb->ca", r_h, x - p_h)  # in the hull body's frame
-        bound = np.linalg.norm(xl - px.hull_centre[hi[qc]], axis=-1) - px.hull_radius[hi[qc]] - px.radii[si[qc]]
-        keep = bound < margin
-        tc, qc, r_h, x, xl = tc[keep], qc[keep], r_h[keep], x[keep], xl[keep]
-        planes = px.hull_planes[hi[qc]]
-        sd = np.einsum("cfa,ca->cf", planes[..., :3], xl) + planes[..., 3]
-        face = sd.argmax(1)
-        value = sd[np.arange(len(qc)), face] - px.radii[si[qc]]
-        hclear = np.full((t, len(si)), np.inf)
-        hclear[tc, qc] = value
-        hnear = np.flatnonzero((hclear < margin).any(0))
         gap = np.maximum(margin - clear, 0.0)
-        hgap = np.maximum(margin - hclear[:, hnear], 0.0)
+        # sphere/hull: broad phase per (body part, hull) on bounding spheres ...
+        pb = self.part_body
+        pc = pos[:, pb] + (rot[:, pb] @ self.part_centre[..., None])[..., 0]
+        hc = pos[:, hb] + (rot[:, hb] @ px.hull_centre[..., None])[..., 0]
+        gv = pc[:, self.group_part] - hc[:, self.group_hull]
+        tg, gg = np.nonzero(np.einsum("tga,tga->tg", gv, gv) < self.group_reach**2)
+        # ... then per point against the hull's box, in the hull body's frame ...
+        h_of = self.group_hull[gg]
+        r_h, p_h = rot[tg, hb[h_of]], pos[tg, hb[h_of]]
+        gb = pb[self.group_part[gg]]
+        r_ht = np.swapaxes(r_h, 1, 2)
+        r_rel = r_ht @ rot[tg, gb]
+        p_rel = (r_ht @ (pos[tg, gb] - p_h)[..., None])[..., 0]
+        members = self.group_members[gg]  # (G,M), −1 = padding
+        si, hi = px.hull_pairs[:, 0], px.hull_pairs[:, 1]
+        xl = np.swapaxes(r_rel @ np.swapaxes(px.centres[si[members]], 1, 2), 1, 2) + p_rel[:, None]
+        reach = self.box_half[h_of][:, None] + (margin + px.radii[si[members]])[..., None]
+        inside = (np.abs(xl - self.box_mid[h_of][:, None]) < reach).all(-1) & (members >= 0)
+        gsel, msel = np.nonzero(inside)
+        tc, qc, xl = tg[gsel], members[gsel, msel], xl[gsel, msel]
+        r_h, p_h = r_h[gsel], p_h[gsel]
+        # ... then the polytope's plane distances, hull by hull (no padded plane sets)
+        value, normal_l = np.empty(len(qc)), np.empty((len(qc), 3))
+        order = np.argsort(hi[qc], kind="stable")
+        hulls, starts = np.unique(hi[qc][order], return_index=True)
+        for h, idx in zip(hulls, np.split(order, starts[1:])):
+            planes = self.hull_planes[h]
+            sd = xl[idx] @ planes[:, :3].T + planes[:, 3]
+            face = sd.argmax(1)
+            value[idx] = sd[np.arange(len(idx)), face]
+            normal_l[idx] = planes[face, :3]
+        value -= px.radii[si[qc]]
         sel = value < margin
-        tc, qc, face, r_h, x = tc[sel], qc[sel], face[sel], r_h[sel], x[sel]
-        normal = np.einsum("cab,cb->ca", r_h, px.hull_planes[hi[qc], face, :3])
-        col = np.searchsorted(hnear, qc)
+        tc, qc, value, r_h = tc[sel], qc[sel], value[sel], r_h[sel]
+        hnear, col = np.unique(qc, return_inverse=True)
+        hgap = np.zeros((t, len(hnear)))
+        hgap[tc, col] = margin - value
+        x = (r_h @ xl[sel][..., None])[..., 0] + p_h[sel]  # torso frame
+        normal = (r_h @ normal_l[sel][..., None])[..., 0]
 
         def jacobian(z: np.ndarray, o: np.ndarray) -> np.ndarray:
             ms = self.mask[:, sb]  # (J,N)
@@ -167,7 +195,7 @@ class Residuals:
             dclear = (np.einsum("tpa,tpja->tpj", u, lever(centres[:, i])) * ms[:, i].T
                       - np.einsum("tpa,tpja->tpj", u, lever(centres[:, k])) * ms[:, k].T)
             jac = -w * (gap > 0)[..., None] * dclear
-            hjac = np.zeros((t, len(hnear), z.shape[1]))
+            hjac = np.zeros((t, len(hnear), n_ik))
             arm = np.cross(z[tc], x[:, None] - o[tc])  # (C,J,3)
             moves = (ms[:, si[qc]] - self.mask[:, hb[hi[qc]]]).T  # (C,J)
             hjac[tc, col] = -w * np.einsum("ca,cja->cj", normal, arm) * moves

@@ -31,33 +31,37 @@ def subtree_ids(model: mujoco.MjModel, root: str) -> set[int]:
     return out
 
 
-def _frame_pairs(robot: Robot, q: np.ndarray) -> list[list[tuple[int, int]]]:
-    """Per frame, the body pairs of every counted penetrating contact."""
+def counted_geom_pairs(robot: Robot) -> np.ndarray:
+    """(ngeom, ngeom) bool: contacts between these geoms count as self-collision."""
+    model = robot.model
+    g = np.arange(model.ngeom)
+    in_group = np.isin(model.geom_group, list(robot.spec.collision.geom_groups))
+    body = model.geom_bodyid
+    parent = model.body_parentid
+    b1, b2 = body[g][:, None], body[g][None, :]
+    ok = in_group[:, None] & in_group[None, :] & (b1 != b2) & (parent[b1] != b2) & (parent[b2] != b1)
+    for root in robot.spec.collision.ignore_subtrees:
+        inside = np.isin(body, list(subtree_ids(model, root)))
+        ok &= ~(inside[:, None] & inside[None, :])
+    for a, b in robot.spec.collision.ignore_pairs:
+        ia, ib = body == model.body(a).id, body == model.body(b).id
+        ok &= ~((ia[:, None] & ib[None, :]) | (ib[:, None] & ia[None, :]))
+    return ok
+
+
+def _frame_pairs(robot: Robot, q: np.ndarray) -> list[np.ndarray]:
+    """Per frame, the (geom1, geom2) pairs of every counted penetrating contact."""
     model = robot.model
     data = mujoco.MjData(model)
-    groups = set(robot.spec.collision.geom_groups)
-    parent = model.body_parentid
-    ignored = [subtree_ids(model, b) for b in robot.spec.collision.ignore_subtrees]
-    skip = {frozenset((model.body(a).id, model.body(b).id)) for a, b in robot.spec.collision.ignore_pairs}
+    counted = counted_geom_pairs(robot)
     out = []
     for qt in np.atleast_2d(q):
         data.qpos[:] = robot.qpos(qt)
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
-        found = []
-        for c in data.contact[: data.ncon]:
-            if c.dist >= 0:
-                continue
-            g1, g2 = c.geom1, c.geom2
-            if model.geom_group[g1] not in groups or model.geom_group[g2] not in groups:
-                continue
-            b1, b2 = int(model.geom_bodyid[g1]), int(model.geom_bodyid[g2])
-            if b1 == b2 or parent[b1] == b2 or parent[b2] == b1:
-                continue
-            if any(b1 in s and b2 in s for s in ignored) or frozenset((b1, b2)) in skip:
-                continue
-            found.append((b1, b2))
-        out.append(found)
+        geom = data.contact.geom[: data.ncon]
+        hit = (data.contact.dist[: data.ncon] < 0) & counted[geom[:, 0], geom[:, 1]]
+        out.append(geom[hit])
     return out
 
 
@@ -69,6 +73,8 @@ def self_collision_contacts(robot: Robot, q: np.ndarray) -> np.ndarray:
 def contact_pairs(robot: Robot, q: np.ndarray) -> Counter:
     """Frames per penetrating body pair (names sorted), for breakdowns."""
     out: Counter = Counter()
+    body = robot.model.geom_bodyid
     for found in _frame_pairs(robot, q):
-        out.update({tuple(sorted((robot.model.body(a).name, robot.model.body(b).name))) for a, b in found})
+        out.update({tuple(sorted((robot.model.body(body[a]).name, robot.model.body(body[b]).name)))
+                    for a, b in found})
     return out

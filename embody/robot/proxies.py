@@ -118,6 +118,7 @@ class Proxies:
     hull_planes: np.ndarray  # (H, F, 4) in the body frame, padded by repeating a plane
     hull_centre: np.ndarray  # (H, 3) bounding-sphere centre in the body frame
     hull_radius: np.ndarray  # (H,)
+    hull_box: np.ndarray  # (H, 2, 3) bounding box (lower, upper corner) in the body frame
     hull_pairs: np.ndarray  # (Q, 2) (sphere, hull) pairs
 
     @classmethod
@@ -131,7 +132,7 @@ class Proxies:
         names: list[str] = list(robot.spec.proxies)
         bodies: list[str] = []
         s_body, s_part, centres, radii = [], [], [], []
-        h_body, h_part, h_planes, h_centre, h_radius = [], [], [], [], []
+        h_body, h_part, h_planes, h_centre, h_radius, h_box = [], [], [], [], [], []
 
         def local(points: np.ndarray, b: int) -> tuple[np.ndarray, int]:
             if body_names[b] not in bodies:
@@ -153,8 +154,10 @@ class Proxies:
                     pts, bi = local(_geom_points(model, data, g), int(model.geom_bodyid[g]))
                     if ps.layout == "hull":
                         h_planes.append(_hull_planes(pts, ps.planes))
-                        h_centre.append(pts.mean(0))
-                        h_radius.append(float(np.linalg.norm(pts - pts.mean(0), axis=1).max()))
+                        mid = (pts.min(0) + pts.max(0)) / 2
+                        h_centre.append(mid)
+                        h_radius.append(float(np.linalg.norm(pts - mid, axis=1).max()))
+                        h_box.append([pts.min(0), pts.max(0)])
                         h_body.append(bi)
                         h_part.append(p)
                     else:
@@ -187,6 +190,7 @@ class Proxies:
                    pairs=np.array(pairs, dtype=np.int64).reshape(-1, 2),
                    hull_body=np.array(h_body, dtype=np.int64), hull_planes=planes.reshape(-1, n_planes, 4),
                    hull_centre=np.array(h_centre).reshape(-1, 3), hull_radius=np.array(h_radius),
+                   hull_box=np.array(h_box).reshape(-1, 2, 3),
                    hull_pairs=np.array(hull_pairs, dtype=np.int64).reshape(-1, 2))
 
 

@@ -14,10 +14,12 @@ import mujoco
 import numpy as np
 
 
-def _axis_rotations(axis: np.ndarray, angle: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotations (T,3,3) by `angle` (T,) about the unit `axis` (3,)."""
-    k = np.array([[0.0, -axis[2], axis[1]], [axis[2], 0.0, -axis[0]], [-axis[1], axis[0], 0.0]])
-    s, c = np.sin(angle)[:, None, None], np.cos(angle)[:, None, None]
+def _axis_rotations(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
+    """Rodrigues: rotations (T,J,3,3) by `angles` (T,J) about the unit `axes` (J,3)."""
+    z = np.zeros(len(axes))
+    k = np.stack([np.stack([z, -axes[:, 2], axes[:, 1]], -1), np.stack([axes[:, 2], z, -axes[:, 0]], -1),
+                  np.stack([-axes[:, 1], axes[:, 0], z], -1)], -2)  # (J,3,3) cross-product matrices
+    s, c = np.sin(angles)[..., None, None], np.cos(angles)[..., None, None]
     return np.eye(3) + s * k + (1.0 - c) * (k @ k)
 
 
@@ -56,18 +58,22 @@ class KinematicTree:
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rotations (T,B,3,3) and positions (T,B,3) of every walked body for q (T, n_joints)."""
         t = len(q)
+        # every body's parent-to-body rotation at once: fixed offset times its hinge rotations
+        local = np.broadcast_to(self.local_rot, (t, *self.local_rot.shape)).copy()
+        for k in range(max((len(h) for h in self.joints), default=0)):
+            bodies = [i for i, h in enumerate(self.joints) if len(h) > k]
+            joints = [self.joints[i][k][0] for i in bodies]
+            axes = np.array([self.joints[i][k][1] for i in bodies])
+            local[:, bodies] = local[:, bodies] @ _axis_rotations(axes, q[:, joints])
         rot = np.empty((t, len(self.order), 3, 3))
         pos = np.empty((t, len(self.order), 3))
         for i, p in enumerate(self.parent):
             if p < 0:  # the root body hangs off the world, seen from the torso frame
-                r_p, p_p = np.broadcast_to(self.root_rot, (t, 3, 3)), np.broadcast_to(self.root_pos, (t, 3))
+                rot[:, i] = self.root_rot @ local[:, i]
+                pos[:, i] = self.root_pos + self.root_rot @ self.local_pos[i]
             else:
-                r_p, p_p = rot[:, p], pos[:, p]
-            pos[:, i] = p_p + r_p @ self.local_pos[i]
-            r = r_p @ self.local_rot[i]
-            for j, axis in self.joints[i]:
-                r = r @ _axis_rotations(axis, q[:, j])
-            rot[:, i] = r
+                rot[:, i] = rot[:, p] @ local[:, i]
+                pos[:, i] = pos[:, p] + rot[:, p] @ self.local_pos[i]
         return rot, pos
 
     def joint_frames(self, rot: np.ndarray, pos: np.ndarray, joints: list[int]) -> tuple[np.ndarray, np.ndarray]:
