@@ -226,7 +226,7 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     data = load_dataset(dataset, split)
     refs = list(data)[: cfg.run.limit] if cfg.run.limit else list(data)
     run = cfg.run.name or default_run_name(Path(dataset), split)
-    pipeline = pipeline or default_pipeline(critic=cfg.run.critic)
+    pipeline = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
     ctx = Context(cfg=cfg, store_root=str(store.root), run=run)
     manifest = Manifest(store, run)
     manifest.start([r.id for r in refs], dataset=str(dataset), split=split,

@@ -1,6 +1,6 @@
 """The default pipeline: each step is one library call plus its key ingredients.
 
-source → collide → shape_fit (shared) → retarget → [refine] → metrics. Library imports happen
+source → collide → shape_fit (shared) → retarget → [refine] → [render] → metrics. Library imports happen
 inside the steps, so defining the pipeline costs nothing and never imports a stage's deps.
 """
 
@@ -16,7 +16,7 @@ from embody.motion import Motion
 from tasks.pipeline import Context, Pipeline, Step
 
 __all__ = ["Metrics", "default_pipeline", "SOURCE", "COLLIDE", "SHAPE_FIT", "RETARGET",
-           "REFINE", "METRICS"]
+           "REFINE", "RENDER", "METRICS"]
 
 
 @dataclass
@@ -102,6 +102,27 @@ def _refine_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
     return RefineResult.from_arrays(arrays, attrs)
 
 
+def _render(ctx: Context, inputs: dict[str, Any]) -> Any:
+    """The final trajectory (refined when the critic ran) beside the reference body."""
+    from embody.render.record import render_sequence
+    from embody.retarget import build_targets
+    motion, fit, refined = inputs["collide"].motion, inputs["shape_fit"], inputs.get("refine")
+    q = refined.q if refined is not None else inputs["retarget"].q
+    targets = build_targets(motion, ctx.body, fit, ctx.robot)
+    title = f"{motion.meta.get('id', '')}: {'refined' if refined is not None else 'IK only'}"
+    return render_sequence(motion, ctx.body, fit, ctx.robot, q, targets.wrist_pos, ctx.cfg.render,
+                           title, None if refined is None else refined.keyframes)
+
+
+def _render_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
+    from embody.render.record import SequenceRender
+    return SequenceRender.from_arrays(arrays, attrs)
+
+
+def _render_metrics(result: Any) -> dict[str, Any]:
+    return {"keyframes": int(len(result.keyframes)), "preview": result.preview_suffix or ""}
+
+
 def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     """Smoothness of the final joint trajectory (the refined one when the critic ran)."""
     from embody.metrics import mean_jerk
@@ -121,13 +142,23 @@ RETARGET = Step("retarget", "1", ("body", "robot", "ik"), _retarget, _ik_solutio
 REFINE = Step("refine", "1", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
+RENDER = Step("render", "1", ("body", "robot", "render"), _render, _render_result,
+              (COLLIDE, SHAPE_FIT, RETARGET), metrics=_render_metrics, files=_robot_files)
+RENDER_REFINED = Step("render", "1", ("body", "robot", "render"), _render, _render_result,
+                      (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
+                      files=_robot_files)
 METRICS = Step("metrics", "1", (), _trajectory_metrics, Metrics.from_arrays, (RETARGET,))
 METRICS_REFINED = Step("metrics", "1", (), _trajectory_metrics, Metrics.from_arrays,
                        (RETARGET, REFINE))
 
 
-def default_pipeline(critic: bool = False) -> Pipeline:
-    """The full chain; `critic` adds the refinement step between IK and metrics."""
+def default_pipeline(critic: bool = False, render: bool = False) -> Pipeline:
+    """The full chain; `critic` adds the refinement step after IK, `render` the comparison
+    sheet (and preview) of the final trajectory."""
+    steps: list[Step] = [COLLIDE, SHAPE_FIT, RETARGET]
     if critic:
-        return Pipeline(SOURCE, (COLLIDE, SHAPE_FIT, RETARGET, REFINE, METRICS_REFINED))
-    return Pipeline(SOURCE, (COLLIDE, SHAPE_FIT, RETARGET, METRICS))
+        steps.append(REFINE)
+    if render:
+        steps.append(RENDER_REFINED if critic else RENDER)
+    steps.append(METRICS_REFINED if critic else METRICS)
+    return Pipeline(SOURCE, tuple(steps))

@@ -12,7 +12,9 @@ from store import ArtifactStore
 
 #: The real steps, made cheap: no collision optimisation, one IK iteration, a short shape fit.
 CHEAP = ["--set", "collision.enabled=false", "--set", "ik.iterations=1",
-         "--set", "ik.shape_iterations=10"]
+         "--set", "ik.shape_iterations=10", "--set", "critic.rounds=1",
+         "--set", "render.width=64", "--set", "render.height=48", "--set", "render.keyframes=2",
+         "--set", "render.preview_format=gif", "--set", "render.preview_max_frames=2"]
 
 
 def _write(folder: Path, n: int = 2, frames: int = 4) -> Path:
@@ -57,7 +59,7 @@ def test_run_isolates_a_failure_then_resumes(prefect_harness, tmp_path, capsys, 
     assert (summary["ok"], summary["failed"]) == (1, 1)
     assert "seq001" in out.err and "InjectedFailure" in out.err  # the failure table
     assert summary["computed"] == {"source": 2, "shape_fit": 1, "collide": 1, "retarget": 1,
-                                   "metrics": 1}
+                                   "refine": 1, "render": 1, "metrics": 1}
 
     code = main([*args, "--json"])
     out = capsys.readouterr()
@@ -65,7 +67,11 @@ def test_run_isolates_a_failure_then_resumes(prefect_harness, tmp_path, capsys, 
     summary = json.loads(out.out)
     assert summary["failed"] == 0
     assert summary["computed"] == {"source": 0, "shape_fit": 0, "collide": 1, "retarget": 1,
-                                   "metrics": 1}
+                                   "refine": 1, "render": 1, "metrics": 1}
+    store_ = ArtifactStore(tmp_path / "store")
+    render = store_.read("render", summary_key(store_, "seq000", "render"))
+    assert bytes(render.arrays["sheet_png"][:8]) == b"\x89PNG\r\n\x1a\n"
+    assert bytes(render.arrays["preview"][:6]) in (b"GIF89a", b"GIF87a")
     assert "retarget" in out.err  # progress lines on stderr
     store = ArtifactStore(tmp_path / "store")
     q = store.read("retarget", summary_key(store, "seq000", "retarget")).arrays["q"]

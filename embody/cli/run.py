@@ -26,6 +26,8 @@ def run_options(f):
         click.option("--batch-size", type=int, default=None, help="Sequences per task run."),
         click.option("--critic", type=click.Choice(["geometric", "vlm", "none"]), default=None,
                      help="Critic of the refinement loop [default: critic.kind; none skips it]."),
+        click.option("--render/--no-render", default=None,
+                     help="Store each sequence's comparison sheet and preview [default: on]."),
         click.option("--robot", default=None, help="Robot definition name (robot.name)."),
         click.option("--name", default=None, help="Run name [default: from the dataset]."),
         config_options,
@@ -39,7 +41,8 @@ def config_from_options(config_files: tuple[str, ...], sets: tuple[str, ...],
     """Config files and `--set`s, then the dedicated options on top (validated the same way)."""
     keys = {"store": "run.store", "limit": "run.limit", "workers": "run.workers",
             "runner": "run.runner", "dask_address": "run.dask_address",
-            "batch_size": "run.batch_size", "robot": "robot.name", "name": "run.name"}
+            "batch_size": "run.batch_size", "robot": "robot.name", "name": "run.name",
+            "render": "run.render"}
     extra = [f"{keys[k]}={json.dumps(v)}" for k, v in options.items()
              if k in keys and v is not None]
     critic = options.get("critic")

@@ -22,6 +22,8 @@ class RunConfig(Section):
     limit: int | None = Field(None, ge=1)
     #: Run the critic refinement step after IK (`embody run --critic none` skips it).
     critic: bool = True
+    #: Render each sequence's comparison sheet (and `render.preview_format` preview) into the store.
+    render: bool = True
     seed: int = 0
     synth_n: int = Field(24, ge=1)
 

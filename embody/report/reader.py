@@ -22,7 +22,7 @@ log = logging.getLogger(__name__)
 
 #: Step names as the orchestrator stores them (tasks/stages.py).
 SOURCE, COLLIDE, SHAPE_FIT = "source", "collide", "shape_fit"
-RETARGET, REFINE = "retarget", "refine"
+RETARGET, REFINE, RENDER = "retarget", "refine", "render"
 
 
 def open_run(store_root: str | Path, run: str) -> tuple[Any, Any]:
@@ -71,9 +71,9 @@ def metrics_frame(manifest: Any, step: str) -> pd.DataFrame:
 
 def load_result(store: Any, seq: dict[str, Any], step: str) -> Any:
     """The stored result of `step` for one manifest sequence entry, as the stage's own type."""
-    from tasks.stages import COLLIDE as C, REFINE as R, RETARGET as T, SOURCE as S
+    from tasks.stages import COLLIDE as C, REFINE as R, RENDER as V, RETARGET as T, SOURCE as S
 
-    loader = {s.name: s.load for s in (S, C, T, R)}[step]
+    loader = {s.name: s.load for s in (S, C, T, R, V)}[step]
     art = store.read(step, seq["steps"][step])
     return loader(art.arrays, art.attrs)
 
@@ -177,7 +177,9 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
             r = refined[sid]
             tracks = {"reference": r.ik_only.target_pos, "IK only": robotics.wrists(r.ik_only.q),
                       "refined": robotics.wrists(r.final.q)}
-            if rank < max_sheets:
+            if RENDER in seqs[sid]["steps"]:  # the render stage stored it: no re-rendering
+                data.sheets[sid] = load_result(store, seqs[sid], RENDER).sheet_png
+            elif rank < max_sheets:
                 motion = load_result(store, seqs[sid], COLLIDE).motion
                 try:
                     data.sheets[sid] = robotics.sheet(motion, r, f"{sid}: final round")

@@ -1,0 +1,72 @@
+"""The render stage of the pipeline: one sequence's comparison sheet (and preview) as an artifact.
+
+The critic only renders when it looks at images; this stage renders every sequence's final
+trajectory so each run keeps a picture a person can check, and the report shows stored sheets
+instead of re-rendering them.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from embody.config.render import RenderConfig
+from embody.render.compare import open_renderer, reference_vertices, render_comparison, render_preview
+from embody.render.keyframes import select_keyframes
+
+
+@dataclass
+class SequenceRender:
+    """Keyframes, the reference-over-robot sheet PNG and the optional animated preview bytes."""
+
+    keyframes: np.ndarray
+    sheet_png: bytes
+    preview: bytes | None = None
+    preview_suffix: str | None = None
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        arrays = {"keyframes": np.asarray(self.keyframes, dtype=np.int64),
+                  "sheet_png": np.frombuffer(self.sheet_png, dtype=np.uint8)}
+        if self.preview is not None:
+            arrays["preview"] = np.frombuffer(self.preview, dtype=np.uint8)
+        return arrays
+
+    def to_attrs(self) -> dict[str, Any]:
+        return {"preview_suffix": self.preview_suffix}
+
+    @classmethod
+    def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> "SequenceRender":
+        preview = arrays.get("preview")
+        return cls(np.asarray(arrays["keyframes"]), np.asarray(arrays["sheet_png"]).tobytes(),
+                   None if preview is None else np.asarray(preview).tobytes(),
+                   attrs.get("preview_suffix"))
+
+
+def render_sequence(motion, body, fit, robot, q: np.ndarray, reference_wrists: np.ndarray,
+                    cfg: RenderConfig, title: str = "",
+                    keyframes: np.ndarray | None = None) -> SequenceRender:
+    """Render the final trajectory `q` beside the reference body at its keyframes.
+
+    `keyframes` defaults to the motion extrema of `reference_wrists` (T,2,3), the same choice
+    the critic loop makes, so a refined sequence's sheet shows the frames the critic saw.
+    """
+    keys = (select_keyframes(np.asarray(reference_wrists), cfg.keyframes)
+            if keyframes is None else np.asarray(keyframes))
+    renderer = open_renderer(robot, body, fit, cfg)
+    try:
+        comp = render_comparison(renderer, cfg, keys, motion.fps, np.asarray(q),
+                                 reference_verts=reference_vertices(motion, body, fit, keys))
+        sheet = comp.sheet_png(title)
+        preview = suffix = None
+        with tempfile.TemporaryDirectory(prefix="embody-preview-") as tmp:
+            path = render_preview(renderer, cfg, motion, body, fit, np.asarray(q),
+                                  Path(tmp) / "preview")
+            if path is not None:
+                preview, suffix = path.read_bytes(), path.suffix
+    finally:
+        renderer.close()
+    return SequenceRender(keys, sheet, preview, suffix)
