@@ -1,4 +1,5 @@
-"""The self-collision energy (Eq. 1) on the mannequin: zeros, a brute-force reference, gradients."""
+"""The self-collision energy (Eq. 1) on the mannequin: zeros, a brute-force reference on the
+skinned mesh, gradients."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import torch
 
 from embody.body import MannequinBody
 from embody.collision import collision_model, frame_energies, part_volumes
+from embody.collision.energy import _blend, _chunk_spheres, skinned_points
 from embody.collision.exclusions import checked_pairs, group_name, part_groups
 from embody.errors import ConfigError
 from embody.motion import JOINT_NAMES
@@ -17,8 +19,9 @@ J = JOINT_NAMES.index
 
 def reference_energies(body, pose: np.ndarray, stride: int, tolerance: float = 0.0,
                        allow=()) -> np.ndarray:
-    """Eq. 1 by brute force: every point (mesh vertices inside their own part, and the pieces'
-    corners) against every piece of every checked part."""
+    """Eq. 1 by brute force: every `stride`-th vertex of each part, skinned densely (LBS with
+    all J weights) for the whole mesh, plus the pieces' corners carried by their joint, against
+    every piece of every checked part."""
     vols = part_volumes(body)
     groups, part_group = part_groups(vols.part_names)
     checked = checked_pairs(groups, body.joint_names, body.parents, allow)
@@ -26,15 +29,15 @@ def reference_energies(body, pose: np.ndarray, stride: int, tolerance: float = 0
     rest = body.rest_vertices(betas).numpy()
     g_rest = body.joint_transforms(torch.zeros(1, 55, 3, dtype=torch.float64), betas)[0].numpy()
     g = body.joint_transforms(torch.as_tensor(pose, dtype=torch.float64), betas).numpy()
+    weights = body.skin_weights.astype(np.float64)
     out = np.zeros(len(pose))
-    for a, ja in enumerate(vols.part_joints):
-        own = [pc for pc in vols.pieces if pc.part == a]
-        local = (rest[vols.vertex_parts == a][::stride] - g_rest[ja, :3, 3]) @ g_rest[ja, :3, :3]
-        f_own = np.min([np.max(local @ pc.planes[:, :3].T + pc.planes[:, 3], axis=1)
-                        for pc in own], axis=0)
-        local = np.concatenate([local[f_own <= 1e-9], *[pc.vertices[::stride] for pc in own]])
-        for t in range(len(pose)):
-            world = local @ g[t, ja, :3, :3].T + g[t, ja, :3, 3]
+    for t in range(len(pose)):
+        blend = np.einsum("vj,jab->vab", weights, (g[t] @ np.linalg.inv(g_rest))[:, :3])
+        skinned = np.einsum("vab,vb->va", blend[..., :3], rest) + blend[..., 3]
+        for a, ja in enumerate(vols.part_joints):
+            corners = np.concatenate([pc.vertices[::stride] for pc in vols.pieces if pc.part == a])
+            world = np.concatenate([skinned[vols.vertex_parts == a][::stride],
+                                    corners @ g[t, ja, :3, :3].T + g[t, ja, :3, 3]])
             for b, jb in enumerate(vols.part_joints):
                 if not checked[part_group[a], part_group[b]]:
                     continue
@@ -150,3 +153,23 @@ def test_exclusions_cover_the_skeleton(body, model):
     assert not checked[idx("left_hand"), idx("left_elbow")]
     assert not checked[idx("left_hip"), idx("right_hip")]
     assert checked[idx("left_hand"), idx("head")] and checked[idx("left_hand"), idx("right_hand")]
+
+
+def test_points_are_the_skinned_mesh(body, model):
+    """Every mesh point sits on the skinned mesh (`body.vertices`), not on a rigid part, and the
+    broad phase's per-frame chunk spheres contain all of them."""
+    pose = torch.as_tensor(crossing_poses()[2:4], dtype=torch.float64)
+    betas = torch.zeros(10, dtype=torch.float64)
+    transforms = body.joint_transforms(pose, betas)
+    pts = skinned_points(model, transforms)
+    mesh = body.vertices(pose, betas)
+    rest = body.rest_vertices(betas)
+    mask = torch.as_tensor(model.chunk_mask)
+    blended = mask & torch.as_tensor((model.chunk_weights < 1).all(-1))  # skinned by ≥2 joints
+    assert blended.sum() > 100
+    idx = torch.cdist(torch.as_tensor(model.chunk_points[blended.numpy()]), rest).argmin(1)
+    torch.testing.assert_close(pts[:, blended], mesh[:, idx], rtol=0, atol=1e-6)
+    d = model.tensors(torch.float64, torch.device("cpu"))
+    center, radius = _chunk_spheres(d, _blend(d, transforms))
+    dist = (pts - center[:, :, None]).norm(dim=-1)
+    assert bool((dist[:, mask] <= radius[..., None].expand_as(dist)[:, mask]).all())

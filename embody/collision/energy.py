@@ -1,14 +1,24 @@
 """Volumetric self-collision energy (Eq. 1): L_col = (1/T) Σ_t Σ_v max(0, −f(v; x_t))².
 
-Points are rest-mesh vertices plus the corners of the part's pieces (every `vertex_stride`-th
-of each), carried rigidly by their part's joint, i.e. the skinned mesh with one-hot weights:
-it costs one transform per part, and with the points kept inside their own part's pieces a
-positive energy always means that two checked parts' volumes overlap. f is the signed
-distance to a part: the minimum over its convex
-pieces of max_f(n_f·q + d_f), exact inside. A broad phase (part spheres, piece boxes, point
-boxes) picks (frame, point chunk, piece) rows without gradients; the narrow phase evaluates the
-planes of points inside a box and differentiates only the penetrating ones, so the cost follows
-the pairs that are actually close.
+V_t is the linear-blend-skinned mesh, the surface that gets rendered: every `vertex_stride`-th
+vertex of each part, skinned only for that subsample (each point chunk gathers the few joints
+that weight it). Each point is tested against every checked part it does not belong to (its
+dominant-weight part's collision group, see `exclusions`). f is the signed distance to a part:
+the minimum over its convex pieces of max_f(n_f·q + d_f), exact inside.
+
+The corners of each part's pieces (same stride) are added as points carried rigidly by their
+joint: two convex pieces can overlap across flat, vertex-free faces with no mesh vertex inside
+the other. Without the corners one of the validation poses (tests/test_collision_validation.py)
+with > 1 cm³ of piece overlap scored 0; with them "energy 0 ⇔ overlap volume 0" holds there.
+Near joints, skinned vertices do leave their own part's rigid pieces (≈4% of vertex-frames
+there, by up to 2 cm), but only towards parent/child parts, which are excluded: the rest pose,
+clear poses and the validation poses score exactly as the piece overlaps say.
+
+A broad phase (per-frame spheres bounding each chunk's skinned points, part spheres, piece
+boxes, point boxes) picks (frame, point chunk, piece) rows without gradients; the narrow phase
+evaluates the planes of points inside a box and differentiates only the penetrating ones,
+skinning just those points again with autograd, so the cost follows the pairs that are close.
+SMPL-X pose correctives (posedirs) are left out: the skin is plain LBS of the shaped rest mesh.
 """
 
 from __future__ import annotations
@@ -22,24 +32,18 @@ import torch
 
 from embody.body.base import BodyModel
 from embody.collision.exclusions import checked_pairs, part_groups
-from embody.collision.volumes import part_volumes, rest_frames, to_local
+from embody.collision.volumes import part_volumes, rest_frames
 
 #: Planes that never win the max: padding for pieces with fewer faces.
 _PAD_PLANE = (0.0, 0.0, 0.0, -1e9)
+#: Radius slack (m) of the broad phase's chunk spheres: skinning weights stored as float32
+#: sum to 1 only within ~1e-7.
+_SLACK = 1e-5
 
 
 def _sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
     center = 0.5 * (points.min(0) + points.max(0))
     return center, float(np.sqrt(((points - center) ** 2).sum(1).max()))
-
-
-def _inside_own(points: np.ndarray, pieces: list) -> np.ndarray:
-    """Guard: `volumes.cover` puts every vertex inside its own part's pieces; any point that
-    rounding leaves outside is dropped, so a point inside another part always means that the
-    two parts' volumes overlap."""
-    f = np.min([np.max(points @ pc.planes[:, :3].T + pc.planes[:, 3], axis=1) for pc in pieces],
-               axis=0)
-    return f <= 1e-9
 
 
 def _chunks(points: np.ndarray, size: int) -> list[np.ndarray]:
@@ -55,9 +59,19 @@ def _chunks(points: np.ndarray, size: int) -> list[np.ndarray]:
     return split(np.arange(len(points)))
 
 
+def _influences(weights: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
+    """(joints (U,), weights (size,U)) of one chunk: the joints with a non-zero weight on any
+    of its points. Chunks are small and spatial, so U stays small (≤ 8 on the mannequin) and
+    skinning a chunk gathers U transforms, not one set per point."""
+    joints = np.flatnonzero((weights > 0).any(0))
+    out = np.zeros((size, len(joints)))
+    out[:len(weights)] = weights[:, joints]
+    return joints, out
+
+
 @dataclass(frozen=True)
 class CollisionModel:
-    """Points (in spatial chunks), pieces and checked pairs of one body shape.
+    """Points (in spatial chunks, with their skin), pieces and checked pairs of one body shape.
 
     Kept in numpy; `tensors` converts once per dtype/device.
     """
@@ -68,10 +82,14 @@ class CollisionModel:
     part_group: np.ndarray       # (C,)
     checked: np.ndarray          # (C,C): points of part a vs pieces of part b
     chunk_part: np.ndarray       # (H,)
-    chunk_points: np.ndarray     # (H,S,3) joint-local, padded
+    chunk_points: np.ndarray     # (H,S,3) rest-pose world positions, padded
+    chunk_joints: np.ndarray     # (H,U) joints that skin the chunk (corners: their own joint)
+    chunk_weights: np.ndarray    # (H,S,U) skinning weights over those joints, 0 for padding
     chunk_mask: np.ndarray       # (H,S)
-    chunk_center: np.ndarray     # (H,3)
+    chunk_used: np.ndarray       # (H,U) which of chunk_joints are real (not padding)
+    chunk_center: np.ndarray     # (H,3) rest-pose sphere around the chunk's points
     chunk_radius: np.ndarray     # (H,)
+    rest_inverse: np.ndarray     # (J,4,4) inverse rest-pose joint transforms
     part_center: np.ndarray      # (C,3) joint-frame sphere around the part's pieces
     part_radius: np.ndarray      # (C,)
     part_pieces: np.ndarray      # (C,K) piece ids, -1 padded
@@ -87,12 +105,13 @@ class CollisionModel:
         key = (dtype, device)
         if key not in cache:
             out = {}
-            for name in ("part_joints", "checked", "chunk_part", "chunk_points", "chunk_mask",
-                         "chunk_center", "chunk_radius", "part_center", "part_radius",
-                         "part_pieces", "planes", "piece_box"):
+            for name in ("part_joints", "checked", "chunk_part", "chunk_points", "chunk_joints",
+                         "chunk_weights", "chunk_mask", "chunk_used", "chunk_center",
+                         "chunk_radius", "rest_inverse", "part_center",
+                         "part_radius", "part_pieces", "planes", "piece_box"):
                 a = getattr(self, name)
                 out[name] = torch.as_tensor(a, device=device,
-                                            dtype=dtype if a.dtype == np.float64 else None)
+                                            dtype=dtype if a.dtype.kind == "f" else None)
             cache[key] = out
         return cache[key]
 
@@ -118,23 +137,29 @@ def collision_model(body: BodyModel, betas: np.ndarray | None = None, *, vertex_
     gchecked = checked_pairs(groups, body.joint_names, body.parents, allow)
     rest = body.rest_vertices(torch.as_tensor(betas)).double().numpy()
     frames = rest_frames(body, betas)
+    weights = np.asarray(body.skin_weights, dtype=np.float64)
     n_parts = len(vols.part_names)
-    chunk_part, chunk_pts = [], []
+    chunks: list[tuple[int, np.ndarray, np.ndarray]] = []  # (part, rest points, weights)
     for i, j in enumerate(vols.part_joints):
-        own = [pc for pc in vols.pieces if pc.part == i]
-        local = to_local(rest[vols.vertex_parts == i][::vertex_stride], frames[j])
-        # the pieces' corners too: they catch overlaps across a piece's flat (vertex-free) faces
-        local = np.concatenate([local[_inside_own(local, own)],
-                                *[pc.vertices[::vertex_stride] for pc in own]])
-        if len(local) == 0:
-            continue
-        for idx in _chunks(local, CHUNK_SIZE):
-            chunk_part.append(i)
-            chunk_pts.append(local[idx])
-    points = np.zeros((len(chunk_pts), CHUNK_SIZE, 3))
-    mask = np.zeros((len(chunk_pts), CHUNK_SIZE), dtype=bool)
-    for h, p in enumerate(chunk_pts):
+        verts = np.flatnonzero(vols.vertex_parts == i)[::vertex_stride]
+        corners = [pc.vertices[::vertex_stride] @ frames[j, :3, :3].T + frames[j, :3, 3]
+                   for pc in vols.pieces if pc.part == i]
+        pts = np.concatenate([rest[verts], *corners])
+        rigid = np.zeros((len(pts) - len(verts), weights.shape[1]))
+        rigid[:, j] = 1.0
+        w = np.concatenate([weights[verts], rigid])
+        for idx in _chunks(pts, CHUNK_SIZE):
+            chunks.append((i, pts[idx], w[idx]))
+    skins = [_influences(w, CHUNK_SIZE) for _, _, w in chunks]
+    n_u = max(len(j) for j, _ in skins)
+    points = np.zeros((len(chunks), CHUNK_SIZE, 3))
+    mask = np.zeros((len(chunks), CHUNK_SIZE), dtype=bool)
+    cj = np.zeros((len(chunks), n_u), dtype=np.int64)
+    used = np.zeros((len(chunks), n_u), dtype=bool)
+    cw = np.zeros((len(chunks), CHUNK_SIZE, n_u))
+    for h, ((_, p, _), (j, w)) in enumerate(zip(chunks, skins)):
         points[h, :len(p)], mask[h, :len(p)] = p, True
+        cj[h, :len(j)], cw[h, :, :len(j)], used[h, :len(j)] = j, w, True
     per_part = [[k for k, pc in enumerate(vols.pieces) if pc.part == i] for i in range(n_parts)]
     part_pieces = np.full((n_parts, max(map(len, per_part))), -1, dtype=np.int64)
     for i, ks in enumerate(per_part):
@@ -143,24 +168,21 @@ def collision_model(body: BodyModel, betas: np.ndarray | None = None, *, vertex_
     planes = np.tile(np.array(_PAD_PLANE), (len(vols.pieces), f_max, 1))
     for k, pc in enumerate(vols.pieces):
         planes[k, :len(pc.planes)] = pc.planes
-    chunk_s = [_sphere(p) for p in chunk_pts]
+    chunk_s = [_sphere(p) for _, p, _ in chunks]
     part_s = [_sphere(np.concatenate([vols.pieces[k].vertices for k in ks])) for ks in per_part]
     box = lambda v: np.stack((v.min(0), v.max(0)))  # noqa: E731
     model = CollisionModel(
         groups=groups, part_names=vols.part_names, part_joints=vols.part_joints,
         part_group=part_group, checked=gchecked[part_group[:, None], part_group[None, :]],
-        chunk_part=np.array(chunk_part), chunk_points=points, chunk_mask=mask,
+        chunk_part=np.array([c for c, _, _ in chunks]), chunk_points=points, chunk_joints=cj,
+        chunk_weights=cw, chunk_mask=mask, chunk_used=used,
         chunk_center=np.array([c for c, _ in chunk_s]),
-        chunk_radius=np.array([r for _, r in chunk_s]),
+        chunk_radius=np.array([r for _, r in chunk_s]), rest_inverse=np.linalg.inv(frames),
         part_center=np.array([c for c, _ in part_s]), part_radius=np.array([r for _, r in part_s]),
         part_pieces=part_pieces, planes=planes,
         piece_box=np.array([box(pc.vertices) for pc in vols.pieces]))
     models[key] = model
     return model
-
-
-def _apply(rot: torch.Tensor, trans: torch.Tensor, p: torch.Tensor) -> torch.Tensor:
-    return (rot @ p.unsqueeze(-1)).squeeze(-1) + trans
 
 
 def _box_distance(q: torch.Tensor, box: torch.Tensor) -> torch.Tensor:
@@ -180,48 +202,97 @@ class Contacts:
     k: torch.Tensor
 
 
-def _frames(d: dict[str, torch.Tensor],
-            transforms: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    g = transforms[:, d["part_joints"]]                        # (T,C,4,4)
-    return g[..., :3, :3], g[..., :3, 3]
+def _blend(d: dict[str, torch.Tensor], transforms: torch.Tensor) -> torch.Tensor:
+    """Skinning transforms (T,J,3,4): joint world transform times inverse rest transform."""
+    return (transforms @ d["rest_inverse"])[..., :3, :]
 
 
-def _chunk_local(d: dict[str, torch.Tensor], rot: torch.Tensor, trans: torch.Tensor,
-                 c: Contacts) -> torch.Tensor:
-    """Points (R,S,3) of chunk h in the joint frame of part b."""
-    rel = rot[c.t, c.b].transpose(-1, -2) @ rot[c.t, c.a]      # R_bᵀ R_a
-    off = ((trans[c.t, c.a] - trans[c.t, c.b]).unsqueeze(-2) @ rot[c.t, c.b])  # R_bᵀ(t_a − t_b)
-    return d["chunk_points"][c.h] @ rel.transpose(-1, -2) + off
+def _skin(d: dict[str, torch.Tensor], blend: torch.Tensor, t: torch.Tensor,
+          h: torch.Tensor, n: torch.Tensor | None = None) -> torch.Tensor:
+    """World points of chunk rows (R,S,3), or of single points (R,3) when `n` is given:
+    v ↦ (Σ_u w_u A_u) v over the chunk's U joints."""
+    a = blend[t[:, None], d["chunk_joints"][h]].flatten(-2)         # (R,U,12)
+    if n is None:
+        m, rest = d["chunk_weights"][h] @ a, d["chunk_points"][h]   # (R,S,12)
+    else:
+        m, rest = (d["chunk_weights"][h, n].unsqueeze(-2) @ a).squeeze(-2), d["chunk_points"][h, n]
+    m = m.unflatten(-1, (3, 4))
+    return (m[..., :3] * rest.unsqueeze(-2)).sum(-1) + m[..., 3]
+
+
+def _to_part(rot: torch.Tensor, trans: torch.Tensor, t: torch.Tensor, b: torch.Tensor,
+             p: torch.Tensor) -> torch.Tensor:
+    """World points p (R,3) or (R,S,3) in the joint frame of part b at frame t: R_bᵀ (p − t_b),
+    written as the row-vector product (p − t_b) R_b (one bmm)."""
+    single = p.ndim == 2
+    p = p.unsqueeze(1) if single else p
+    q = torch.bmm(p - trans[t, b].unsqueeze(1), rot[t, b])
+    return q.squeeze(1) if single else q
+
+
+def _row_points(d: dict[str, torch.Tensor], blend: torch.Tensor, t: torch.Tensor,
+                h: torch.Tensor) -> torch.Tensor:
+    """`_skin` of rows (R,S,3), skinning each distinct (frame, chunk) once (rows repeat per piece)."""
+    n_h = d["chunk_part"].shape[0]
+    uniq, inv = torch.unique(t * n_h + h, return_inverse=True)
+    return _skin(d, blend, uniq // n_h, uniq % n_h)[inv]
+
+
+def _chunk_spheres(d: dict[str, torch.Tensor],
+                   blend: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """Per-frame spheres (T,H,3), (T,H) that contain every skinned point of each chunk.
+
+    With weights w ≥ 0 summing to 1, a point v = c + δ (|δ| ≤ r around the rest centre c)
+    goes to Σ_u w_u A_u c + Σ_u w_u R_u δ: inside the hull of the chunk joints' images of c,
+    grown by r. So the sphere needs only U transforms of one point per chunk, not the skin of
+    every point; a rigid chunk (U = 1) keeps its exact rest sphere.
+    """
+    a = blend[:, d["chunk_joints"]]                                               # (T,H,U,3,4)
+    cu = (a[..., :3] * d["chunk_center"][:, None, None, :]).sum(-1) + a[..., 3]
+    used = d["chunk_used"].unsqueeze(-1)
+    center = (cu * used).sum(-2) / used.sum(-2)
+    spread = torch.where(used[..., 0], (cu - center.unsqueeze(-2)).norm(dim=-1), 0.0).amax(-1)
+    return center, d["chunk_radius"] + spread + _SLACK
+
+
+def skinned_points(model: CollisionModel, transforms: torch.Tensor) -> torch.Tensor:
+    """All points (T,H,S,3) in world space (padding entries are zeros), a frame at a time."""
+    d = model.tensors(transforms.dtype, transforms.device)
+    blend = _blend(d, transforms)
+    h = torch.arange(d["chunk_part"].shape[0], device=transforms.device)
+    return torch.stack([_skin(d, blend, torch.full_like(h, t), h)
+                        for t in range(transforms.shape[0])])
 
 
 def contacts(model: CollisionModel, transforms: torch.Tensor, margin: float = 0.0) -> Contacts:
     """Broad phase (no gradients): chunk-piece rows with a point within `margin` of the piece.
 
-    Level 1 tests chunk spheres against part spheres, level 2 chunk spheres against piece boxes
-    in the piece's joint frame, level 3 the chunk's points against those boxes; the exact plane
-    test is left to `frame_energies`, point by point.
+    Level 1 tests bounding spheres of the chunks' skinned points (`_chunk_spheres`) against
+    part spheres, level 2 against piece boxes in the piece's joint frame, level 3 the chunk's
+    skinned points against those boxes; the exact plane test is left to `frame_energies`.
     """
     d = model.tensors(transforms.dtype, transforms.device)
     with torch.no_grad():
-        rot, trans = _frames(d, transforms)
+        g = transforms[:, d["part_joints"]]
+        rot, trans = g[..., :3, :3], g[..., :3, 3]
+        blend = _blend(d, transforms)
+        chunk_c, chunk_r = _chunk_spheres(d, blend)                             # (T,H,3), (T,H)
+        part_c = (rot @ d["part_center"].unsqueeze(-1)).squeeze(-1) + trans      # (T,C,3)
         ca = d["chunk_part"]
-        chunk_c = _apply(rot[:, ca], trans[:, ca], d["chunk_center"])           # (T,H,3)
-        part_c = _apply(rot, trans, d["part_center"])                            # (T,C,3)
-        reach = d["chunk_radius"][:, None] + d["part_radius"] + margin
+        reach = chunk_r[..., None] + d["part_radius"] + margin
         near = (torch.cdist(chunk_c, part_c) < reach) & d["checked"][ca]
         ft, fh, fb = torch.nonzero(near, as_tuple=True)
         pieces = d["part_pieces"][fb]                                            # (M,K)
-        cq = ((chunk_c[ft, fh] - trans[ft, fb]).unsqueeze(-2) @ rot[ft, fb]).squeeze(-2)
+        cq = _to_part(rot, trans, ft, fb, chunk_c[ft, fh])
         pk = pieces.clamp(min=0)
         close = _box_distance(cq[:, None, :], d["piece_box"][pk])
-        close = (close < d["chunk_radius"][fh, None] + margin) & (pieces >= 0)
+        close = (close < chunk_r[ft, fh, None] + margin) & (pieces >= 0)
         m, ks = torch.nonzero(close, as_tuple=True)
-        c = Contacts(ft[m], fh[m], d["chunk_part"][fh[m]], fb[m], pk[m, ks])
+        c = Contacts(ft[m], fh[m], ca[fh[m]], fb[m], pk[m, ks])
         if m.numel():  # level 3: the chunk's points against the piece's box
-            q = _chunk_local(d, rot, trans, c)
-            pts = (_box_distance(q, d["piece_box"][c.k][:, None]) <= margin) & \
-                d["chunk_mask"][c.h]
-            hit = pts.any(dim=1)
+            q = _to_part(rot, trans, c.t, c.b, _row_points(d, blend, c.t, c.h))
+            hit = ((_box_distance(q, d["piece_box"][c.k][:, None]) <= margin)
+                   & d["chunk_mask"][c.h]).any(dim=1)
             c = Contacts(c.t[hit], c.h[hit], c.a[hit], c.b[hit], c.k[hit])
     return c
 
@@ -233,8 +304,8 @@ def frame_energies(model: CollisionModel, transforms: torch.Tensor, tolerance: f
     `near` reuses a broad phase computed earlier with a margin (the optimiser refreshes it
     every few steps); by default it is computed here, exactly. The deepest piece and plane of
     each penetrating point are picked without gradients; the gradient of a max is that of its
-    argmax, so recomputing just that plane with autograd gives the exact gradient at a cost
-    that follows the penetrating points only.
+    argmax, so recomputing just that plane (and that point's skin) with autograd gives the
+    exact gradient at a cost that follows the penetrating points only.
     """
     d = model.tensors(transforms.dtype, transforms.device)
     t_frames = transforms.shape[0]
@@ -242,9 +313,11 @@ def frame_energies(model: CollisionModel, transforms: torch.Tensor, tolerance: f
     c = contacts(model, transforms) if near is None else near
     if c.t.numel() == 0:
         return zero
-    rot, trans = _frames(d, transforms)
+    g = transforms[:, d["part_joints"]]
+    rot, trans = g[..., :3, :3], g[..., :3, 3]
+    blend = _blend(d, transforms)
     with torch.no_grad():
-        q = _chunk_local(d, rot, trans, c)
+        q = _to_part(rot, trans, c.t, c.b, _row_points(d, blend.detach(), c.t, c.h))
         inbox = (_box_distance(q, d["piece_box"][c.k][:, None]) <= 0) & d["chunk_mask"][c.h]
         r, n = torch.nonzero(inbox, as_tuple=True)
         planes = d["planes"][c.k[r]]                                # (Q,F,4)
@@ -263,10 +336,9 @@ def frame_energies(model: CollisionModel, transforms: torch.Tensor, tolerance: f
         first[1:] = key[order][1:] != key[order][:-1]
         keep = order[first]
         r, n = r[keep], n[keep]
-        t, h, a, b = c.t[r], c.h[r], c.a[r], c.b[r]
+        t, h, b = c.t[r], c.h[r], c.b[r]
         nd = planes[keep, plane[keep]]                              # (Q,4) the active plane
-    p = _apply(rot[t, a], trans[t, a], d["chunk_points"][h, n])
-    ql = ((p - trans[t, b]).unsqueeze(-2) @ rot[t, b]).squeeze(-2)
+    ql = _to_part(rot, trans, t, b, _skin(d, blend, t, h, n))
     depth = torch.relu(-(ql * nd[:, :3]).sum(-1) - nd[:, 3] - tolerance)
     return zero.index_add(0, t, depth * depth)
 

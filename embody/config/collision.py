@@ -26,7 +26,8 @@ class CollisionConfig(Section):
     lambda_col: float = Field(50.0, ge=0)
     lambda_close: float = Field(1e-4, ge=0)
     lambda_smooth: float = Field(0.1, ge=0)
-    #: Every n-th rest vertex of each part is tested (deterministic subsample).
+    #: Every n-th vertex of each part's skinned mesh (and every n-th corner of its convex
+    #: pieces) is tested: a deterministic subsample, skinned only for those vertices.
     vertex_stride: int = Field(8, ge=1, le=64)
     #: Penetration (m) below which a vertex counts as touching (below the mesh resolution).
     tolerance: float = Field(1e-3, ge=0, le=0.05)

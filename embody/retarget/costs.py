@@ -20,6 +20,7 @@ from embody.robot import Robot
 from embody.robot.proxies import robot_proxies
 
 WRIST_ELBOW = ["left_wrist", "right_wrist", "left_elbow", "right_elbow"]
+_GEOMETRY: dict[tuple, dict[str, object]] = {}
 
 
 def rotation_log(r: np.ndarray) -> np.ndarray:
@@ -42,21 +43,22 @@ class Residuals:
                           if n in robot.spec.links and w > 0]
         links = WRIST_ELBOW + self.rot_links
         self.proxies = robot_proxies(robot) if cfg.w_collision > 0 and robot.spec.proxy_pairs else None
-        proxy_bodies = self.proxies.bodies if self.proxies is not None else []
         refs = [robot.spec.links[n] for n in links]
-        self.tree = robot.tree([r.body for r in refs] + proxy_bodies)
-        self.link_body = [self.tree.index[r.body] for r in refs]
         self.link_offset = np.array([r.offset for r in refs])
         self.rot_cols = [0, 1] + list(range(4, 4 + len(self.rot_links)))
-        self.sphere_body = np.array([self.tree.index[proxy_bodies[b]] for b in self.proxies.sphere_body]
-                                    if self.proxies is not None else [], dtype=np.int64)
-        self.hull_body = np.array([self.tree.index[proxy_bodies[b]] for b in self.proxies.hull_body]
-                                  if self.proxies is not None else [], dtype=np.int64)
-        self.mask = self.tree.moves(list(self.ik))  # (J, bodies)
+        key = (id(robot), tuple(links), self.proxies is not None)
+        if key not in _GEOMETRY:  # the static part, once per robot and task set
+            _GEOMETRY[key] = self._geometry(robot, [r.body for r in refs])
+        for name, value in _GEOMETRY[key].items():
+            setattr(self, name, value)
         if self.proxies is not None:
-            self._group_hull_pairs()
-            # unpadded plane sets (padding repeats a plane)
-            self.hull_planes = [np.unique(p, axis=0) for p in self.proxies.hull_planes]
+            px = self.proxies
+            self.group_reach = (self.part_radius[self.group_part] + px.hull_radius[self.group_hull]
+                                + cfg.collision_margin)
+            # per group member: how far from its hull's box centre it may be, per axis
+            half = (px.hull_box[:, 1] - px.hull_box[:, 0]) / 2
+            radii = np.where(self.group_members >= 0, px.radii[px.hull_pairs[self.group_members, 0]], -np.inf)
+            self.member_reach = half[self.group_hull][:, None] + (cfg.collision_margin + radii)[..., None]
         self.target_pos = np.concatenate([targets.wrist_pos, targets.elbow_pos], 1).astype(np.float64)
         rots = [np.asarray(targets.wrist_rot, dtype=np.float64)]
         rots += [np.asarray(targets.torso_rot if n == "spine3" else targets.head_rot, dtype=np.float64)[:, None]
@@ -105,33 +107,44 @@ class Residuals:
             blocks.append(col[1](z, o))
         return np.concatenate(blocks, 1)
 
-    def _group_hull_pairs(self) -> None:
-        """Sphere/hull pairs grouped by (sphere body, hull) with a bounding sphere per sphere body:
-        a cheap first broad phase, so per-point tests run only where a body part is near a hull."""
+    def _geometry(self, robot: Robot, link_bodies: list[str]) -> dict[str, object]:
+        """Kinematic tree, joint masks and the proxy broad-phase tables (no targets involved).
+
+        Sphere/hull pairs are grouped by (sphere body, hull) with a bounding sphere per sphere
+        body: a cheap first broad phase, so per-point tests run only where a part is near a hull."""
         px = self.proxies
-        s_body = self.sphere_body[px.hull_pairs[:, 0]]
+        proxy_bodies = px.bodies if px is not None else []
+        tree = robot.tree(link_bodies + proxy_bodies)
+        out: dict[str, object] = {"tree": tree, "link_body": [tree.index[b] for b in link_bodies],
+                                  "mask": tree.moves(list(self.ik))}  # mask (J, bodies)
+        if px is None:
+            return out
+        sphere_body = np.array([tree.index[proxy_bodies[b]] for b in px.sphere_body], dtype=np.int64)
+        hull_body = np.array([tree.index[proxy_bodies[b]] for b in px.hull_body], dtype=np.int64)
+        s_body = sphere_body[px.hull_pairs[:, 0]]
         key = s_body * (len(px.hull_body) + 1) + px.hull_pairs[:, 1]
-        groups, inverse = np.unique(key, return_inverse=True)
-        members = [np.flatnonzero(inverse == g) for g in range(len(groups))]
+        _, inverse = np.unique(key, return_inverse=True)
+        order = np.argsort(inverse, kind="stable")
+        members = np.split(order, np.flatnonzero(np.diff(inverse[order])) + 1) if len(order) else []
         width = max((len(m) for m in members), default=1)
-        self.group_members = np.array([np.concatenate([m, np.full(width - len(m), -1)]) for m in members],
-                                      dtype=np.int64).reshape(-1, width)
         first = np.array([m[0] for m in members], dtype=np.int64)
-        self.group_hull = px.hull_pairs[first, 1] if len(first) else np.zeros(0, dtype=np.int64)
-        self.part_body = np.unique(s_body)  # tree indices of bodies carrying paired spheres
-        self.group_part = np.searchsorted(self.part_body, s_body[first]) if len(first) else first
+        part_body = np.unique(s_body)  # tree indices of bodies carrying paired spheres
         centre, radius = [], []
-        for b in self.part_body:
-            k = np.flatnonzero(self.sphere_body == b)
+        for b in part_body:
+            k = np.flatnonzero(sphere_body == b)
             c = px.centres[k].mean(0)
             centre.append(c)
             radius.append(float((np.linalg.norm(px.centres[k] - c, axis=1) + px.radii[k]).max()))
-        self.part_centre = np.array(centre).reshape(-1, 3)
-        self.part_radius = np.array(radius)
-        self.group_reach = (self.part_radius[self.group_part] + px.hull_radius[self.group_hull]
-                            + self.cfg.collision_margin)
-        self.box_mid = px.hull_box.mean(1)
-        self.box_half = (px.hull_box[:, 1] - px.hull_box[:, 0]) / 2
+        out.update(
+            sphere_body=sphere_body, hull_body=hull_body, part_body=part_body,
+            group_members=np.array([np.concatenate([m, np.full(width - len(m), -1)]) for m in members],
+                                   dtype=np.int64).reshape(-1, width),
+            group_hull=px.hull_pairs[first, 1] if len(first) else first,
+            group_part=np.searchsorted(part_body, s_body[first]) if len(first) else first,
+            part_centre=np.array(centre).reshape(-1, 3), part_radius=np.array(radius),
+            box_mid=px.hull_box.mean(1),
+            hull_planes=[np.unique(p, axis=0) for p in px.hull_planes])  # unpadded plane sets
+        return out
 
     def _collision(self, rot: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, Callable]:
         """Hinge residuals w·relu(margin − clearance) (T,P+Q) over the sphere/sphere and sphere/hull
@@ -164,8 +177,7 @@ class Residuals:
         members = self.group_members[gg]  # (G,M), −1 = padding
         si, hi = px.hull_pairs[:, 0], px.hull_pairs[:, 1]
         xl = np.swapaxes(r_rel @ np.swapaxes(px.centres[si[members]], 1, 2), 1, 2) + p_rel[:, None]
-        reach = self.box_half[h_of][:, None] + (margin + px.radii[si[members]])[..., None]
-        inside = (np.abs(xl - self.box_mid[h_of][:, None]) < reach).all(-1) & (members >= 0)
+        inside = (np.abs(xl - self.box_mid[h_of][:, None]) < self.member_reach[gg]).all(-1)
         gsel, msel = np.nonzero(inside)
         tc, qc, xl = tg[gsel], members[gsel, msel], xl[gsel, msel]
         r_h, p_h = r_h[gsel], p_h[gsel]

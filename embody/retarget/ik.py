@@ -1,18 +1,16 @@
 """Whole-sequence IK: all frames solved jointly, Levenberg-Marquardt over a banded system.
 
 Cost (summed over frames, see `costs.py`): wrist position + orientation, soft elbow position,
-torso/head orientation, the sphere-proxy self-collision penalty, a posture prior towards the
-robot's rest pose (stronger on the waist: it should only move when the arms cannot reach), plus
-Δ²q smoothness coupling the frames.
+optional torso/head orientation, the proxy self-collision penalty, a posture prior towards the
+robot's rest pose (stronger on the waist: the torso stays upright unless the arms need it), a
+hinge on joint speeds past the velocity limits, plus Δ²q smoothness coupling the frames.
 
-The normal matrix is block-diagonal (per-frame JᵀJ) plus the smoothness band, i.e.
-block-pentadiagonal, so one block elimination (`banded.block_pentadiagonal_solve`) solves all
-frames jointly in O(T·n³). Steps are clamped to the joint box, so limits are never violated.
-The solve first tracks without the collision term (smooth, fast to converge from rest: the
-hinge penalty alone stalls far from the solution), then switches it on for the remaining
-iterations; it is evaluated only for proxy pairs within the margin somewhere in the sequence.
-Velocity limits are enforced afterwards at the trajectory's fps (`limits.clamp_velocity`) and
-the result is checked against MuJoCo's exact contacts (`robot.contacts`).
+Frames couple only through the smoothness and velocity terms, so the normal matrix is banded and
+one LAPACK call (`banded.block_pentadiagonal_solve`) solves all frames jointly in O(T·n³). Steps
+are clamped to the joint box, so limits are never violated. Residuals are NumPy with geometric
+Jacobians from one `KinematicTree` pass, computed only for accepted steps. A final clamp
+(`limits.clamp_velocity`) removes what the soft velocity hinge leaves, and the result carries
+MuJoCo's exact contact count (`robot.contacts`) in its metrics.
 """
 
 from __future__ import annotations
@@ -72,6 +70,8 @@ def _second_difference_normal(t: int) -> np.ndarray:
     return out
 
 
+#: Initial Marquardt damping, carried across phases: the first Gauss-Newton step from the rest
+#: pose overshoots badly, and a phase change needs no fresh start.
 LAMBDA0 = 1.0
 
 
@@ -141,8 +141,8 @@ class _Problem:
         t, n, _ = jtj.shape
         eye = np.eye(n)
         diag = jtj + (self.w_post + vdiag + lam * self.damping(h) + self.dtd[0][:, None])[:, :, None] * eye
-        off1 = (self.dtd[1, : t - 1, None] + voff)[:, :, None] * eye
-        off2 = self.dtd[2, : max(t - 2, 0), None, None] * eye
+        off1 = self.dtd[1, : t - 1, None] + voff
+        off2 = np.repeat(self.dtd[2, : max(t - 2, 0), None], n, 1)
         return -block_pentadiagonal_solve(diag, off1, off2, g)
 
     def damping(self, h: tuple[np.ndarray, ...]) -> np.ndarray:

@@ -55,8 +55,9 @@ def _frame_pairs(robot: Robot, q: np.ndarray) -> list[np.ndarray]:
     data = mujoco.MjData(model)
     counted = counted_geom_pairs(robot)
     out = []
+    data.qpos[:] = model.qpos0
     for qt in np.atleast_2d(q):
-        data.qpos[:] = robot.qpos(qt)
+        data.qpos[robot.qpos_adr] = qt
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
         geom = data.contact.geom[: data.ncon]

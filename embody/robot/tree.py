@@ -41,6 +41,12 @@ class KinematicTree:
         self.parent = [order.index(int(model.body_parentid[b])) if model.body_parentid[b] in ids else -1
                        for b in order]
         self.local_pos = model.body_pos[order].copy()
+        depth = []
+        for p in self.parent:
+            depth.append(0 if p < 0 else depth[p] + 1)
+        #: per depth: (bodies, their parents), so FK takes one batched step per level
+        self.levels = [(np.flatnonzero(np.array(depth) == d), np.array(self.parent)[np.array(depth) == d])
+                       for d in range(max(depth) + 1)]
         quat_rot = np.zeros((len(order), 9))
         for i, b in enumerate(order):
             mujoco.mju_quat2Mat(quat_rot[i], model.body_quat[b])
@@ -67,13 +73,13 @@ class KinematicTree:
             local[:, bodies] = local[:, bodies] @ _axis_rotations(axes, q[:, joints])
         rot = np.empty((t, len(self.order), 3, 3))
         pos = np.empty((t, len(self.order), 3))
-        for i, p in enumerate(self.parent):
-            if p < 0:  # the root body hangs off the world, seen from the torso frame
-                rot[:, i] = self.root_rot @ local[:, i]
-                pos[:, i] = self.root_pos + self.root_rot @ self.local_pos[i]
-            else:
-                rot[:, i] = rot[:, p] @ local[:, i]
-                pos[:, i] = pos[:, p] + rot[:, p] @ self.local_pos[i]
+        roots = self.levels[0][0]  # bodies hanging off the world, seen from the torso frame
+        rot[:, roots] = self.root_rot @ local[:, roots]
+        pos[:, roots] = self.root_pos + self.local_pos[roots] @ self.root_rot.T
+        for bodies, parents in self.levels[1:]:  # one batched step per tree depth
+            r_p = rot[:, parents]
+            rot[:, bodies] = r_p @ local[:, bodies]
+            pos[:, bodies] = pos[:, parents] + (r_p @ self.local_pos[bodies][..., None])[..., 0]
         return rot, pos
 
     def joint_frames(self, rot: np.ndarray, pos: np.ndarray, joints: list[int]) -> tuple[np.ndarray, np.ndarray]:
