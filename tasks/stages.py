@@ -124,13 +124,16 @@ def _render_metrics(result: Any) -> dict[str, Any]:
 
 
 def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
-    """Smoothness of the final joint trajectory (the refined one when the critic ran)."""
+    """Smoothness and MuJoCo-verified validity of the final joint trajectory (the refined one
+    when the critic ran): what the report's tables and the library export read."""
     from embody.metrics import mean_jerk
+    from embody.retarget.validation import validation_counts
     ik = inputs["retarget"]
     q = np.asarray(inputs["refine"].q if "refine" in inputs else ik.q)
     return Metrics({"frames": int(q.shape[0]), "joints": int(q.shape[-1]),
                     "duration_s": float(q.shape[0] / ik.fps), "mean_jerk": mean_jerk(q, ik.fps),
-                    "final": "refine" if "refine" in inputs else "retarget"})
+                    "final": "refine" if "refine" in inputs else "retarget",
+                    **validation_counts(ctx.robot, q, ik.fps)})
 
 
 SOURCE = Step("source", "1", (), _load_source, Motion.from_arrays, metrics=_source_metrics)
@@ -147,8 +150,8 @@ RENDER = Step("render", "1", ("body", "robot", "render"), _render, _render_resul
 RENDER_REFINED = Step("render", "1", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
-METRICS = Step("metrics", "1", (), _trajectory_metrics, Metrics.from_arrays, (RETARGET,))
-METRICS_REFINED = Step("metrics", "1", (), _trajectory_metrics, Metrics.from_arrays,
+METRICS = Step("metrics", "2", (), _trajectory_metrics, Metrics.from_arrays, (RETARGET,))
+METRICS_REFINED = Step("metrics", "2", (), _trajectory_metrics, Metrics.from_arrays,
                        (RETARGET, REFINE))
 
 

@@ -20,8 +20,10 @@ import pandas as pd
 
 from embody.errors import InputError
 
+from embody.retarget.validation import VALIDATION_KEYS
+
 #: Validation counters that must be zero for a trajectory to be exported.
-VIOLATION_KEYS = ("joint_limit_violations", "velocity_violations", "self_collision_frames")
+VIOLATION_KEYS = VALIDATION_KEYS
 Format = Literal["npz", "csv"]
 
 
@@ -100,16 +102,10 @@ class Trajectory:
 
 
 def validate(robot: Any, q: np.ndarray, fps: float) -> dict[str, float]:
-    """The VIOLATION_KEYS counters of a trajectory, by the retargeting stage's own checks
-    (the same as `embody.retarget.verify.verify`, without needing the targets)."""
-    from embody.retarget.limits import limit_violations, velocity_violations
-    from embody.retarget.verify import self_collision_contacts
+    """The VIOLATION_KEYS counters of a trajectory, by the retargeting stage's own checks."""
+    from embody.retarget.validation import validation_counts
 
-    q = np.asarray(q, dtype=np.float64)
-    contacts = self_collision_contacts(robot, q)
-    return {"joint_limit_violations": float(limit_violations(q, robot.lower, robot.upper)),
-            "velocity_violations": float(velocity_violations(q, robot.velocity_limits, fps)),
-            "self_collision_frames": float((contacts > 0).sum())}
+    return validation_counts(robot, q, fps)
 
 
 def safe_name(sid: str) -> str:

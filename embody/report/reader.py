@@ -69,6 +69,17 @@ def metrics_frame(manifest: Any, step: str) -> pd.DataFrame:
     return frame
 
 
+def final_validation(robot: Any, seq: dict[str, Any], q: np.ndarray, fps: float) -> dict[str, float]:
+    """Validation counters of a sequence's final trajectory: those the metrics step stored,
+    else computed now (runs made before the metrics step recorded them)."""
+    from embody.retarget.validation import VALIDATION_KEYS, validation_counts
+
+    stored = seq.get("metrics", {}).get("metrics", {})
+    if all(k in stored for k in VALIDATION_KEYS):
+        return {k: float(stored[k]) for k in VALIDATION_KEYS}
+    return validation_counts(robot, q, fps)
+
+
 def load_result(store: Any, seq: dict[str, Any], step: str) -> Any:
     """The stored result of `step` for one manifest sequence entry, as the stage's own type."""
     from tasks.stages import COLLIDE as C, REFINE as R, RENDER as V, RETARGET as T, SOURCE as S
@@ -169,7 +180,8 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
         data.refine[critic] = [refined[i] for i in sorted(refined)]
         data.refined[critic] = metrics_frame(manifest, REFINE)
         data.validation[critic] = pd.DataFrame.from_dict(
-            {i: validate(robotics.robot, r.q, ik[i].fps) for i, r in refined.items()},
+            {i: final_validation(robotics.robot, seqs[i], r.q, ik[i].fps)
+             for i, r in refined.items()},
             orient="index")
     worst = data.retarget.loc[ok, "wrist_pos_err_mm"].sort_values(ascending=False, kind="stable")
     for rank, sid in enumerate(worst.index[:max_figures]):
@@ -208,7 +220,7 @@ def run_trajectories(store_root: str | Path, run: str, robot_name: str
                      ) -> tuple[list[Any], list[tuple[str, str]]]:
     """The final trajectory of every finished sequence of `run` (refined when the critic ran),
     validated on `robot_name`; plus (id, reason) of the sequences the run itself failed."""
-    from embody.report.library import Trajectory, validate
+    from embody.report.library import Trajectory
     from embody.retarget.limits import resample
 
     store, manifest = open_run(store_root, run)
@@ -231,7 +243,7 @@ def run_trajectories(store_root: str | Path, run: str, robot_name: str
             q, q_control = ik.q, ik.q_control
             scores = {"wrist_mm_mean": ik.metrics.get("wrist_pos_err_mm"),
                       "wrist_deg_mean": ik.metrics.get("wrist_rot_err_deg"), "refined": False}
-        validation = {**scores, **validate(robotics.robot, q, ik.fps),
+        validation = {**scores, **final_validation(robotics.robot, seq, q, ik.fps),
                       "fps": ik.fps, "control_rate_hz": ik.control_rate_hz}
         out.append(Trajectory(id=sid, robot=robot_name, joint_names=tuple(ik.joint_names),
                               q=q_control, dt=1.0 / ik.control_rate_hz, text=_text(store, seq),

@@ -1,0 +1,26 @@
+"""Validity counters of a joint trajectory, independent of the targets it was solved for.
+
+What a robot may execute: no joint-limit violations, no velocity-limit violations at the
+trajectory's rate, and no penetrating self-contacts in MuJoCo. The pipeline's metrics step,
+the report and the library export all read these same counters.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+VALIDATION_KEYS = ("joint_limit_violations", "velocity_violations", "self_collision_frames")
+
+
+def validation_counts(robot: Any, q: np.ndarray, fps: float) -> dict[str, float]:
+    """Counts of limit violations, velocity violations and MuJoCo self-collision frames of q (T,n)."""
+    from embody.retarget.limits import limit_violations, velocity_violations
+    from embody.retarget.verify import self_collision_contacts
+
+    q = np.asarray(q, dtype=np.float64)
+    contacts = self_collision_contacts(robot, q)
+    return {"joint_limit_violations": float(limit_violations(q, robot.lower, robot.upper)),
+            "velocity_violations": float(velocity_violations(q, robot.velocity_limits, fps)),
+            "self_collision_frames": float((np.asarray(contacts) > 0).sum())}
