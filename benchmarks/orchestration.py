@@ -61,7 +61,7 @@ def main() -> None:
     data = write_dataset(work / f"data-n{args.n}-f{args.frames}", args.n, args.frames)
     store = ArtifactStore(store_dir)
     run = {"store": str(store_dir), "workers": args.workers, "batch_size": args.batch_size,
-           "name": "bench"}
+           "name": "bench", "critic": False, "render": False}  # the cheap steps only
 
     def timed(label: str, overrides: dict) -> tuple[float, float, dict[str, int]]:
         before = len(store.computations())
