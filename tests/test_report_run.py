@@ -24,7 +24,8 @@ from embody.config import load_config
 ROBOT = "unitree_g1_dex3"
 RUN = "tiny"
 CHEAP = ["collision.steps=3", "collision.vertex_stride=8", "ik.iterations=3",
-         "ik.shape_iterations=10", "critic.rounds=1", "render.preview_format=none",
+         "ik.shape_iterations=10", "critic.rounds=1", "render.preview_format=gif",
+         "render.preview_max_frames=2",
          "render.width=64", "render.height=48", "render.keyframes=2", "run.workers=1",
          "run.critic=true", 'debug.fail_on=["seq2"]']
 
@@ -160,6 +161,9 @@ def test_report_files_and_page(run) -> None:
             "figures/sheets/seq0.png"} <= figures
     html = (report / "index.html").read_text()
     assert all(f in html for f in figures)
+    previews = sorted(p.name for p in (report / "figures" / "previews").iterdir())
+    assert previews == ["seq0.gif", "seq1.gif"]  # the render stage's, linked from the page
+    assert all(f"figures/previews/{p}" in html for p in previews)
     from test_report_html import CHROMIUM, check_report_page
     if CHROMIUM is None:
         pytest.skip("chromium not installed (CI: apt-get install -y chromium)")

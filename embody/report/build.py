@@ -51,6 +51,17 @@ def _figures(data: RunData, out_dir: Path) -> dict[str, list[Path]]:
     return out
 
 
+def _previews(data: RunData, out_dir: Path) -> list[Path]:
+    """The render stage's animated previews, linked from the page (videos are not images)."""
+    paths = []
+    for sid, (blob, suffix) in sorted(data.previews.items()):
+        dst = out_dir / "figures" / "previews" / f"{safe_name(sid)}{suffix}"
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        dst.write_bytes(blob)
+        paths.append(dst)
+    return paths
+
+
 def write_report(data: RunData, out_dir: str | Path) -> ReportPaths:
     """Write every report file for `data` under `out_dir` (created if needed)."""
     out_dir = Path(out_dir)
@@ -70,9 +81,11 @@ def write_report(data: RunData, out_dir: str | Path) -> ReportPaths:
     summary_path.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
 
     figs = _figures(data, out_dir)
+    previews = _previews(data, out_dir)
     index = render_index(out_dir, run=data.name,
                          tables={n: (tables[n], written[n]) for n in tables},
-                         figures=figs, summary=summary, files=[sequences, summary_path],
+                         figures=figs, summary=summary,
+                         files=[sequences, summary_path, *previews],
                          failures=data.failures)
     return ReportPaths(out_dir=out_dir, index=index, summary=summary_path, sequences=sequences,
                        tables=written, figures=[p for ps in figs.values() for p in ps])

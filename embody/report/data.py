@@ -41,6 +41,8 @@ class RunData:
     wrists: dict[str, dict[str, np.ndarray]] = field(default_factory=dict)
     wrist_fps: dict[str, float] = field(default_factory=dict)
     sheets: dict[str, bytes] = field(default_factory=dict)
+    #: sequence id → (animated preview bytes, file suffix) from the render stage.
+    previews: dict[str, tuple[bytes, str]] = field(default_factory=dict)
 
     def per_sequence(self) -> pd.DataFrame:
         """Every metric of every sequence in one flat table (the `sequences.csv` rows).

@@ -190,7 +190,10 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
             tracks = {"reference": r.ik_only.target_pos, "IK only": robotics.wrists(r.ik_only.q),
                       "refined": robotics.wrists(r.final.q)}
             if RENDER in seqs[sid]["steps"]:  # the render stage stored it: no re-rendering
-                data.sheets[sid] = load_result(store, seqs[sid], RENDER).sheet_png
+                stored = load_result(store, seqs[sid], RENDER)
+                data.sheets[sid] = stored.sheet_png
+                if stored.preview is not None:
+                    data.previews[sid] = (stored.preview, stored.preview_suffix or ".bin")
             elif rank < max_sheets:
                 motion = load_result(store, seqs[sid], COLLIDE).motion
                 try:
