@@ -5,7 +5,9 @@ Input is what the pipeline feeds the IK: synthetic sequences after stage 1 colli
 same targets. Wrist errors are reported on all frames, and (extra keys) on *clean* frames, where
 mink's pure tracking is free of MuJoCo contacts (no solver had to avoid a collision there), and on
 *feasible* frames, clean ones that mink also reaches within the velocity limits. Our time
-includes MuJoCo verification (`IKSolution.metrics` carries the contact counts).
+includes MuJoCo verification (`IKSolution.metrics` carries the contact counts). Our solver also
+runs with its other FK backend (`IKConfig.kinematics`: pytorch-kinematics or the NumPy tree):
+`ours_<other>_fps`, and `backend_max_dq`, the largest joint difference between the two solutions.
 
 mink runs per frame like GMR: FrameTasks for both wrists (and elbows, position only), a
 PostureTask, `solve_ik(..., solver="daqp", limits=[ConfigurationLimit, VelocityLimit])` with
@@ -113,13 +115,18 @@ def main() -> None:
     config = Config()
     robot, body = load_robot(config.robot), load_body_model(config.body)
     cfg = config.ik
+    other = "tree" if cfg.kinematics == "pytorch_kinematics" else "pytorch_kinematics"
+    cfg_other = cfg.model_copy(update={"kinematics": other})
+    other_key = {"tree": "tree", "pytorch_kinematics": "pk"}[other]
     fit = shape_fit(robot, body, cfg)
     model = fixed_base_model(robot)
     seqs = [mitigate(generate_sequence(args.seed, i), body, config.collision).motion for i in range(args.sequences)]
     all_targets = [build_targets(m, body, fit, robot) for m in seqs]
-    solve(robot, all_targets[0], cfg.model_copy(update={"iterations": 1}))  # warm-up (proxies, caches)
+    for c in (cfg, cfg_other):  # warm-up (proxies, caches, pk chains)
+        solve(robot, all_targets[0], c.model_copy(update={"iterations": 1}))
     run_mink(robot, model, all_targets[0], iterations=1)
-    totals = {k: 0.0 for k in ("ours_t", "mink_t", "frames")}
+    totals = {k: 0.0 for k in ("ours_t", "other_t", "mink_t", "frames")}
+    max_dq = 0.0
     rows: dict[str, list[dict]] = {"ours": [], "mink": []}
     errs: dict[str, dict[str, list[np.ndarray]]] = {n: {"all": [], "clean": [], "feasible": []} for n in rows}
     pairs = {"ours": Counter(), "mink": Counter()}
@@ -131,8 +138,12 @@ def main() -> None:
         t1 = time.perf_counter()
         theirs = run_mink(robot, model, targets)
         t2 = time.perf_counter()
+        again = solve(robot, targets, cfg_other)
+        t3 = time.perf_counter()
         totals["ours_t"] += t1 - t0
         totals["mink_t"] += t2 - t1
+        totals["other_t"] += t3 - t2
+        max_dq = max(max_dq, float(np.abs(again.q - ours.q).max()))
         totals["frames"] += targets.num_frames
         frames_m, m_mink = evaluate(robot, theirs, targets)
         results = {"ours": (ours.q, ours.frame_metrics, ours.metrics, t1 - t0),
@@ -151,6 +162,10 @@ def main() -> None:
                   f"{m['wrist_pos_err_mm']:>9.2f} {m['wrist_rot_err_deg']:>8.2f} {m['jerk']:>9.1f} "
                   f"{int(m['velocity_violations']):>8} {int(m['self_collision_frames']):>11} "
                   f"{wrist[clean].mean() if clean.any() else float('nan'):>9.2f}")
+        print(f"{i:>4} {targets.num_frames:>6} {other_key:>6} {targets.num_frames / (t3 - t2):>8.1f} "
+              f"{again.metrics['wrist_pos_err_mm']:>9.2f} {again.metrics['wrist_rot_err_deg']:>8.2f} "
+              f"{again.metrics['jerk']:>9.1f} {int(again.metrics['velocity_violations']):>8} "
+              f"{int(again.metrics['self_collision_frames']):>11}")
 
     def mean(name: str, key: str) -> float:
         return float(np.mean([m[key] for m in rows[name]]))
@@ -166,6 +181,9 @@ def main() -> None:
     print(f"clean frames {n_clean}, feasible frames {n_feasible} of {int(totals['frames'])}")
     ours_fps = totals["frames"] / totals["ours_t"]
     mink_fps = totals["frames"] / totals["mink_t"]
+    other_fps = totals["frames"] / totals["other_t"]
+    print(f"ours ({cfg.kinematics}) {ours_fps:.1f} fps, ours ({other}) {other_fps:.1f} fps, "
+          f"max |dq| between them {max_dq:.2e} rad")
     coll = {n: int(sum(m["self_collision_frames"] for m in rows[n])) for n in rows}
     print(f"RESULT ours_fps={ours_fps:.1f} mink_fps={mink_fps:.1f} fps_ratio={ours_fps / mink_fps:.3f} "
           f"ours_wrist_mm={mean('ours', 'wrist_pos_err_mm'):.2f} mink_wrist_mm={mean('mink', 'wrist_pos_err_mm'):.2f} "
@@ -175,7 +193,9 @@ def main() -> None:
           f"ours_clean_wrist_mm={frames_mean('ours', 'clean'):.2f} mink_clean_wrist_mm={frames_mean('mink', 'clean'):.2f} "
           f"ours_feasible_wrist_mm={frames_mean('ours', 'feasible'):.2f} "
           f"mink_feasible_wrist_mm={frames_mean('mink', 'feasible'):.2f} "
-          f"ours_vel_viol={mean('ours', 'velocity_violations'):.1f} mink_vel_viol={mean('mink', 'velocity_violations'):.1f}")
+          f"ours_vel_viol={mean('ours', 'velocity_violations'):.1f} "
+          f"mink_vel_viol={mean('mink', 'velocity_violations'):.1f} "
+          f"ours_{other_key}_fps={other_fps:.1f} backend_max_dq={max_dq:.2e}")
 
 
 if __name__ == "__main__":

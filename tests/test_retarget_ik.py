@@ -177,3 +177,19 @@ def test_sphere_pair_jacobian_on_h1():
         fd = (rp[:, col] - rm[:, col]) / (2 * eps)
         active = (r[:, col] > 1e-4) & (rp[:, col] > 0) & (rm[:, col] > 0)  # away from the hinge kink
         assert np.allclose(jac[:, col, k][active], fd[active], atol=1e-4)
+
+
+def test_pytorch_kinematics_backend_matches_tree(robot):
+    # same residuals and Jacobians to round-off, so the same LM iterations and the same q
+    targets = _targets_from_q(robot, _smooth_random_q(robot, 12, seed=5))
+    pk_sol = solve(robot, targets, IKConfig(kinematics="pytorch_kinematics"))
+    tree_sol = solve(robot, targets, IKConfig(kinematics="tree"))
+    assert pk_sol.metrics["wrist_pos_err_mm"] < 5.0
+    assert np.all(pk_sol.q >= robot.lower) and np.all(pk_sol.q <= robot.upper)
+    assert pk_sol.metrics["joint_limit_violations"] == 0 and pk_sol.metrics["velocity_violations"] == 0
+    assert np.abs(pk_sol.q - tree_sol.q).max() < 1e-6
+    q = _smooth_random_q(robot, 12, seed=4)  # away from the solution: every residual non-zero
+    r_pk, j_pk = Residuals(robot, targets, IKConfig(kinematics="pytorch_kinematics"))(q, jacobian=True)
+    r_tree, j_tree = Residuals(robot, targets, IKConfig(kinematics="tree"))(q, jacobian=True)
+    assert r_pk.shape == r_tree.shape and np.abs(r_pk - r_tree).max() < 1e-9
+    assert np.abs(j_pk - j_tree).max() < 1e-9

@@ -19,7 +19,7 @@ def test_tree_matches_mujoco(robot):
     rng = np.random.default_rng(3)
     q = rng.uniform(robot.lower, robot.upper, size=(20, robot.n_joints))
     bodies = ["left_wrist_yaw_link", "right_hand_index_1_link", "torso_link", "left_hip_yaw_link"]
-    tree = robot.tree(bodies)
+    tree = robot.fk(bodies, "tree")
     rot, pos = tree.forward(q)
     data = mujoco.MjData(robot.model)
     base = robot.torso_from_world

@@ -41,6 +41,13 @@ class IKConfig(Section):
     #: Clearance (m) the collision proxies must keep.
     collision_margin: float = Field(0.008, ge=0, le=0.1)
     # --- solver (Levenberg-Marquardt over the banded whole-sequence system) ---
+    #: FK backend of the solver's residuals and geometric Jacobians: the pytorch-kinematics chain
+    #: (cut down to the bodies the costs use, all frames in one batched call per iteration) or the
+    #: NumPy `KinematicTree`. Both give the same FK (≤1e-9 m, ~1e-15 in practice) and the same
+    #: solution (tested). pk is the default because it costs little: whole G1 solves run at
+    #: 287 vs 342 frames/s with the tree (1.19×, benchmarks/ik_vs_mink.py, one CPU thread), well
+    #: within the 1.5× we accept for solving on the real pk kinematics; "tree" is the fast path.
+    kinematics: Literal["pytorch_kinematics", "tree"] = "pytorch_kinematics"
     #: Cold start: iterations that track without the collision term before it comes on.
     tracking_iterations: int = Field(8, ge=0, le=10_000)
     #: Iterations with every term on (the only phase when warm-started).

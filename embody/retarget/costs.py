@@ -5,7 +5,8 @@ wrists (and torso/head when weighted), √w·relu(margin − clearance) for near
 posture prior and the Δ²q smoothness are linear and handled by the solver. Jacobians are
 geometric: for a hinge j with torso-frame axis z and pivot o, ∂p/∂q_j = z × (p − o) and the
 rotation error moves by z (exact at zero error, which is where Gauss-Newton needs it), for
-every point or frame downstream of j. One `KinematicTree` pass feeds everything.
+every point or frame downstream of j. One FK pass (`cfg.kinematics`: pytorch-kinematics or
+the NumPy tree, `embody.robot.fk`) feeds everything.
 """
 
 from __future__ import annotations
@@ -46,9 +47,9 @@ class Residuals:
         refs = [robot.spec.links[n] for n in links]
         self.link_offset = np.array([r.offset for r in refs])
         self.rot_cols = [0, 1] + list(range(4, 4 + len(self.rot_links)))
-        key = (id(robot), tuple(links), self.proxies is not None)
+        key = (id(robot), tuple(links), self.proxies is not None, cfg.kinematics)
         if key not in _GEOMETRY:  # the static part, once per robot and task set
-            _GEOMETRY[key] = self._geometry(robot, [r.body for r in refs])
+            _GEOMETRY[key] = self._geometry(robot, [r.body for r in refs], cfg.kinematics)
         for name, value in _GEOMETRY[key].items():
             setattr(self, name, value)
         if self.proxies is not None:
@@ -78,7 +79,7 @@ class Residuals:
 
     def lazy(self, q: np.ndarray, collision: bool = True) -> tuple[np.ndarray, Callable[[], np.ndarray]]:
         """r(q) now, J(q) on demand: a rejected step never pays for its Jacobian."""
-        rot, pos = self.tree.forward(q)
+        rot, pos = self.fk.forward(q)
         r_link = rot[:, self.link_body]
         p_link = pos[:, self.link_body] + np.einsum("tlab,lb->tla", r_link, self.link_offset)
         e_pos = (p_link[:, :4] - self.target_pos) * self.w_pos[:, None]
@@ -92,7 +93,7 @@ class Residuals:
 
     def _jacobian(self, q: np.ndarray, rot: np.ndarray, pos: np.ndarray, p_link: np.ndarray,
                   r_rot: np.ndarray, col: tuple[np.ndarray, Callable] | None) -> np.ndarray:
-        z, o = self.tree.joint_frames(rot, pos, list(self.ik))  # (T,J,3) each
+        z, o = self.fk.joint_frames(rot, pos, list(self.ik))  # (T,J,3) each
 
         def point_jac(p: np.ndarray, m: np.ndarray) -> np.ndarray:
             """(T,P,3) points moved by joints per mask (J,P) → (T,P,3,J)."""
@@ -107,20 +108,20 @@ class Residuals:
             blocks.append(col[1](z, o))
         return np.concatenate(blocks, 1)
 
-    def _geometry(self, robot: Robot, link_bodies: list[str]) -> dict[str, object]:
-        """Kinematic tree, joint masks and the proxy broad-phase tables (no targets involved).
+    def _geometry(self, robot: Robot, link_bodies: list[str], backend: str) -> dict[str, object]:
+        """FK backend, joint masks and the proxy broad-phase tables (no targets involved).
 
         Sphere/hull pairs are grouped by (sphere body, hull) with a bounding sphere per sphere
         body: a cheap first broad phase, so per-point tests run only where a part is near a hull."""
         px = self.proxies
         proxy_bodies = px.bodies if px is not None else []
-        tree = robot.tree(link_bodies + proxy_bodies)
-        out: dict[str, object] = {"tree": tree, "link_body": [tree.index[b] for b in link_bodies],
-                                  "mask": tree.moves(list(self.ik))}  # mask (J, bodies)
+        fk = robot.fk(link_bodies + proxy_bodies, backend)
+        out: dict[str, object] = {"fk": fk, "link_body": [fk.index[b] for b in link_bodies],
+                                  "mask": fk.moves(list(self.ik))}  # mask (J, bodies)
         if px is None:
             return out
-        sphere_body = np.array([tree.index[proxy_bodies[b]] for b in px.sphere_body], dtype=np.int64)
-        hull_body = np.array([tree.index[proxy_bodies[b]] for b in px.hull_body], dtype=np.int64)
+        sphere_body = np.array([fk.index[proxy_bodies[b]] for b in px.sphere_body], dtype=np.int64)
+        hull_body = np.array([fk.index[proxy_bodies[b]] for b in px.hull_body], dtype=np.int64)
         s_body = sphere_body[px.hull_pairs[:, 0]]
         key = s_body * (len(px.hull_body) + 1) + px.hull_pairs[:, 1]
         _, inverse = np.unique(key, return_inverse=True)
@@ -128,7 +129,7 @@ class Residuals:
         members = np.split(order, np.flatnonzero(np.diff(inverse[order])) + 1) if len(order) else []
         width = max((len(m) for m in members), default=1)
         first = np.array([m[0] for m in members], dtype=np.int64)
-        part_body = np.unique(s_body)  # tree indices of bodies carrying paired spheres
+        part_body = np.unique(s_body)  # FK indices of bodies carrying paired spheres
         centre, radius = [], []
         for b in part_body:
             k = np.flatnonzero(sphere_body == b)

@@ -8,9 +8,10 @@ hinge on joint speeds past the velocity limits, plus Δ²q smoothness coupling t
 Frames couple only through the smoothness and velocity terms, so the normal matrix is banded and
 one LAPACK call (`banded.block_pentadiagonal_solve`) solves all frames jointly in O(T·n³). Steps
 are clamped to the joint box, so limits are never violated. Residuals are NumPy with geometric
-Jacobians from one `KinematicTree` pass, computed only for accepted steps. A final clamp
-(`limits.clamp_velocity`) removes what the soft velocity hinge leaves, and the result carries
-MuJoCo's exact contact count (`robot.contacts`) in its metrics.
+Jacobians from one batched FK pass per iteration (`cfg.kinematics`: pytorch-kinematics or the
+NumPy tree), computed only for accepted steps. A final clamp (`limits.clamp_velocity`) removes
+what the soft velocity hinge leaves, and the result carries MuJoCo's exact contact count
+(`robot.contacts`) in its metrics.
 """
 
 from __future__ import annotations

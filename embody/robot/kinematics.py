@@ -11,6 +11,9 @@
 * Unlimited joints get (0, 0) limits there: limits always come from the MuJoCo model instead.
 * A non-zero `<joint pos>` gives wrong FK (the pivot offset is applied but never undone): we
   refuse such models with a ConfigError. Menagerie's G1 and H1 have none (checked at load).
+* Link offsets and axes are parsed into float32 `Transform3d`s, so even a float64 chain is off
+  by ~4e-8 m: they are re-seated from the MuJoCo model in float64 (FK then agrees with
+  `mj_kinematics` to ~1e-15). Sites (never used) are dropped on the way.
 
 Joint order of every tensor is the robot's (MuJoCo qpos order without the free joint); the
 chain's own order is mapped once at construction.
@@ -25,6 +28,8 @@ import mujoco
 import numpy as np
 import pytorch_kinematics as pk
 import torch
+from pytorch_kinematics.frame import Frame, Joint, Link
+from pytorch_kinematics.transforms import Transform3d
 
 from embody.errors import ConfigError
 
@@ -47,19 +52,44 @@ def check_joint_pivots(model: mujoco.MjModel, where: str) -> None:
                                      "which pytorch-kinematics 0.10 handles wrongly")
 
 
-class Kinematics:
-    """Batched FK of named links, root-frame transforms (B, L, 4, 4) in float64 by default."""
+def _seat(frame: Frame, model: mujoco.MjModel, keep: set[str]) -> Frame:
+    """A copy of pk's frame tree with MuJoCo's float64 body offsets and joint axes, restricted to
+    the bodies in `keep` (sites, never in it, are left out)."""
+    b = model.body(frame.name).id
+    rot = np.zeros(9)
+    mujoco.mju_quat2Mat(rot, model.body_quat[b])
+    offset = np.eye(4)
+    offset[:3, :3], offset[:3, 3] = rot.reshape(3, 3), model.body_pos[b]
+    link = Link(frame.name, offset=Transform3d(matrix=torch.tensor(offset), dtype=torch.float64))
+    joint = frame.joint
+    if joint.joint_type != "fixed":
+        j = model.joint(joint.name).id
+        joint = Joint(joint.name, joint_type=joint.joint_type, axis=model.jnt_axis[j].copy(),
+                      dtype=torch.float64, limits=joint.limits)
+    out = Frame(frame.name, link=link, joint=joint)
+    out.children = [_seat(c, model, keep) for c in frame.children if c.name in keep]
+    return out
 
-    def __init__(self, mjcf_path: Path, root_body: str, joint_names: list[str],
-                 dtype: torch.dtype = torch.float64) -> None:
-        self.chain = pk.build_chain_from_mjcf(_tree_only_xml(mjcf_path), body=root_body).to(dtype=dtype)
+
+class Kinematics:
+    """Batched FK of named links, root-frame transforms (B, L, 4, 4) in float64."""
+
+    def __init__(self, mjcf_path: Path, model: mujoco.MjModel, root_body: str, joint_names: list[str]) -> None:
+        parsed = pk.build_chain_from_mjcf(_tree_only_xml(mjcf_path), body=root_body)
+        self.model = model
+        self.root = _seat(parsed._root, model, {model.body(b).name for b in range(model.nbody)})
+        self.chain = pk.Chain(self.root, dtype=torch.float64)
         chain_joints = self.chain.get_joint_parameter_names()
         missing = set(joint_names) ^ set(chain_joints)
         if missing:
             raise ConfigError(str(mjcf_path), f"chain/model joint mismatch: {sorted(missing)[:5]}")
         #: chain column i takes robot joint perm[i]
         self.perm = torch.tensor([joint_names.index(n) for n in chain_joints])
-        self.dtype = dtype
+        self.dtype = torch.float64
+
+    def subchain(self, bodies: list[str]) -> pk.Chain:
+        """The chain cut down to `bodies` (a connected set holding the root): FK computes only them."""
+        return pk.Chain(_seat(self.root, self.model, set(bodies)), dtype=torch.float64)
 
     def frame_indices(self, bodies: list[str]) -> torch.Tensor:
         return torch.tensor([self.chain.frame_to_idx[b] for b in bodies])

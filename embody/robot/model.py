@@ -12,6 +12,8 @@ import numpy as np
 import torch
 
 from embody.errors import ConfigError
+from embody.robot.chain import ChainFK
+from embody.robot.fk import BodyFK
 from embody.robot.kinematics import Kinematics, check_joint_pivots
 from embody.robot.spec import RobotSpec
 from embody.robot.tree import KinematicTree
@@ -64,7 +66,7 @@ class Robot:
     @cached_property
     def kinematics(self) -> Kinematics:
         """The pytorch-kinematics chain, built on first use (float64)."""
-        return Kinematics(self.mjcf_path, self.spec.root_body, self.joint_names)
+        return Kinematics(self.mjcf_path, self.model, self.spec.root_body, self.joint_names)
 
     # --- frames -------------------------------------------------------------------------
 
@@ -86,16 +88,21 @@ class Robot:
         t[:3, 3] = data.xpos[b]
         return np.linalg.inv(t)
 
-    def tree(self, bodies: list[str]) -> KinematicTree:
-        """NumPy FK of `bodies` in the torso frame (the IK's fast path)."""
-        return KinematicTree(self.model, self.joint_names, self.torso_from_world, bodies)
+    def fk(self, bodies: list[str], backend: str = "tree") -> BodyFK:
+        """FK of `bodies` (and ancestors) in the torso frame for the IK: `backend` is
+        "pytorch_kinematics" (the pk chain, cut down to those bodies) or "tree" (NumPy)."""
+        if backend == "pytorch_kinematics":
+            return ChainFK(self.kinematics, self.model, self.joint_names, self.torso_from_world, bodies)
+        if backend == "tree":
+            return KinematicTree(self.model, self.joint_names, self.torso_from_world, bodies)
+        raise ConfigError("ik.kinematics", f"unknown kinematics backend {backend!r}")
 
     def link_poses(self, q: np.ndarray, links: list[str]) -> tuple[np.ndarray, np.ndarray]:
         """NumPy `link_points`: positions (T,L,3) and rotations (T,L,3,3) in the torso frame."""
         refs = [self.spec.links[n] for n in links]
-        tree = self.tree([r.body for r in refs])
-        rot, pos = tree.forward(np.atleast_2d(np.asarray(q, dtype=np.float64)))
-        idx = [tree.index[r.body] for r in refs]
+        fk = self.fk([r.body for r in refs])
+        rot, pos = fk.forward(np.atleast_2d(np.asarray(q, dtype=np.float64)))
+        idx = [fk.index[r.body] for r in refs]
         off = np.array([r.offset for r in refs])
         return pos[:, idx] + np.einsum("tlab,lb->tla", rot[:, idx], off), rot[:, idx]
 

@@ -1,17 +1,17 @@
-"""NumPy forward kinematics and joint axes of a body subset, straight from the MuJoCo model.
+"""NumPy forward kinematics of a body subset, straight from the MuJoCo model (`BodyFK` backend).
 
-The IK's inner loop needs transforms of a few dozen bodies for every frame plus each joint's
-axis and pivot (for geometric Jacobians), many times per solve. pytorch-kinematics computes
-every frame of the chain through generic torch ops; this walks only the bodies asked for (and
-their ancestors) with batched 3×3 products in float64, ~10× faster on a CPU, and gives the same
-numbers as `mujoco.mj_kinematics` (tested). Transforms are in the robot torso frame, root fixed
-at its default pose (as `Robot.body_transforms`).
+Walks only the bodies asked for (and their ancestors) with batched 3×3 products in float64, one
+step per tree depth, and gives the same numbers as `mujoco.mj_kinematics` and the
+pytorch-kinematics backend (tested). Transforms are in the robot torso frame, root fixed at its
+default pose (as `Robot.body_transforms`).
 """
 
 from __future__ import annotations
 
 import mujoco
 import numpy as np
+
+from embody.robot.fk import BodyFK
 
 
 def _axis_rotations(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
@@ -23,25 +23,16 @@ def _axis_rotations(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
     return np.eye(3) + s * k + (1.0 - c) * (k @ k)
 
 
-class KinematicTree:
-    """Batched FK of `bodies` (and their ancestors) for joint vectors in robot joint order."""
+class KinematicTree(BodyFK):
+    """Batched NumPy FK of `bodies` (and their ancestors) for joint vectors in robot joint order."""
 
     def __init__(self, model: mujoco.MjModel, joint_names: list[str], base: np.ndarray,
                  bodies: list[str]) -> None:
         """`base`: 4×4 world → torso frame; the free joint stays at qpos0 (= the MJCF body pose)."""
-        ids: set[int] = set()
-        for name in bodies:
-            b = model.body(name).id
-            while b > 0 and b not in ids:
-                ids.add(b)
-                b = int(model.body_parentid[b])
-        order = sorted(ids)  # MuJoCo numbers parents before children
-        self.order = order
-        self.index = {model.body(b).name: i for i, b in enumerate(order)}
-        self.parent = [order.index(int(model.body_parentid[b])) if model.body_parentid[b] in ids else -1
-                       for b in order]
+        super().__init__(model, joint_names, bodies)
+        order = self.order
         self.local_pos = model.body_pos[order].copy()
-        depth = []
+        depth: list[int] = []
         for p in self.parent:
             depth.append(0 if p < 0 else depth[p] + 1)
         #: per depth: (bodies, their parents), so FK takes one batched step per level
@@ -52,17 +43,8 @@ class KinematicTree:
             mujoco.mju_quat2Mat(quat_rot[i], model.body_quat[b])
         self.local_rot = quat_rot.reshape(-1, 3, 3)
         self.root_rot, self.root_pos = base[:3, :3].copy(), base[:3, 3].copy()
-        #: per body: (robot joint index, local axis) of its hinges, in MuJoCo order
-        self.joints: list[list[tuple[int, np.ndarray]]] = []
-        for b in order:
-            hinges = []
-            for j in range(model.body_jntadr[b], model.body_jntadr[b] + model.body_jntnum[b]):
-                if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_HINGE:
-                    hinges.append((joint_names.index(model.joint(j).name), model.jnt_axis[j].copy()))
-            self.joints.append(hinges)
 
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Rotations (T,B,3,3) and positions (T,B,3) of every walked body for q (T, n_joints)."""
         t = len(q)
         # every body's parent-to-body rotation at once: fixed offset times its hinge rotations
         local = np.broadcast_to(self.local_rot, (t, *self.local_rot.shape)).copy()
@@ -81,23 +63,3 @@ class KinematicTree:
             rot[:, bodies] = r_p @ local[:, bodies]
             pos[:, bodies] = pos[:, parents] + (r_p @ self.local_pos[bodies][..., None])[..., 0]
         return rot, pos
-
-    def joint_frames(self, rot: np.ndarray, pos: np.ndarray, joints: list[int]) -> tuple[np.ndarray, np.ndarray]:
-        """World axes (T,J,3) and pivots (T,J,3) of robot joints `joints` (pivots are body origins)."""
-        where = {j: (i, axis) for i, hinges in enumerate(self.joints) for j, axis in hinges}
-        body = [where[j][0] for j in joints]
-        axes = np.array([where[j][1] for j in joints])
-        return np.einsum("tjab,jb->tja", rot[:, body], axes), pos[:, body]
-
-    def moves(self, joints: list[int]) -> np.ndarray:
-        """mask (J, B): joint j moves body b (j sits on b or one of its ancestors)."""
-        where = {j: i for i, hinges in enumerate(self.joints) for j, _ in hinges}
-        mask = np.zeros((len(joints), len(self.order)))
-        for b in range(len(self.order)):
-            p = b
-            while p >= 0:
-                for k, j in enumerate(joints):
-                    if where.get(j) == p:
-                        mask[k, b] = 1.0
-                p = self.parent[p]
-        return mask
