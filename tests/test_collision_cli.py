@@ -57,3 +57,4 @@ def test_paper_overlay():
     cfg = load_config([PROJECT_ROOT / "configs/collision/paper.yaml"]).collision
     assert cfg.mask == "hands" and cfg.steps == 500 and cfg.lambda_col == 50.0
     assert cfg.lambda_close == 1e-4 and cfg.lambda_smooth == 1e-4 and cfg.lr == 0.01
+    assert cfg.clearance == 0.0

@@ -84,6 +84,16 @@ def test_tpose_and_relaxed_poses_are_free(body, model):
     assert np.array_equal(energies(body, model, pose), np.zeros(3))
 
 
+def test_negative_tolerance_adds_a_clearance_band(body, model):
+    """The optimiser's clearance target: points within 2 cm outside a piece count too."""
+    pose = np.zeros((2, 55, 3))
+    pose[:, J("left_shoulder"), 2], pose[:, J("right_shoulder"), 2] = -1.4, 1.4   # hands by hips
+    pose[1] = crossing_poses()[3]
+    plain, band = energies(body, model, pose), energies(body, model, pose, -0.02)
+    assert plain[0] == 0.0 and band[0] > 0.0
+    assert band[1] > plain[1] > 0.0
+
+
 def test_matches_brute_force_reference(body, model):
     pose = crossing_poses()
     ours = energies(body, model, pose)

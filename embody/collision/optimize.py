@@ -3,8 +3,10 @@
 x_eff = x0 + M ⊙ (x − x0); minimise with Adam
     λ_col L_col(x_eff) + λ_close ‖x_eff − x0‖² + λ_smooth ‖Δ²x_eff‖²
 (the last two as means over frames, like L_col). Only the masked joints are parameters, so
-unmasked joints are x0 bit for bit. The broad phase is refreshed every few steps with a margin;
-the energies reported before and after are always exact.
+unmasked joints are x0 bit for bit. The optimised L_col also counts points within `clearance`
+outside a part, so a strong closeness pull settles with the surfaces apart rather than at
+residual depth. The broad phase is refreshed every few steps with a margin; the energies
+reported before and after are always exact, at `tolerance`.
 """
 
 from __future__ import annotations
@@ -140,8 +142,8 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
         x = x0.index_copy(1, jidx, params)
         transforms = body.joint_transforms(x, betas)
         if (step - 1) % cfg.refresh_every == 0:
-            near = contacts(model, transforms.detach(), cfg.refresh_margin)
-        e = frame_energies(model, transforms, cfg.tolerance, near).mean()
+            near = contacts(model, transforms.detach(), cfg.refresh_margin + cfg.clearance)
+        e = frame_energies(model, transforms, cfg.tolerance - cfg.clearance, near).mean()
         close = ((x - x0) ** 2).sum() / t
         smooth = (_second_diff(x) ** 2).sum() / t
         obj = cfg.lambda_col * e + cfg.lambda_close * close + cfg.lambda_smooth * smooth
