@@ -11,31 +11,14 @@ from embody.body import load_body_model
 from embody.collision import collision_model, frame_energies, mitigate, part_volumes
 from embody.config.body import BodyConfig
 from embody.config.collision import CollisionConfig
-from embody.motion import JOINT_NAMES, PARENTS, Motion
-
-
-def write_smplx(path, seed: int = 0):
-    """A fake SMPL-X npz (random values, real keys and shapes), as tests/test_body_smplx.py."""
-    rng = np.random.default_rng(seed)
-    v = 1200
-    weights = rng.random((v, 55)) ** 8
-    weights /= weights.sum(1, keepdims=True)
-    regressor = rng.random((55, v))
-    regressor /= regressor.sum(1, keepdims=True)
-    kintree = np.stack([PARENTS, np.arange(55)]).astype(np.int64)
-    kintree[0, 0] = 4294967295
-    np.savez(path, v_template=rng.normal(size=(v, 3)) * 0.3, f=rng.integers(0, v, (2000, 3)),
-             weights=weights, shapedirs=rng.normal(size=(v, 3, 400)) * 0.01,
-             posedirs=rng.normal(size=(v, 3, 486)) * 1e-3, J_regressor=regressor,
-             kintree_table=kintree, hands_meanl=rng.normal(size=45) * 0.2,
-             hands_meanr=rng.normal(size=45) * 0.2,
-             joint2num=np.array({n: i for i, n in enumerate(JOINT_NAMES)}, dtype=object))
-    return path
+from embody.motion import Motion
+from smplx_fixture import write_smplx
 
 
 @pytest.fixture(scope="module")
 def body(tmp_path_factory):
-    path = write_smplx(tmp_path_factory.mktemp("smplx") / "SMPLX_NEUTRAL.npz")
+    path = write_smplx(tmp_path_factory.mktemp("smplx") / "SMPLX_NEUTRAL.npz", vertices=1200,
+                       faces=2000)
     return load_body_model(BodyConfig(backend="smplx", model_path=str(path)))
 
 
