@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from embody import PROJECT_ROOT
+from embody.config import configs_dir
 from embody.cli import main
 from embody.config import load_config
 from embody.io import load, save
@@ -54,7 +54,7 @@ def test_bad_input_exits_2(tmp_path, capsys):
 
 
 def test_paper_overlay():
-    cfg = load_config([PROJECT_ROOT / "configs/collision/paper.yaml"]).collision
+    cfg = load_config([configs_dir() / "collision/paper.yaml"]).collision
     assert cfg.mask == "hands" and cfg.steps == 500 and cfg.lambda_col == 50.0
     assert cfg.lambda_close == 1e-4 and cfg.lambda_smooth == 1e-4 and cfg.lr == 0.01
     assert cfg.clearance == 0.0

@@ -13,7 +13,6 @@ from typing import Any, Iterable
 import yaml
 from pydantic import ValidationError
 
-from embody import PROJECT_ROOT
 from embody.config.base import Section, canonical_json
 from embody.config.body import BodyConfig
 from embody.config.collision import CollisionConfig
@@ -43,8 +42,11 @@ class Config(Section):
 
 
 def configs_dir() -> Path:
-    """Where `configs/` lives: `$EMBODY_CONFIGS` or the project root."""
-    return Path(os.environ.get("EMBODY_CONFIGS", PROJECT_ROOT / "configs"))
+    """Where `configs/` lives: `$EMBODY_CONFIGS`, else `embody/configs` (a symlink to the
+    top-level `configs/` in a checkout, a packaged copy in a wheel)."""
+    if "EMBODY_CONFIGS" in os.environ:
+        return Path(os.environ["EMBODY_CONFIGS"])
+    return Path(__file__).resolve().parents[1] / "configs"
 
 
 def _read_yaml(path: Path) -> dict[str, Any]:
