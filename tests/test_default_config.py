@@ -20,3 +20,10 @@ def test_default_yaml_has_every_stage_section():
 
 def test_loaded_default_equals_model_default():
     assert load_config() == Config()
+
+
+def test_config_command_prints_model_defaults(capsys):
+    from embody.cli import main
+
+    assert main(["config", "--model-defaults", "--set", "ik.iterations=3"]) == 0
+    assert yaml.safe_load(capsys.readouterr().out) == Config().model_dump(mode="json")

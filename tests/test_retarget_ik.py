@@ -193,3 +193,17 @@ def test_pytorch_kinematics_backend_matches_tree(robot):
     r_tree, j_tree = Residuals(robot, targets, IKConfig(kinematics="tree"))(q, jacobian=True)
     assert r_pk.shape == r_tree.shape and np.abs(r_pk - r_tree).max() < 1e-9
     assert np.abs(j_pk - j_tree).max() < 1e-9
+
+
+def test_collision_scale_weights_the_proxy_term(robot):
+    # the tracking phase's faint collision term: residual rows and Jacobian scale by √scale
+    q = _smooth_random_q(robot, 3, seed=4)
+    q[:, robot.joint_index("left_shoulder_roll_joint")] = -0.25
+    res = Residuals(robot, _targets_from_q(robot, q), IKConfig())
+    full, jf = res(q, jacobian=True)
+    faint, jt = res(q, jacobian=True, collision=1e-3)
+    off, _ = res(q, collision=0.0)
+    assert full.shape == faint.shape and off.shape[1] == 18 < full.shape[1]
+    assert np.allclose(faint[:, 18:], full[:, 18:] * 1e-3**0.5, rtol=1e-12)
+    assert np.allclose(jt[:, 18:], jf[:, 18:] * 1e-3**0.5, rtol=1e-12)
+    assert np.array_equal(faint[:, :18], full[:, :18])

@@ -38,8 +38,10 @@ class IKConfig(Section):
     velocity_headroom: float = Field(0.02, ge=0, lt=1)
     #: Self-collision penalty on the proxies.
     w_collision: float = Field(20.0, ge=0)
-    #: Clearance (m) the collision proxies must keep.
-    collision_margin: float = Field(0.008, ge=0, le=0.1)
+    #: Clearance (m) the collision proxies must keep. 15 mm, not 8: the proxies are sampled points
+    #: and ≤32-plane polytopes, so MuJoCo's exact meshes touch between points at smaller margins
+    #: (benchmarks/ik_self_collision.py: 136 → 48 self-collision frames on the 24-sequence run).
+    collision_margin: float = Field(0.015, ge=0, le=0.1)
     # --- solver (Levenberg-Marquardt over the banded whole-sequence system) ---
     #: FK backend of the solver's residuals and geometric Jacobians: the pytorch-kinematics chain
     #: (cut down to the bodies the costs use, all frames in one batched call per iteration) or the
@@ -48,8 +50,13 @@ class IKConfig(Section):
     #: 287 vs 342 frames/s with the tree (1.19×, benchmarks/ik_vs_mink.py, one CPU thread), well
     #: within the 1.5× we accept for solving on the real pk kinematics; "tree" is the fast path.
     kinematics: Literal["pytorch_kinematics", "tree"] = "pytorch_kinematics"
-    #: Cold start: iterations that track without the collision term before it comes on.
+    #: Cold start: iterations that track with only `tracking_collision` before the full term comes on.
     tracking_iterations: int = Field(8, ge=0, le=10_000)
+    #: Collision weight of the tracking phase, as a fraction of `w_collision`. A faint penalty
+    #: (1e-3) leaves the way to the targets free but stops hands from being planted inside each
+    #: other, which the full term cannot undo later (48 → 9 frames; 0 leaves 3×, 1e-2 costs 40%
+    #: more wrist error: hands block each other on their way out of the rest pose).
+    tracking_collision: float = Field(0.001, ge=0, le=1)
     #: Iterations with every term on (the only phase when warm-started).
     iterations: int = Field(24, ge=1, le=10_000)
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.

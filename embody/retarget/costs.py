@@ -72,12 +72,12 @@ class Residuals:
         self.w_col = float(s(cfg.w_collision))
 
     def __call__(self, q: np.ndarray, jacobian: bool = False,
-                 collision: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-        """q: full joint vectors (T, n_joints). `collision=False` leaves the proxy term out."""
+                 collision: float = 1.0) -> tuple[np.ndarray, np.ndarray | None]:
+        """q: full joint vectors (T, n_joints). `collision` scales w_collision (0/False: term left out)."""
         r, jac = self.lazy(q, collision)
         return r, (jac() if jacobian else None)
 
-    def lazy(self, q: np.ndarray, collision: bool = True) -> tuple[np.ndarray, Callable[[], np.ndarray]]:
+    def lazy(self, q: np.ndarray, collision: float = 1.0) -> tuple[np.ndarray, Callable[[], np.ndarray]]:
         """r(q) now, J(q) on demand: a rejected step never pays for its Jacobian."""
         rot, pos = self.fk.forward(q)
         r_link = rot[:, self.link_body]
@@ -86,7 +86,7 @@ class Residuals:
         r_rot = r_link[:, self.rot_cols]
         e_rot = rotation_log(r_rot @ np.swapaxes(self.target_rot, -1, -2)) * self.w_rot[:, None]
         res = [e_pos.reshape(len(q), -1), e_rot.reshape(len(q), -1)]
-        col = self._collision(rot, pos) if self.proxies is not None and collision else None
+        col = self._collision(rot, pos, float(collision)) if self.proxies is not None and collision else None
         if col is not None:
             res.append(col[0])
         return np.concatenate(res, 1), lambda: self._jacobian(q, rot, pos, p_link, r_rot, col)
@@ -147,10 +147,10 @@ class Residuals:
             hull_planes=[np.unique(p, axis=0) for p in px.hull_planes])  # unpadded plane sets
         return out
 
-    def _collision(self, rot: np.ndarray, pos: np.ndarray) -> tuple[np.ndarray, Callable]:
+    def _collision(self, rot: np.ndarray, pos: np.ndarray, scale: float = 1.0) -> tuple[np.ndarray, Callable]:
         """Hinge residuals w·relu(margin − clearance) (T,P+Q) over the sphere/sphere and sphere/hull
         pairs within the margin somewhere, and a function of (axes, pivots) giving their Jacobian."""
-        px, margin, w = self.proxies, self.cfg.collision_margin, self.w_col
+        px, margin, w = self.proxies, self.cfg.collision_margin, self.w_col * scale**0.5
         t, n_ik = len(rot), len(self.ik)
         sb, hb = self.sphere_body, self.hull_body
         # sphere/sphere

@@ -110,7 +110,7 @@ class _Problem:
                 g[k:] += self.dtd[k, : len(qi) - k, None] * qi[:-k]
         return g
 
-    def evaluate(self, qi: np.ndarray, collision: bool) -> tuple[float, Callable[[], tuple]]:
+    def evaluate(self, qi: np.ndarray, collision: float) -> tuple[float, Callable[[], tuple]]:
         """Cost now; on demand, the Gauss-Newton blocks (per-frame JᵀJ (T,n,n), velocity-hinge
         diagonal (T,n) and off-diagonal (T-1,n)) and the gradient (T,n), linear terms included."""
         r, jac = self.residuals.lazy(self.q_full(qi), collision=collision)
@@ -152,14 +152,15 @@ class _Problem:
 
     def solve(self, qi0: np.ndarray, cold: bool) -> np.ndarray:
         """Levenberg-Marquardt (Nielsen's damping rule). From a cold start the collision term comes
-        on after a tracking phase: with it on from the rest pose, hands block each other and the
-        trunk on their way to the targets (3× the wrist error on the synthetic set). The price:
-        hands planted deep inside each other (thumbs interlocked) stay locked."""
+        on in full after a tracking phase: with it on from the rest pose, hands block each other and
+        the trunk on their way to the targets (3× the wrist error on the synthetic set). Without it
+        there, hands get planted deep inside each other (thumbs interlocked) and stay locked, so the
+        tracking phase keeps a faint share of it (`cfg.tracking_collision`)."""
         lower, upper = self.robot.lower[self.ik], self.robot.upper[self.ik]
         qi = np.clip(qi0, lower, upper)
         use_col = self.residuals.proxies is not None
-        phases = [(False, self.cfg.tracking_iterations)] if cold and use_col else []
-        phases.append((use_col, self.cfg.iterations))
+        phases = [(self.cfg.tracking_collision, self.cfg.tracking_iterations)] if cold and use_col else []
+        phases.append((float(use_col), self.cfg.iterations))
         lam = LAMBDA0
         for collision, budget in phases:
             cost, normal = self.evaluate(qi, collision)
