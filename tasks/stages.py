@@ -94,7 +94,7 @@ def _refine(ctx: Context, inputs: dict[str, Any]) -> Any:
 
 def _refine_metrics(result: Any) -> dict[str, Any]:
     return {**result.final.metrics, "accepted": bool(result.accepted),
-            "rounds": int(result.final.index)}
+            "rounds": len(result.rounds) - 1, "chosen_round": int(result.final.index)}
 
 
 def _refine_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
@@ -142,7 +142,7 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
                  shared=True, files=_robot_files)
 RETARGET = Step("retarget", "1", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
-REFINE = Step("refine", "1", ("body", "robot", "ik", "render", "critic"), _refine,
+REFINE = Step("refine", "2", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 RENDER = Step("render", "1", ("body", "robot", "render"), _render, _render_result,

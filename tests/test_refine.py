@@ -91,6 +91,36 @@ def test_geometric_critic_recovers_a_planted_10cm_offset(robot):
     assert table.loc["refined", "wrist_mm_mean"] < table.loc["IK-only", "wrist_mm_mean"]
 
 
+def test_keep_policy_picks_the_result_round(robot):
+    """A revision that moves the wrists away from the reference is not kept by `best` (the
+    geometric default), and is kept by `last` (a VLM's call)."""
+    from embody.critic.base import Critic
+    from embody.critic.action import Action
+
+    class AlwaysUp(Critic):
+        needs_images = False
+
+        def critique(self, context):
+            return Action.parse({"primitives_positions": ["move_left_up"],
+                                 "primitives_orientation": [], "verdict": "revise",
+                                 "reason": "test"}, context.limits)
+
+    reference = _reachable_targets(robot, 10)
+    ik_only = solve(robot, reference, IK)
+    results = {keep: refine(_motion(10), None, None, robot, reference, ik_only,
+                            CriticConfig(rounds=1, keep=keep), IK, RENDER, critic=AlwaysUp())
+               for keep in ("auto", "last")}
+    best, last = results["auto"], results["last"]
+    assert len(best.rounds) == len(last.rounds) == 2
+    assert best.final.index == 0 and last.final.index == 1
+    assert best.final.metrics["wrist_mm_mean"] < last.final.metrics["wrist_mm_mean"]
+    assert np.array_equal(best.q, ik_only.q)
+    back = RefineResult.from_arrays(best.to_arrays(), json.loads(json.dumps(best.to_attrs())))
+    assert back.final.index == 0
+    table = refine_table([best])
+    assert table.loc["refined", "rounds"] == 1.0  # rounds run, not the index of the kept one
+
+
 @pytest.fixture(scope="module")
 def body_fit(robot):
     from embody.body import load_body_model

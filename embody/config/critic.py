@@ -35,6 +35,11 @@ class CriticConfig(Section):
     kind: Literal["geometric", "vlm"] = "geometric"
     #: Critique rounds after the IK-only solution (the paper uses 2).
     rounds: int = Field(2, ge=0, le=20)
+    #: Which round is the result: `best` = closest to the reference wrists (mean mm; what the
+    #: geometric critic optimises, so a revision that made things worse is not kept), `last` =
+    #: the last revision (trust the critic's judgement, e.g. a VLM seeing more than wrist
+    #: distances), `auto` = best for the geometric critic, last for the VLM.
+    keep: Literal["auto", "best", "last"] = "auto"
     #: Default primitive amounts when an action names no amount.
     position_step_m: float = Field(0.10, gt=0.0, le=0.5)
     angle_step_deg: float = Field(20.0, gt=0.0, le=90.0)

@@ -90,6 +90,8 @@ class RefineResult:
     joint_names: list[str]
     keyframes: np.ndarray
     critic: str
+    #: Index of the round that is the result (`critic.keep`); -1 = the last.
+    chosen: int = -1
 
     @property
     def ik_only(self) -> RoundRecord:
@@ -97,7 +99,7 @@ class RefineResult:
 
     @property
     def final(self) -> RoundRecord:
-        return self.rounds[-1]
+        return self.rounds[self.chosen]
 
     @property
     def q(self) -> np.ndarray:
@@ -118,7 +120,8 @@ class RefineResult:
                    "accepted": r.accepted, "renders": r.renders, "exchange": r.exchange}
                   for r in self.rounds]
         return json.loads(json.dumps({"joint_names": list(self.joint_names), "critic": self.critic,
-                                      "accepted": self.accepted, "rounds": rounds}))
+                                      "accepted": self.accepted, "rounds": rounds,
+                                      "chosen": self.chosen}))
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> "RefineResult":
@@ -128,7 +131,8 @@ class RefineResult:
                               metrics=dict(a["metrics"]), action=a["action"],
                               renders=dict(a["renders"]), exchange=dict(a["exchange"]))
                   for i, a in enumerate(attrs["rounds"])]
-        return cls(rounds, list(attrs["joint_names"]), np.asarray(arrays["keyframes"]), attrs["critic"])
+        return cls(rounds, list(attrs["joint_names"]), np.asarray(arrays["keyframes"]), attrs["critic"],
+                   int(attrs.get("chosen", -1)))
 
 
 class _Renders:
@@ -233,8 +237,9 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
                                                 action.primitives, blend)
             working = dataclasses.replace(working, wrist_pos=new_pos, wrist_rot=new_rot)
             solution = solve(robot, working, cfg_ik, init=solution)
+        chosen = _chosen_round(rounds, cfg_critic)
         if out is not None:
-            final = rounds[-1]
+            final = rounds[chosen]
             comp = renders.comparison(final.q)
             final.renders["final_sheet"] = _store_png(comp.sheet_png("final"), out, "sheet.png")
             from embody.render.compare import render_preview
@@ -248,7 +253,15 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
                                             "path": preview.name}
     finally:
         renders.close()
-    return RefineResult(rounds, list(robot.joint_names), keyframes, cfg_critic.kind)
+    return RefineResult(rounds, list(robot.joint_names), keyframes, cfg_critic.kind, chosen)
+
+
+def _chosen_round(rounds: list[RoundRecord], cfg: CriticConfig) -> int:
+    """The result round per `critic.keep` (see CriticConfig); ties go to the earlier round."""
+    keep = cfg.keep if cfg.keep != "auto" else ("best" if cfg.kind == "geometric" else "last")
+    if keep == "last":
+        return len(rounds) - 1
+    return int(np.argmin([r.metrics["wrist_mm_mean"] for r in rounds]))
 
 
 _TABLE_METRICS = ("wrist_mm_mean", "wrist_mm_p95", "wrist_deg_mean", "wrist_deg_p95",
@@ -260,9 +273,12 @@ def refine_table(results: Sequence[RefineResult] | Mapping[str, RefineResult]) -
     items = list(results.values()) if isinstance(results, Mapping) else list(results)
     rows = {}
     for label, pick in (("IK-only", lambda r: r.ik_only), ("refined", lambda r: r.final)):
+        refined = label == "refined"
         row = {m: float(np.mean([pick(r).metrics[m] for r in items])) for m in _TABLE_METRICS}
-        row["accepted"] = float(np.mean([bool(pick(r).accepted) for r in items]))
-        row["rounds"] = float(np.mean([pick(r).index for r in items]))
+        row["accepted"] = float(np.mean([bool(r.accepted if refined else r.ik_only.accepted)
+                                         for r in items]))
+        # critique rounds run (the result may be an earlier round, see `critic.keep`)
+        row["rounds"] = float(np.mean([len(r.rounds) - 1 if refined else 0 for r in items]))
         row["n"] = len(items)
         rows[label] = row
     return pd.DataFrame.from_dict(rows, orient="index")
