@@ -1,7 +1,5 @@
 """configs/default.yaml is generated from the typed models; the two must agree."""
 
-from pathlib import Path
-
 import yaml
 
 from embody.config import Config, configs_dir, load_config

@@ -137,7 +137,7 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
     opt = torch.optim.Adam([params], lr=cfg.lr)
     best = (float("inf"), float("inf"))
     best_pose = x0.numpy().copy()
-    prev_obj, calm, step, near, last_gain = None, 0, 0, None, 0
+    prev_obj, calm, step, near, last_gain, e_first = None, 0, 0, None, 0, 0.0
     for step in range(1, cfg.steps + 1):
         x = x0.index_copy(1, jidx, params)
         transforms = body.joint_transforms(x, betas)
@@ -148,7 +148,8 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
         smooth = (_second_diff(x) ** 2).sum() / t
         obj = cfg.lambda_col * e + cfg.lambda_close * close + cfg.lambda_smooth * smooth
         e_val, o_val = float(e.detach()), float(obj.detach())
-        e_first = e_val if step == 1 else e_first
+        if step == 1:
+            e_first = e_val  # progress is measured relative to the starting energy
         if (e_val, o_val) < best:
             if step == 1 or e_val < best[0] - cfg.early_stop_rtol * e_first:
                 last_gain = step
