@@ -101,13 +101,6 @@ class Trajectory:
                    validation=json.loads(str(data.get("validation", "{}"))))
 
 
-def validate(robot: Any, q: np.ndarray, fps: float) -> dict[str, float]:
-    """The VIOLATION_KEYS counters of a trajectory, by the retargeting stage's own checks."""
-    from embody.retarget.validation import validation_counts
-
-    return validation_counts(robot, q, fps)
-
-
 def safe_name(sid: str) -> str:
     """A sequence id as a file name; ids with slashes or spaces get a short hash so that
     "a/b" and "a_b" stay distinct."""

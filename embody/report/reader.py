@@ -149,7 +149,7 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
     20k-sequence run still gets a readable page in bounded time.
     """
     from embody.render import RenderError
-    from embody.report.library import validate
+    from embody.retarget.validation import validation_counts
 
     store, manifest = open_run(store_root, run)
     seqs = manifest.sequences
@@ -173,7 +173,7 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
     ik = {i: load_result(store, seqs[i], RETARGET) for i in ok}
     refined = {i: load_result(store, seqs[i], REFINE) for i in ok if REFINE in seqs[i]["steps"]}
     if "self_collision_frames" not in data.retarget:
-        extra = {i: validate(robotics.robot, ik[i].q, ik[i].fps) for i in ok}
+        extra = {i: validation_counts(robotics.robot, ik[i].q, ik[i].fps) for i in ok}
         data.retarget["self_collision_frames"] = pd.Series(
             {i: v["self_collision_frames"] for i, v in extra.items()})
     if refined:
