@@ -104,14 +104,18 @@ def _refine_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
 
 def _render(ctx: Context, inputs: dict[str, Any]) -> Any:
     """The final trajectory (refined when the critic ran) beside the reference body."""
+    from embody.render import select_keyframes
     from embody.render.record import render_sequence
     from embody.retarget import build_targets
     motion, fit, refined = inputs["collide"].motion, inputs["shape_fit"], inputs.get("refine")
-    q = refined.q if refined is not None else inputs["retarget"].q
-    targets = build_targets(motion, ctx.body, fit, ctx.robot)
+    if refined is not None:  # the frames the critic saw
+        q, keyframes = refined.q, refined.keyframes
+    else:
+        q = inputs["retarget"].q
+        targets = build_targets(motion, ctx.body, fit, ctx.robot)
+        keyframes = select_keyframes(targets.wrist_pos, ctx.cfg.render.keyframes)
     title = f"{motion.meta.get('id', '')}: {'refined' if refined is not None else 'IK only'}"
-    return render_sequence(motion, ctx.body, fit, ctx.robot, q, targets.wrist_pos, ctx.cfg.render,
-                           title, None if refined is None else refined.keyframes)
+    return render_sequence(motion, ctx.body, fit, ctx.robot, q, keyframes, ctx.cfg.render, title)
 
 
 def _render_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:

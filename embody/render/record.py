@@ -16,7 +16,6 @@ import numpy as np
 
 from embody.config.render import RenderConfig
 from embody.render.compare import open_renderer, reference_vertices, render_comparison, render_preview
-from embody.render.keyframes import select_keyframes
 
 
 @dataclass
@@ -46,16 +45,11 @@ class SequenceRender:
                    attrs.get("preview_suffix"))
 
 
-def render_sequence(motion, body, fit, robot, q: np.ndarray, reference_wrists: np.ndarray,
-                    cfg: RenderConfig, title: str = "",
-                    keyframes: np.ndarray | None = None) -> SequenceRender:
-    """Render the final trajectory `q` beside the reference body at its keyframes.
-
-    `keyframes` defaults to the motion extrema of `reference_wrists` (T,2,3), the same choice
-    the critic loop makes, so a refined sequence's sheet shows the frames the critic saw.
-    """
-    keys = (select_keyframes(np.asarray(reference_wrists), cfg.keyframes)
-            if keyframes is None else np.asarray(keyframes))
+def render_sequence(motion, body, fit, robot, q: np.ndarray, keyframes: np.ndarray,
+                    cfg: RenderConfig, title: str = "") -> SequenceRender:
+    """Render the final trajectory `q` beside the reference body at `keyframes` (pick them with
+    `select_keyframes` on the reference wrists, as the critic loop does, or take the loop's)."""
+    keys = np.asarray(keyframes)
     renderer = open_renderer(robot, body, fit, cfg)
     try:
         comp = render_comparison(renderer, cfg, keys, motion.fps, np.asarray(q),
