@@ -120,7 +120,7 @@ class Manifest:
 
 
 def load_manifests(store: ArtifactStore) -> list[Manifest]:
+    """Every run's manifest (read only: a symlinked run still protects what it references)."""
     if not store.runs_dir.is_dir():
         return []
-    return [Manifest.load(store, p.parent.name) for p in sorted(store.runs_dir.glob("*/manifest.json"))
-            if not p.parent.is_symlink()]
+    return [Manifest.load(store, p.parent.name) for p in sorted(store.runs_dir.glob("*/manifest.json"))]

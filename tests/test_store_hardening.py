@@ -339,3 +339,17 @@ def test_reusing_a_run_name_for_another_robot_is_refused(tmp_path, capsys):
 
     check_run_reuse(store.root, "mine", data, None, "unitree_g1_dex3")  # same robot and data: ok
     check_run_reuse(store.root, "mine", other, None, "unitree_h1", overwrite=True)
+
+
+def test_sequences_csv_cells_are_never_formulas(tmp_path):
+    from flows.dataset import write_tables
+
+    store = ArtifactStore(tmp_path)
+    m = Manifest(store, "r")
+    m.start(["s1"])
+    m.update({"id": "s1", "status": "failed", "error": "=HYPERLINK(\"http://x\")",
+              "failed_step": "source", "metrics": {"source": {"note": "@SUM(A1)", "n": -3}}})
+    text = write_tables(store, "r", m).read_text()
+    row = pd.read_csv(tmp_path / "runs" / "r" / "sequences.csv").iloc[0]
+    assert row["error"].startswith("'=") and row["source.note"] == "'@SUM(A1)"
+    assert row["source.n"] == -3 and "\n=" not in text and ",=" not in text
