@@ -216,27 +216,12 @@ def _start(data: Path, store: Path) -> tuple[subprocess.Popen, int, Path]:
     raise AssertionError("the run never started its Prefect server")
 
 
-def test_sigterm_and_sigkill_leave_no_prefect_server(toy, tmp_path):
-    from flows.env import stop_orphans
-
-    store = tmp_path / "store"
-    proc, server, pidfile = _start(toy, store)
+def test_sigterm_stops_the_prefect_server(toy, tmp_path):
+    proc, server, pidfile = _start(toy, tmp_path / "store")
     assert _alive(server)
-    os.kill(proc.pid, signal.SIGKILL)  # the driver only: its server is orphaned
-    proc.wait()
-    time.sleep(0.5)
-    assert _alive(server), "expected an orphaned server after SIGKILL"
-    try:
-        assert stop_orphans(store / "prefect") == [server]  # what the next run does first
-        assert not _alive(server) and not pidfile.exists()
-    finally:
-        if _alive(server):
-            os.kill(server, signal.SIGKILL)
-
-    proc, server, _ = _start(toy, store)
     os.kill(proc.pid, signal.SIGTERM)
     try:
-        proc.wait(timeout=90)
+        proc.wait(timeout=120)
     finally:
         if proc.poll() is None:
             proc.kill()
@@ -247,3 +232,43 @@ def test_sigterm_and_sigkill_leave_no_prefect_server(toy, tmp_path):
     if alive:
         os.kill(server, signal.SIGKILL)
     assert not alive, "SIGTERM left the Prefect server running"
+    assert not pidfile.exists()
+
+
+def _process(*argv: str, home: Path) -> subprocess.Popen:
+    env = dict(os.environ, PREFECT_HOME=str(home))
+    return subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)", *argv], env=env)
+
+
+def test_the_next_run_stops_servers_orphaned_by_sigkill(tmp_path, monkeypatch, capsys):
+    """What a SIGKILLed run leaves: its pidfile and a live server whose owner is gone. The
+    server here is a process with a Prefect server's command line under the store's home."""
+    from flows.env import configure
+
+    store = tmp_path / "store"
+    home = (store / "prefect").resolve()
+    folder = home / "embody-servers"
+    folder.mkdir(parents=True)
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()  # a dead owner
+    server_args = ("-m", "uvicorn", "--factory", "prefect.server.api.server:create_app")
+    orphan = _process(*server_args, home=home)
+    owned = _process(*server_args, home=home)  # its run is still alive (this process)
+    stranger = _process("not-a-server", home=home)  # pid reuse: not a Prefect server
+    procs = (orphan, owned, stranger)
+    try:
+        for proc, owner in ((orphan, gone.pid), (owned, os.getpid()), (stranger, gone.pid)):
+            (folder / f"{proc.pid}.json").write_text(json.dumps(
+                {"server": proc.pid, "owner": owner, "home": str(home)}))
+        time.sleep(0.3)  # let each exec so /proc shows its command line
+        monkeypatch.setenv("PREFECT_HOME", str(home))
+        configure(store)  # the first thing every run does
+        assert f"pid {orphan.pid}" in capsys.readouterr().err
+        assert orphan.wait(timeout=10) is not None
+        assert owned.poll() is None and stranger.poll() is None
+        assert sorted(p.name for p in folder.iterdir()) == [f"{owned.pid}.json"]
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
