@@ -8,6 +8,7 @@ Shared steps (the shape fit) run once; steps that need them wait until they are 
 
 from __future__ import annotations
 
+import errno
 import queue
 import re
 import time
@@ -18,16 +19,17 @@ from typing import Any
 from prefect import flow
 
 from embody.config import Config
+from embody.errors import ConfigError
 from flows.progress import Progress
 from flows.runners import make_task_runner
-from store import ArtifactStore, Manifest
+from store import ArtifactStore, Manifest, check_run_name
 from tasks.execute import cached, new_record
 from tasks.pipeline import Context, Pipeline
 from tasks.stages import default_pipeline
 from tasks.steps import batch_task, shared_task
 
-__all__ = ["dataset_flow", "default_run_name", "resolve_dataset", "run_dataset", "run_flow",
-           "write_tables"]
+__all__ = ["check_run_reuse", "dataset_flow", "default_run_name", "resolve_dataset", "run_dataset",
+           "run_flow", "write_tables"]
 
 _SAVE_EVERY_S = 1.0
 
@@ -41,9 +43,46 @@ def resolve_dataset(dataset: str | Path | None, cfg: Config) -> Path:
     return Path(dataset)
 
 
-def default_run_name(dataset: Path, split: str | None) -> str:
-    name = re.sub(r"[^A-Za-z0-9_.-]+", "-", dataset.stem or "dataset").strip("-") or "dataset"
-    return f"{name}-{split}" if split else name
+def default_run_name(dataset: Path, split: str | None, robot: str | None = None) -> str:
+    """`<dataset>[-<split>].<robot>`: runs of one dataset on two robots never share a name."""
+    name = re.sub(r"[^A-Za-z0-9_.-]+", "-", dataset.stem or "dataset").strip("-.") or "dataset"
+    name = f"{name}-{split}" if split else name
+    if robot:
+        name += "." + (re.sub(r"[^A-Za-z0-9_-]+", "-", robot).strip("-") or "robot")
+    return name
+
+
+def run_name(cfg: Config, dataset: str | Path, split: str | None) -> str:
+    """The run's name: `run.name`, else the default; validated (no `.`/`..`, nothing outside runs/)."""
+    if cfg.run.name:
+        return check_run_name(cfg.run.name)
+    return check_run_name(default_run_name(Path(dataset), split, cfg.robot.name))
+
+
+def check_run_reuse(store_root: str | Path, run: str, dataset: str | Path, split: str | None,
+                    robot: str, overwrite: bool = False) -> None:
+    """Refuse (ConfigError, exit 2) to reuse a run name of another robot or dataset, unless told."""
+    path = Path(store_root).expanduser().resolve() / "runs" / run / "manifest.json"
+    if overwrite or not path.is_file():
+        return
+    import json
+    try:
+        old = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return  # unreadable: nothing to protect
+    old_robot = ((old.get("config") or {}).get("robot") or {}).get("name")
+    old_data = old.get("dataset")
+    what = []
+    if old_robot and old_robot != robot:
+        what.append(f"robot {old_robot!r} (now {robot!r})")
+    if old_data and Path(old_data).expanduser().resolve() != Path(dataset).expanduser().resolve():
+        what.append(f"dataset {old_data} (now {Path(dataset).resolve()})")
+    if old.get("split", split) != split:
+        what.append(f"split {old.get('split')!r} (now {split!r})")
+    if what:
+        raise ConfigError("run.name", f"run {run!r} already holds a run of another " +
+                          " and ".join(what) + ": pick another --name, or pass --overwrite "
+                          "to replace it")
 
 
 class _Driver:
@@ -69,6 +108,8 @@ class _Driver:
         self.next_batch = self.inflight = 0
         self._saved = time.monotonic()
         self._save_every = _SAVE_EVERY_S
+        self.recovered = 0
+        self.save_error: str | None = None
 
     def run(self, batches: list[list[dict[str, Any]]]) -> None:
         self.batches = batches
@@ -138,19 +179,31 @@ class _Driver:
         self.progress.add(name, done=len(ok), cached=len(ok) - computed, failed=failed)
         for rec in records:
             self.manifest.update(rec)
+            self.recovered += len(rec.get("recovered", ()))
+            rec.pop("recovered", None)
         if i + 1 < len(self.steps):
             self.ready.append((b, i + 1, records))
+            self._save()  # each finished step's keys, not only finished sequences
             return
         for rec in records:
             self.manifest.finish_sequence(rec["id"])
         self.inflight -= 1
         self._fill()
-        if time.monotonic() - self._saved > self._save_every:
-            t0 = time.monotonic()
+        self._save()
+
+    def _save(self, force: bool = False) -> None:
+        """Save the manifest at most every `_save_every` s; a full disk is reported, not fatal."""
+        if not force and time.monotonic() - self._saved <= self._save_every:
+            return
+        t0 = time.monotonic()
+        try:
             self.manifest.save()
-            self._saved = time.monotonic()
-            # Big manifests take long to write: keep saving under ~5% of the driver's time.
-            self._save_every = max(_SAVE_EVERY_S, 20 * (self._saved - t0))
+        except OSError as exc:
+            self.save_error = f"manifest not saved: {exc.strerror or exc}"
+            return
+        self._saved = time.monotonic()
+        # Big manifests take long to write: keep saving under ~5% of the driver's time.
+        self._save_every = max(_SAVE_EVERY_S, 20 * (self._saved - t0))
 
     def _on_shared(self, name: str, fut: Any) -> None:
         try:
@@ -160,6 +213,7 @@ class _Driver:
                    "metrics": {}, "error": f"{name}: task crashed: {type(exc).__name__}: {exc}"}
         self.shared[name] = rec
         self.manifest.set_shared(name, rec.get("key"))
+        self._save(force=True)  # the shared fit is recorded as soon as it exists
         self.computed[name] += int(bool(rec.get("computed")))
         self._submit_shared()
         self.ready.extend(self.parked)
@@ -186,10 +240,17 @@ class _Driver:
         return out
 
 
-def write_tables(store: ArtifactStore, run: str) -> Path:
+def _cell(value: Any) -> Any:
+    """A CSV cell a spreadsheet shows as text, never evaluates (leading = + - @)."""
+    if isinstance(value, str) and value[:1] in ("=", "+", "-", "@"):
+        return "'" + value
+    return value
+
+
+def write_tables(store: ArtifactStore, run: str, manifest: Manifest | None = None) -> Path:
     """`runs/<run>/sequences.csv`: one row per sequence, status, error and every scalar metric."""
     import pandas as pd
-    manifest = Manifest.load(store, run)
+    manifest = manifest or Manifest.load(store, run)
     rows = []
     for sid, seq in manifest.sequences.items():
         row = {"id": sid, "status": seq["status"], "failed_step": seq["failed_step"],
@@ -197,9 +258,14 @@ def write_tables(store: ArtifactStore, run: str) -> Path:
         for step, metrics in seq["metrics"].items():
             row.update({f"{step}.{k}": v for k, v in metrics.items()
                         if isinstance(v, (int, float, str, bool)) or v is None})
-        rows.append(row)
+        rows.append({k: _cell(v) for k, v in row.items()})
     path = manifest.path.parent / "sequences.csv"
-    pd.DataFrame(rows).to_csv(path, index=False)
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        pd.DataFrame(rows).to_csv(tmp, index=False)
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
     return path
 
 
@@ -221,34 +287,46 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     """Run the pipeline over a dataset inside the current flow; returns the run summary."""
     from embody.io import load_dataset
 
+    from flows.env import register_server
+
     t0 = time.perf_counter()
     store = ArtifactStore(cfg.run.store)
     data = load_dataset(dataset, split)
     refs = list(data)[: cfg.run.limit] if cfg.run.limit else list(data)
-    run = cfg.run.name or default_run_name(Path(dataset), split)
+    run = run_name(cfg, dataset, split)
     pipeline = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
     ctx = Context(cfg=cfg, store_root=str(store.root), run=run)
+    register_server()  # so a later run can stop this one's Prefect server if we are killed
     manifest = Manifest(store, run)
-    manifest.start([r.id for r in refs], dataset=str(dataset), split=split,
-                   steps=pipeline.names, config=cfg.model_dump(mode="json"))
+    manifest.start([r.id for r in refs], dataset=str(Path(dataset).expanduser().resolve()),
+                   split=split, steps=pipeline.names, config=cfg.model_dump(mode="json"))
     size = cfg.run.batch_size
     batches = [[new_record(r) for r in refs[i:i + size]] for i in range(0, len(refs), size)]
     bar = Progress([s.name for s in pipeline.per_sequence], len(refs), enabled=progress)
     driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers)
     driver.run(batches)
-    manifest.save(finished=True)
-    table = write_tables(store, run)
+    errors = [driver.save_error] if driver.save_error else []
+    table: Path | None = None
+    try:  # a full disk here still ends with the summary and the failure table (exit 1)
+        manifest.save(finished=True)
+        errors = []
+        table = write_tables(store, run, manifest)
+    except OSError as exc:
+        reason = "no space left on device" if exc.errno == errno.ENOSPC else str(exc)
+        errors.append(f"run bookkeeping not written ({reason})")
     t_report = time.perf_counter()
-    report, report_error = build_report(store, run)
+    report, report_error = build_report(store, run) if not errors else (None, None)
     report_s = time.perf_counter() - t_report
     seqs = manifest.sequences
     failures = [{"id": i, "step": s["failed_step"], "error": s["error"]}
                 for i, s in seqs.items() if s["status"] != "ok"]
+    recovered = [{"id": i, "artifact": a} for i, s in seqs.items() for a in s.get("recovered", [])]
     return {"run": run, "store": str(store.root), "dataset": str(dataset), "split": split,
             "total": len(seqs), "ok": len(seqs) - len(failures), "failed": len(failures),
             "failures": failures, "computed": driver.computed,
             "shared": {n: r.get("key") for n, r in driver.shared.items()},
-            "manifest": str(manifest.path), "table": str(table),
+            "manifest": str(manifest.path), "table": str(table) if table else None,
+            "errors": errors, "recovered": recovered,
             "report": report, "report_error": report_error,
             "report_s": round(report_s, 3), "elapsed_s": round(time.perf_counter() - t0, 3)}
 

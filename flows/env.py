@@ -3,14 +3,24 @@
 Prefect reads its settings from the environment when it is imported, so these are plain
 `os.environ` defaults: anything the user already set (a real `PREFECT_API_URL`, their own
 `PREFECT_HOME`) wins.
+
+The ephemeral Prefect server is a child process that Prefect stops at interpreter exit. SIGTERM
+is turned into the same exit path as Ctrl-C (`on_sigterm`), and each run leaves a pidfile
+(`$PREFECT_HOME/embody-servers/<pid>.json`) naming its server and itself, so after a SIGKILL
+the next run over the same store finds the orphaned server and stops it (`stop_orphans`).
 """
 
 from __future__ import annotations
 
+import atexit
+import json
 import os
+import signal
+import sys
+import time
 from pathlib import Path
 
-__all__ = ["configure"]
+__all__ = ["configure", "on_sigterm", "register_server", "stop_orphans"]
 
 _DEFAULTS = {
     "DO_NOT_TRACK": "1",
@@ -19,12 +29,109 @@ _DEFAULTS = {
     "PREFECT_LOGGING_LEVEL": "WARNING",
     "PREFECT_LOGGING_INTERNAL_LEVEL": "ERROR",
 }
+_PIDS = "embody-servers"
 
 
 def configure(store_root: str | Path) -> None:
-    """Ephemeral local Prefect, no telemetry, quiet logs, `PREFECT_HOME` inside the store."""
+    """Ephemeral local Prefect, no telemetry, quiet logs, `PREFECT_HOME` inside the store;
+    Prefect servers orphaned by killed runs of this store are stopped first."""
     for name, value in _DEFAULTS.items():
         os.environ.setdefault(name, value)
     home = os.environ.setdefault("PREFECT_HOME",
                                  str(Path(store_root).expanduser().resolve() / "prefect"))
     Path(home).expanduser().mkdir(parents=True, exist_ok=True)  # SQLite will not create it
+    for pid in stop_orphans(home):
+        print(f"stopped an orphaned Prefect server (pid {pid}) left by a killed run",
+              file=sys.stderr)
+
+
+def on_sigterm() -> None:
+    """SIGTERM raises KeyboardInterrupt in the main thread: the same cleanup as Ctrl-C (the
+    ephemeral server is stopped at exit). Only the main thread may install handlers."""
+    def handler(signum: int, frame: object) -> None:
+        raise KeyboardInterrupt(f"signal {signum}")
+    try:
+        signal.signal(signal.SIGTERM, handler)
+    except ValueError:  # not the main thread
+        pass
+
+
+def _alive(pid: int) -> bool:
+    """Running (a zombie waiting for its reaper counts as gone)."""
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return stat.rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
+
+
+def register_server() -> Path | None:
+    """Write the pidfile of this process's ephemeral Prefect server (None when there is none,
+    e.g. with a real `PREFECT_API_URL`); removed again at exit."""
+    home = os.environ.get("PREFECT_HOME")
+    try:
+        from prefect.server.api.server import SubprocessASGIServer
+    except ImportError:
+        return None
+    procs = [s.server_process for s in list(SubprocessASGIServer._instances.values())
+             if getattr(s, "server_process", None) is not None]
+    procs = [p for p in procs if p.poll() is None]
+    if not home or not procs:
+        return None
+    folder = Path(home).expanduser() / _PIDS
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{procs[0].pid}.json"
+    path.write_text(json.dumps({"server": procs[0].pid, "owner": os.getpid(),
+                                "home": str(Path(home).expanduser().resolve()),
+                                "time": time.time()}))
+    atexit.register(lambda: path.unlink(missing_ok=True))
+    return path
+
+
+def _is_prefect_server(pid: int, home: Path) -> bool:
+    """The process is a Prefect uvicorn server of this PREFECT_HOME (guards against pid reuse)."""
+    try:
+        cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return False
+    if b"uvicorn" not in cmd or b"prefect" not in cmd:
+        return False
+    try:
+        env = Path(f"/proc/{pid}/environ").read_bytes().split(b"\0")
+    except OSError:
+        return True  # cmdline matched; environ unreadable
+    return f"PREFECT_HOME={home}".encode() in env or not any(
+        e.startswith(b"PREFECT_HOME=") for e in env)
+
+
+def stop_orphans(home: str | Path, wait_s: float = 5.0) -> list[int]:
+    """Stop the Prefect servers whose owning run is gone; returns their pids."""
+    folder = Path(home).expanduser() / _PIDS
+    if not folder.is_dir():
+        return []
+    stopped = []
+    for path in sorted(folder.glob("*.json")):
+        try:
+            info = json.loads(path.read_text())
+            server, owner = int(info["server"]), int(info["owner"])
+        except (OSError, ValueError, KeyError, TypeError):
+            path.unlink(missing_ok=True)
+            continue
+        if _alive(owner):
+            continue
+        if _alive(server) and _is_prefect_server(server, Path(info.get("home", home))):
+            os.kill(server, signal.SIGTERM)
+            deadline = time.monotonic() + wait_s
+            while _alive(server) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            if _alive(server):
+                os.kill(server, signal.SIGKILL)
+            stopped.append(server)
+        path.unlink(missing_ok=True)
+    return stopped

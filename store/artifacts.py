@@ -29,10 +29,29 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 import zarr
 
-from embody.errors import ConfigError
+from embody.errors import ConfigError, EmbodyError
 from store.keys import arrays_checksum
 
-__all__ = ["Artifact", "ArtifactStore", "jsonable", "package_versions"]
+__all__ = ["Artifact", "ArtifactStore", "CorruptArtifact", "array_digest", "jsonable",
+           "package_versions"]
+
+
+class CorruptArtifact(EmbodyError):
+    """A stored artifact whose bytes no longer match the digests recorded when it was written."""
+
+    def __init__(self, step: str, key: str, problem: str) -> None:
+        self.step, self.key, self.problem = step, key, problem
+        super().__init__(f"corrupt artifact {step}/{key[:12]}: {problem}")
+
+
+def array_digest(a: np.ndarray) -> str:
+    """sha256 of one array (dtype, shape, C-order bytes): checked each time the array is read."""
+    import hashlib
+
+    a = np.ascontiguousarray(a)
+    h = hashlib.sha256(f"{a.dtype.str}|{a.shape}|".encode("utf-8"))
+    h.update(a.tobytes())
+    return h.hexdigest()
 
 _TMP = ".tmp-"
 
@@ -69,6 +88,10 @@ def jsonable(value: Any) -> Any:
             return o.tolist()
         return str(o)
     return json.loads(json.dumps(value, default=default))
+
+
+def _real_dir(path: Path) -> bool:
+    return path.is_dir() and not path.is_symlink()
 
 
 def _pid_alive(pid: int) -> bool:
@@ -115,9 +138,14 @@ class ArtifactStore:
                 arr = group.create_array(name, shape=a.shape, dtype=a.dtype,
                                          chunks=a.shape if a.ndim else (), overwrite=True)
                 arr[...] = a
+            # Chunk files and sizes as written (zarr skips all-fill chunks): `intact` stats them.
+            files = {p.relative_to(tmp).as_posix(): p.stat().st_size
+                     for p in sorted(tmp.rglob("*")) if p.is_file() and p.name != "zarr.json"}
             group.attrs.update(jsonable({
                 "embody": {**info, "step": step, "key": key, "status": "ok",
-                           "checksum": arrays_checksum(arrays), "versions": package_versions(),
+                           "checksum": arrays_checksum(arrays),
+                           "digests": {n: array_digest(a) for n, a in arrays.items()},
+                           "files": files, "versions": package_versions(),
                            "host": socket.gethostname(), "created": time.time()},
                 "result": dict(attrs),
             }))
@@ -136,26 +164,61 @@ class ArtifactStore:
         doc = json.loads((self.path(step, key) / "zarr.json").read_text())
         return doc.get("attributes", {}).get("embody", {})
 
-    def read(self, step: str, key: str) -> Artifact:
-        group = zarr.open_group(str(self.path(step, key)), mode="r")
-        arrays = {name: np.asarray(arr[...]) for name, arr in group.arrays()}
-        attrs = dict(group.attrs)
-        return Artifact(step, key, arrays, attrs.get("result", {}), attrs.get("embody", {}))
+    def intact(self, step: str, key: str) -> bool:
+        """Cheap check (stat only) that every chunk file written is still there, same size.
+
+        What a cache hit checks; `read` then checks each array's digest as it loads it.
+        """
+        try:
+            files = self.info(step, key).get("files")
+        except (OSError, ValueError):
+            return False
+        if files is None:  # written before files were recorded
+            return True
+        root = self.path(step, key)
+        try:
+            return all((root / rel).stat().st_size == size for rel, size in files.items())
+        except OSError:
+            return False
+
+    def read(self, step: str, key: str, check: bool = True) -> Artifact:
+        """The artifact's arrays and attrs; with `check`, CorruptArtifact when any array's
+        bytes differ from its recorded digest (a deleted chunk reads as fill values)."""
+        try:
+            group = zarr.open_group(str(self.path(step, key)), mode="r")
+            arrays = {name: np.asarray(arr[...]) for name, arr in group.arrays()}
+            attrs = dict(group.attrs)
+        except Exception as exc:  # unreadable metadata or chunk
+            if not check:
+                raise
+            raise CorruptArtifact(step, key, f"unreadable: {type(exc).__name__}: {exc}") from None
+        info = attrs.get("embody", {})
+        if check:
+            digests = info.get("digests")
+            if digests is not None:
+                if set(digests) != set(arrays):
+                    raise CorruptArtifact(step, key, "arrays missing or added")
+                for name, a in arrays.items():
+                    if array_digest(a) != digests[name]:
+                        raise CorruptArtifact(step, key, f"array {name!r} does not match its digest")
+            elif info.get("checksum") and arrays_checksum(arrays) != info["checksum"]:
+                raise CorruptArtifact(step, key, "checksum mismatch")
+        return Artifact(step, key, arrays, attrs.get("result", {}), info)
 
     def entries(self) -> Iterator[tuple[str, str, Path]]:
         """Every published artifact as (step, key, path); temps are skipped."""
-        if not self.artifacts_dir.is_dir():
+        if not _real_dir(self.artifacts_dir):
             return
-        for step_dir in sorted(p for p in self.artifacts_dir.iterdir() if p.is_dir()):
-            for prefix in sorted(p for p in step_dir.iterdir() if p.is_dir()):
+        for step_dir in sorted(p for p in self.artifacts_dir.iterdir() if _real_dir(p)):
+            for prefix in sorted(p for p in step_dir.iterdir() if _real_dir(p)):
                 for path in sorted(prefix.iterdir()):
-                    if _TMP not in path.name and (path / "zarr.json").is_file():
+                    if _TMP not in path.name and _real_dir(path) and (path / "zarr.json").is_file():
                         yield step_dir.name, path.name, path
 
     def verify(self, step: str, key: str) -> str | None:
         """Re-hash an artifact's arrays; the problem in one line, or None when intact."""
         try:
-            art = self.read(step, key)
+            art = self.read(step, key, check=False)
         except Exception as exc:  # any unreadable chunk or metadata is corruption
             return f"unreadable: {type(exc).__name__}: {exc}"
         expected = art.info.get("checksum")
@@ -166,14 +229,46 @@ class ArtifactStore:
         return None
 
     def remove(self, step: str, key: str) -> None:
-        shutil.rmtree(self.path(step, key), ignore_errors=True)
+        self.remove_path(self.path(step, key))
+
+    def remove_path(self, path: Path) -> None:
+        """Delete a file or folder of the store; never through a symlink, never outside."""
+        if not self.contains(path):
+            raise ValueError(f"refusing to delete {path}: not inside the store {self.root}")
+        if path.is_dir() and not path.is_symlink():
+            shutil.rmtree(path, ignore_errors=True)
+        else:
+            path.unlink(missing_ok=True)
+
+    def contains(self, path: Path) -> bool:
+        """`path` lies inside the store and no component below the root is a symlink."""
+        path = Path(os.path.abspath(path))
+        try:
+            rel = path.relative_to(self.root)
+        except ValueError:
+            return False
+        probe = self.root
+        for part in rel.parts:
+            probe = probe / part
+            if probe.is_symlink():
+                return False
+        return path.resolve().is_relative_to(self.root)
 
     def stale_temps(self, max_age_s: float = 24 * 3600) -> list[Path]:
-        """Temps of writers that died (same host, PID gone) or are older than `max_age_s`."""
-        if not self.artifacts_dir.is_dir():
-            return []
+        """Temps of writers that died (same host, PID gone) or are older than `max_age_s`:
+        artifact groups and manifest temps (`runs/<run>/.manifest.json.<pid>.tmp`)."""
         host, now, out = socket.gethostname(), time.time(), []
+        if _real_dir(self.runs_dir):
+            for path in self.runs_dir.glob("*/.*.tmp"):
+                pid = path.name.rsplit(".", 2)[-2]
+                dead = not (pid.isdigit() and _pid_alive(int(pid)))
+                if self.contains(path) and (dead or now - path.lstat().st_mtime > max_age_s):
+                    out.append(path)
+        if not _real_dir(self.artifacts_dir):
+            return out
         for path in self.artifacts_dir.glob(f"*/*/*{_TMP}*"):
+            if not self.contains(path):
+                continue
             tag = path.name.split(_TMP, 1)[1]
             t_host, _, rest = tag.rpartition("-")[0].rpartition("-")
             pid = int(rest) if rest.isdigit() else -1

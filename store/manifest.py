@@ -9,20 +9,43 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import time
 from pathlib import Path
 from typing import Any, Iterable
 
+from embody.errors import ConfigError, InputError
 from store.artifacts import ArtifactStore
 
-__all__ = ["Manifest", "load_manifests", "write_json_atomic"]
+__all__ = ["Manifest", "check_run_name", "load_manifests", "write_json_atomic"]
+
+_RUN_NAME = re.compile(r"^[A-Za-z0-9_.-]+$")
+
+
+def check_run_name(name: str, key: str = "run.name") -> str:
+    """A run name that stays one folder under `runs/` and `reports/`, else ConfigError.
+
+    Names become directory names: `.`/`..` (or any all-dot name), separators and anything that
+    resolves elsewhere would write the manifest outside `runs/` or the report into `./`.
+    """
+    if not isinstance(name, str) or not _RUN_NAME.match(name) or set(name) == {"."}:
+        raise ConfigError(key, f"invalid run name {name!r}: use letters, digits, '_', '-' and "
+                          "'.', not only dots")
+    base = Path("/runs")
+    if (base / name).resolve().parent != base:
+        raise ConfigError(key, f"invalid run name {name!r}: it resolves outside runs/")
+    return name
 
 
 def write_json_atomic(path: Path, data: Any) -> None:
+    """Temp + `os.replace`; the temp is removed when the write fails (a full disk leaves none)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    tmp.write_text(json.dumps(data, indent=1, sort_keys=True, default=str))
-    os.replace(tmp, path)
+    try:
+        tmp.write_text(json.dumps(data, indent=1, sort_keys=True, default=str))
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 class Manifest:
@@ -30,7 +53,7 @@ class Manifest:
 
     def __init__(self, store: ArtifactStore, run: str) -> None:
         self.store = store
-        self.run = run
+        self.run = check_run_name(run)
         self.path = store.runs_dir / run / "manifest.json"
         self.data: dict[str, Any] = {"run": run, "created": time.time(), "shared": {},
                                      "sequences": {}}
@@ -38,7 +61,12 @@ class Manifest:
     @classmethod
     def load(cls, store: ArtifactStore, run: str) -> "Manifest":
         m = cls(store, run)
-        m.data = json.loads(m.path.read_text())
+        try:
+            m.data = json.loads(m.path.read_text())
+        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(m.path, None, f"corrupt manifest: {exc}") from None
+        if not isinstance(m.data, dict) or not isinstance(m.data.get("sequences"), dict):
+            raise InputError(m.path, "sequences", "corrupt manifest: no sequences mapping")
         return m
 
     @property
@@ -57,6 +85,9 @@ class Manifest:
         seq = self.sequences[record["id"]]
         seq["steps"].update(record.get("keys", {}))
         seq["metrics"].update(record.get("metrics", {}))
+        for item in record.get("recovered", []):  # corrupt artifacts this run recomputed
+            if item not in seq.setdefault("recovered", []):
+                seq["recovered"].append(item)
         if record.get("status") == "failed":
             seq.update(status="failed", error=record.get("error"), failed_step=record.get("failed_step"))
             if record.get("traceback"):
@@ -76,6 +107,10 @@ class Manifest:
             self.data["finished"] = time.time()
         write_json_atomic(self.path, self.data)
 
+    @property
+    def finished(self) -> bool:
+        return self.data.get("finished") is not None
+
     def keys(self) -> set[tuple[str, str]]:
         """Every (step, key) this run references."""
         out = set(self.data.get("shared", {}).items())
@@ -85,6 +120,7 @@ class Manifest:
 
 
 def load_manifests(store: ArtifactStore) -> list[Manifest]:
+    """Every run's manifest (read only: a symlinked run still protects what it references)."""
     if not store.runs_dir.is_dir():
         return []
     return [Manifest.load(store, p.parent.name) for p in sorted(store.runs_dir.glob("*/manifest.json"))]

@@ -11,7 +11,7 @@ import time
 import traceback
 from typing import Any
 
-from store.artifacts import jsonable
+from store.artifacts import CorruptArtifact, jsonable
 from store.keys import files_key
 from tasks.pipeline import Context, Step
 
@@ -24,8 +24,9 @@ class InjectedFailure(RuntimeError):
 
 
 def new_record(ref: Any) -> dict[str, Any]:
-    return {"id": ref.id, "ref": ref, "status": "ok", "error": None, "failed_step": None,
-            "keys": {}, "metrics": {}, "computed": []}
+    """`ref` is consumed by the source step; `src` stays, so a corrupt source can be redone."""
+    return {"id": ref.id, "ref": ref, "src": ref, "status": "ok", "error": None,
+            "failed_step": None, "keys": {}, "metrics": {}, "computed": []}
 
 
 def source_key(step: Step, ctx: Context, ref: Any) -> str:
@@ -70,8 +71,8 @@ def cached(step: Step, ctx: Context, records: list[dict[str, Any]],
             key, _ = record_key(step, ctx, rec, shared)
         except Exception:  # let the task record the error
             return None
-        if not store.has(step.name, key):
-            return None
+        if not store.has(step.name, key) or not store.intact(step.name, key):
+            return None  # a miss, or a damaged artifact the task recomputes
         rec["keys"][step.name] = key
         rec["metrics"][step.name] = store.info(step.name, key).get("metrics", {})
     for rec in out:
@@ -80,7 +81,7 @@ def cached(step: Step, ctx: Context, records: list[dict[str, Any]],
 
 
 def _compute(step: Step, ctx: Context, key: str, inputs: dict[str, Any], input_keys: dict[str, str],
-             seq_id: str | None) -> dict[str, Any]:
+             seq_id: str | None, reason: str = "miss") -> dict[str, Any]:
     """Compute, publish and count one artifact; returns its metrics."""
     store = ctx.store
     t0 = time.perf_counter()
@@ -91,14 +92,43 @@ def _compute(step: Step, ctx: Context, key: str, inputs: dict[str, Any], input_k
         "inputs": input_keys, "config": step.config(ctx.cfg), "version": step.version,
         "timings": {"compute_s": compute_s}, "run": ctx.run, "sequence": seq_id, "metrics": metrics})
     store.record(step.name, key, sequence=seq_id, run=ctx.run, compute_s=compute_s,
-                 published=published)
+                 published=published, reason=reason)
     return metrics
 
 
-def _load_inputs(step: Step, ctx: Context, input_keys: dict[str, str]) -> dict[str, Any]:
+def _recovered(step_name: str, key: str, problem: str) -> str:
+    return f"{step_name}/{key[:12]}: {problem}"
+
+
+def _load_inputs(step: Step, ctx: Context, input_keys: dict[str, str],
+                 rec: dict[str, Any] | None = None,
+                 shared: dict[str, str] | None = None) -> dict[str, Any]:
+    """Read `step`'s inputs, each array checked against its digest. A corrupt input is a cache
+    miss: it is removed and recomputed from its own inputs (recursively), and `rec` says so."""
     store, out = ctx.store, {}
     for s in step.inputs:
-        art = store.read(s.name, input_keys[s.name])
+        key = input_keys[s.name]
+        try:
+            art = store.read(s.name, key)
+        except CorruptArtifact as exc:
+            if rec is None:
+                raise
+            store.remove(s.name, key)
+            if s.shared:
+                inputs = _load_inputs(s, ctx, _input_keys(s, {}, shared or {}), rec, shared)
+                seq_id = None
+            elif not s.inputs:  # the source step: its files
+                if rec.get("src") is None:
+                    raise
+                inputs, seq_id = {"ref": rec["src"]}, rec["id"]
+            else:
+                inputs = _load_inputs(s, ctx, _input_keys(s, rec["keys"], shared or {}), rec,
+                                      shared)
+                seq_id = rec["id"]
+            _compute(s, ctx, key, inputs, _input_keys(s, rec["keys"], shared or {})
+                     if s.inputs else {}, seq_id, reason="corrupt")
+            rec.setdefault("recovered", []).append(_recovered(s.name, key, exc.problem))
+            art = store.read(s.name, key)
         out[s.name] = s.load(art.arrays, art.attrs)
     return out
 
@@ -118,12 +148,18 @@ def run_batch(step: Step, ctx: Context, records: list[dict[str, Any]],
             if rec["id"] in ctx.cfg.debug.fail_on and step.name == fail_step:
                 raise InjectedFailure(f"debug.fail_on lists {rec['id']!r}")
             key, input_keys = record_key(step, ctx, rec, shared)
+            reason = "miss"
+            if store.has(step.name, key) and not store.intact(step.name, key):
+                store.remove(step.name, key)  # damaged: recompute it like a miss
+                rec.setdefault("recovered", []).append(
+                    _recovered(step.name, key, "chunk files missing or truncated"))
+                reason = "corrupt"
             if store.has(step.name, key):
                 metrics = store.info(step.name, key).get("metrics", {})
             else:
                 inputs = ({"ref": rec["ref"]} if rec.get("ref") is not None
-                          else _load_inputs(step, ctx, input_keys))
-                metrics = _compute(step, ctx, key, inputs, input_keys, rec["id"])
+                          else _load_inputs(step, ctx, input_keys, rec, shared))
+                metrics = _compute(step, ctx, key, inputs, input_keys, rec["id"], reason)
                 rec["computed"].append(step.name)
             rec["keys"][step.name] = key
             rec["metrics"][step.name] = metrics
@@ -142,6 +178,8 @@ def run_shared(step: Step, ctx: Context, shared: dict[str, str]) -> dict[str, An
     try:
         input_keys = _input_keys(step, {}, shared)
         key = ctx.key(step, input_keys)
+        if ctx.store.has(step.name, key) and not ctx.store.intact(step.name, key):
+            ctx.store.remove(step.name, key)
         if ctx.store.has(step.name, key):
             rec["metrics"] = ctx.store.info(step.name, key).get("metrics", {})
         else:

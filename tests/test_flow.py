@@ -200,6 +200,10 @@ def test_killed_run_resumes_without_recomputing(prefect_harness, data, tmp_path)
     assert 2 <= len(store.computations("metrics")) < N_SEQ
     manifest = json.loads((store.runs_dir / "toy" / "manifest.json").read_text())
     assert manifest["finished"] is None  # valid JSON, marked unfinished
+    assert manifest["shared"]["shape_fit"]  # the shared fit is recorded as soon as it exists
+    from embody.cli import main
+    assert main(["store", "gc", "--store", str(tmp_path)]) == 0  # the killed run is live: kept
+    assert done <= {(s, k) for s, k, _ in store.entries()}
 
     summary = _flow(data, _cfg(tmp_path))
     assert summary["ok"] == N_SEQ

@@ -185,7 +185,7 @@ def test_cli_refine_writes_sheet_and_npz(tmp_path, monkeypatch, capsys):
     assert set(report["table"]) == {"IK-only", "refined"}
     assert main(["refine", str(tmp_path / "missing.npz"), str(out)]) == 2
     monkeypatch.delenv("EMBODY_VLM_API_KEY", raising=False)
-    assert main(["refine", str(src), str(out), "--critic", "vlm"]) == 1  # no key: a clear error
+    assert main(["refine", str(src), str(out), "--critic", "vlm"]) == 2  # no key: bad config
     assert "EMBODY_VLM_API_KEY" in capsys.readouterr().err
     assert not os.environ.get("EMBODY_VLM_API_KEY")
     load_config()  # the default config still validates

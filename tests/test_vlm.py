@@ -19,6 +19,7 @@ from embody.config.critic import VLMConfig
 from embody.critic.action import Limits
 from embody.critic.base import CritiqueContext
 from embody.critic.vlm import VLMClient, VLMCritic, VLMError
+from embody.errors import ConfigError
 
 SENTINEL = "sk-SENTINEL-7f3a9c1e-do-not-leak"
 T = 10
@@ -184,7 +185,7 @@ def test_unreachable_endpoint_and_missing_key(monkeypatch, key):
         VLMCritic(cfg).critique(_context())
     _no_sentinel(str(exc.value))
     monkeypatch.delenv("EMBODY_VLM_API_KEY")
-    with pytest.raises(VLMError, match="EMBODY_VLM_API_KEY"):
+    with pytest.raises(ConfigError, match="EMBODY_VLM_API_KEY"):
         VLMClient(cfg)
     VLMClient(cfg.model_copy(update={"api_key_required": False}))  # local servers need none
 

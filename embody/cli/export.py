@@ -24,7 +24,9 @@ def command(run: str, out: str, robot: str, store_root: str, fmt: str, as_json: 
     """
     from embody.report.reader import run_trajectories
     from embody.report.library import export_library
+    from store import check_run_name
 
+    check_run_name(run, "RUN")
     trajectories, failed = run_trajectories(store_root, run, robot)
     library, excluded = export_library(trajectories, out, fmt, failed)  # type: ignore[arg-type]
     if as_json:

@@ -74,8 +74,9 @@ def command(run: str | None, store_root: str, out_dir: str | None, ablation: boo
             max_figures: int, max_sheets: int, as_json: bool) -> int:
     """Write the report of RUN (default: the store's latest run) to reports/RUN/."""
     from embody.report import collect, default_out_dir, latest_run, write_report
+    from store import check_run_name
 
-    run = run or latest_run(store_root)
+    run = check_run_name(run or latest_run(store_root), "RUN")
     data = collect(store_root, run, max_figures=max_figures, max_sheets=max_sheets)
     if ablation:
         data.ablation = run_ablation(store_root, run)

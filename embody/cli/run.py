@@ -29,7 +29,11 @@ def run_options(f):
         click.option("--render/--no-render", default=None,
                      help="Store each sequence's comparison sheet and preview [default: on]."),
         click.option("--robot", default=None, help="Robot definition name (robot.name)."),
-        click.option("--name", default=None, help="Run name [default: from the dataset]."),
+        click.option("--name", default=None,
+                     help="Run name [default: <dataset>[-<split>].<robot>, e.g. "
+                          "synth-n24-s0.unitree_g1_dex3]."),
+        click.option("--overwrite", is_flag=True, default=False,
+                     help="Reuse a run name that holds a run of another robot or dataset."),
         config_options,
     ]):
         f = opt(f)
@@ -53,15 +57,47 @@ def config_from_options(config_files: tuple[str, ...], sets: tuple[str, ...],
     return build_config(config_files, tuple(sets) + tuple(extra))
 
 
-def prepare(dataset: str | None, split: str | None, cfg: Config) -> Path:
-    """Resolve and list the dataset before Prefect starts, so bad input fails fast (exit 2)."""
+def check_store_path(text: str) -> Path:
+    """The store must be a local path whose parent exists: checked before anything is created
+    (a URL would otherwise become a junk `./http:/...` folder)."""
+    from embody.errors import ConfigError
+
+    if "://" in text or text.startswith(("http:", "https:", "file:")):
+        raise ConfigError("run.store", f"the store must be a local path, got {text!r}")
+    path = Path(text).expanduser().absolute()
+    if path.exists() and not path.is_dir():
+        raise ConfigError("run.store", f"{path} exists and is not a directory")
+    if not path.exists() and not path.parent.is_dir():
+        raise ConfigError("run.store", f"the parent folder of {path} does not exist")
+    return path
+
+
+def check_up_front(cfg: Config, dataset: str | None) -> None:
+    """Config that is knowable before the run (exit 2, nothing created): store path, run name,
+    and for the VLM critic its base_url and API key."""
+    from store import check_run_name
+
+    check_store_path(cfg.run.store)
+    if cfg.run.name:
+        check_run_name(cfg.run.name)
+    if cfg.run.critic and cfg.critic.kind == "vlm":
+        from embody.critic.vlm import check_config
+        check_config(cfg.critic.vlm)
+
+
+def prepare(dataset: str | None, split: str | None, cfg: Config, overwrite: bool = False) -> Path:
+    """Validate config and resolve and list the dataset before Prefect starts, so bad input
+    fails fast (exit 2); a reused run name of another robot or dataset is refused."""
     from embody.io import load_dataset
     from flows.env import configure
 
+    check_up_front(cfg, dataset)
     configure(cfg.run.store)
-    from flows.dataset import resolve_dataset
+    from flows.dataset import check_run_reuse, resolve_dataset, run_name
     path = resolve_dataset(dataset, cfg)
     load_dataset(path, split)
+    check_run_reuse(cfg.run.store, run_name(cfg, path, split), path, split, cfg.robot.name,
+                    overwrite)
     return path
 
 
@@ -80,17 +116,28 @@ def _failure_table(summary: dict[str, Any]) -> str:
 @click.option("--progress/--no-progress", default=True, help="Per-stage progress on stderr.")
 @json_option
 def command(dataset: str | None, split: str | None, config_files: tuple[str, ...],
-            sets: tuple[str, ...], progress: bool, as_json: bool, **options: Any) -> int:
+            sets: tuple[str, ...], progress: bool, as_json: bool, overwrite: bool,
+            **options: Any) -> int:
     """Run the pipeline over DATASET (default: the synthetic set in <store>/data).
 
     DATASET is a folder of motion files, a SOKE root (with --split) or a CSV manifest. Reruns
     are cheap: every step is cached by content key, so only what changed is recomputed.
     """
+    import errno
+
+    from flows.env import on_sigterm
+
     cfg = config_from_options(config_files, sets, **options)
-    path = prepare(dataset, split, cfg)
+    path = prepare(dataset, split, cfg, overwrite)
+    on_sigterm()  # SIGTERM cleans up like Ctrl-C: the ephemeral Prefect server is stopped
     from flows.dataset import run_flow
 
-    summary = run_flow(path, cfg, split=split, progress=progress)
+    try:
+        summary = run_flow(path, cfg, split=split, progress=progress)
+    except OSError as exc:  # e.g. the disk filled before any sequence could record it
+        reason = "no space left on device" if exc.errno == errno.ENOSPC else str(exc)
+        click.echo(f"error: the run could not write to the store ({reason})", err=True)
+        return 1
     if as_json:
         emit_json(summary)
     else:
@@ -98,12 +145,19 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
         click.echo(f"run {summary['run']}: {summary['ok']}/{summary['total']} sequences ok"
                    f" in {summary['elapsed_s']:.1f} s (computed: {computed or 'nothing'})")
         click.echo(f"manifest: {summary['manifest']}")
-        click.echo(f"table:    {summary['table']}")
+        if summary.get("table"):
+            click.echo(f"table:    {summary['table']}")
         if summary.get("report"):
             click.echo(f"report:   {summary['report']}")
         if summary.get("report_error"):
             click.echo(f"warning: report not built: {summary['report_error']}", err=True)
+    for item in summary.get("recovered", []):
+        click.echo(f"warning: {item['id']}: recomputed corrupt artifact {item['artifact']}",
+                   err=True)
     if summary["failed"]:
         click.echo(f"{summary['failed']} sequence(s) failed:\n{_failure_table(summary)}", err=True)
+    for error in summary.get("errors", []):
+        click.echo(f"error: {error}", err=True)
+    if summary["failed"] or summary.get("errors"):
         return 1
     return 0

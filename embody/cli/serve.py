@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from embody.cli.run import config_from_options, prepare, run_options
+from embody.cli.run import check_up_front, config_from_options, prepare, run_options
 
 EXPLANATION = """\
 Schedules need a persistent Prefect server: the ephemeral server that `embody run` starts lives
@@ -49,6 +49,7 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
     cfg = config_from_options(config_files, sets, **options)
     from flows.env import configure
 
+    check_up_front(cfg, dataset)  # nothing created for a bad store path or VLM config
     configure(cfg.run.store)  # before Prefect is imported
     from prefect.client.schemas.schedules import CronSchedule
 

@@ -26,7 +26,7 @@ def _open(store_dir: str) -> Any:
 
 
 def _size(path: Path) -> int:
-    return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
+    return sum(p.lstat().st_size for p in path.rglob("*") if p.is_file() and not p.is_symlink())
 
 
 @click.group("store")
@@ -85,38 +85,76 @@ def verify(store_dir: str, as_json: bool) -> int:
     return 1 if corrupt else 0
 
 
+def _duration(text: str) -> float:
+    """Seconds from `90`, `90s`, `30m`, `12h` or `7d`."""
+    import re
+
+    from embody.errors import UsageError
+
+    m = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([smhd]?)\s*", text or "")
+    if not m:
+        raise UsageError(f"--older-than: expected a duration like 90s, 30m, 12h or 7d, got {text!r}")
+    return float(m.group(1)) * {"": 1, "s": 1, "m": 60, "h": 3600, "d": 86400}[m.group(2)]
+
+
 @command.command("gc")
 @_store_option
 @click.option("--dry-run", is_flag=True, help="Only list what would be removed.")
+@click.option("--older-than", "older_than", default=None, metavar="DURATION",
+              help="Treat unfinished runs whose manifest is older than this (e.g. 12h, 7d) as "
+                   "abandoned: only what their manifest records is kept.")
 @json_option
-def gc(store_dir: str, dry_run: bool, as_json: bool) -> int:
-    """Remove artifacts no run manifest references, and temps of dead writers.
+def gc(store_dir: str, dry_run: bool, older_than: str | None, as_json: bool) -> int:
+    """Remove artifacts no run references, and temps of dead writers.
 
-    Do not run it while a run is in progress: its newest artifacts are not in a manifest yet.
+    A run without a `finished` stamp (in progress, or killed) is live: every artifact it
+    computed is kept, recorded in its manifest or not, unless `--older-than` says it is
+    abandoned. Symlinks are never followed out of the store.
     """
+    import time
+
     from store import load_manifests
 
     store = _open(store_dir)
+    max_age = _duration(older_than) if older_than is not None else None
     referenced: set[tuple[str, str]] = set()
+    live: list[str] = []
     for m in load_manifests(store):
         referenced |= m.keys()
+        if not m.finished:
+            age = time.time() - m.path.stat().st_mtime
+            if max_age is None or age < max_age:
+                live.append(m.run)
+
+    def owned_by_live_run(step: str, key: str) -> bool:
+        if not live:
+            return False
+        try:
+            return store.info(step, key).get("run") in live
+        except (OSError, ValueError):
+            return True  # unreadable: not ours to judge here (`store verify` reports it)
+
     doomed = [(step, key, path) for step, key, path in store.entries()
-              if (step, key) not in referenced]
+              if (step, key) not in referenced and not owned_by_live_run(step, key)]
     temps = store.stale_temps()
-    freed = sum(_size(p) for _, _, p in doomed) + sum(_size(p) for p in temps)
+    freed = sum(_size(p) for _, _, p in doomed) + sum(_size(p) if p.is_dir() else p.stat().st_size
+                                                       for p in temps)
     if not dry_run:
         for _step, _key, path in doomed:
-            shutil.rmtree(path, ignore_errors=True)
+            store.remove_path(path)
         for path in temps:
-            shutil.rmtree(path, ignore_errors=True)
+            store.remove_path(path)
     removed = [{"step": s, "key": k} for s, k, _ in doomed]
     if as_json:
         emit_json({"dry_run": dry_run, "removed": removed, "temps": [str(p) for p in temps],
-                   "kept": len(referenced), "bytes": freed})
+                   "kept": len(referenced), "live_runs": live, "bytes": freed})
     else:
         verb = "would remove" if dry_run else "removed"
         for r in removed:
             click.echo(f"{verb} {r['step']}/{r['key']}")
+        for run in live:
+            click.echo(f"kept every artifact of unfinished run {run} "
+                       "(in progress or killed; --older-than overrides)")
         click.echo(f"{verb} {len(removed)} artifacts and {len(temps)} stale temps "
                    f"({freed / 1e6:.2f} MB); {len(referenced)} referenced")
     return 0

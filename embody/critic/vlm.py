@@ -7,6 +7,11 @@ timeouts, refused connections) are retried with exponential backoff, honouring `
 a per-client request budget caps a run. Every exchange is recorded with images replaced by their
 sha256, and the API key is scrubbed from anything recorded or raised: it lives only in the
 Authorization header.
+
+Key hygiene: the key is stripped and validated when the client is built (a key read from a
+secret file often ends in a newline, and `http.client` would echo `Bearer <key>` in its
+error); every exception leaving `chat` is re-raised as a scrubbed `VLMError`; redirects are
+refused, so the Authorization header never travels to another host or scheme.
 """
 
 from __future__ import annotations
@@ -47,6 +52,51 @@ def default_prompt_path() -> Path:
     return configs_dir() / "critic" / "prompt.md"
 
 
+class _NoRedirect(urllib.request.HTTPRedirectHandler):
+    """Refuse every redirect: urllib would forward `Authorization` to the new location."""
+
+    def redirect_request(self, req, fp, code, msg, headers, newurl):  # noqa: ANN001
+        return None  # urllib then raises the 3xx as an HTTPError
+
+
+_OPENER = urllib.request.build_opener(_NoRedirect)
+
+
+def api_key(cfg: VLMConfig) -> str | None:
+    """The API key from `cfg.api_key_env`, stripped; ConfigError (naming the variable, never the
+    value) when it is missing but required, or not a printable single-line token."""
+    raw = os.environ.get(cfg.api_key_env)
+    key = raw.strip() if raw is not None else None
+    if not key:
+        if cfg.api_key_required:
+            raise ConfigError("critic.vlm.api_key_env",
+                              f"VLM API key missing: set the environment variable {cfg.api_key_env} "
+                              "(or critic.vlm.api_key_required=false for a local server)")
+        return None
+    if any(not (0x21 <= ord(c) <= 0x7E) for c in key):
+        raise ConfigError("critic.vlm.api_key_env",
+                          f"the key in {cfg.api_key_env} contains spaces, control or non-ASCII "
+                          "characters (check the secret file)")
+    return key
+
+
+def check_base_url(cfg: VLMConfig) -> str:
+    """`base_url` must be http(s) with a host; ConfigError otherwise (file://, ftp://, ...)."""
+    from urllib.parse import urlsplit
+
+    parts = urlsplit(cfg.base_url)
+    if parts.scheme not in ("http", "https") or not parts.hostname:
+        raise ConfigError("critic.vlm.base_url",
+                          f"must be an http(s) URL with a host, got {cfg.base_url!r}")
+    return cfg.base_url
+
+
+def check_config(cfg: VLMConfig) -> None:
+    """What `VLMClient` would refuse, checked before a run starts (exit 2, nothing written)."""
+    check_base_url(cfg)
+    api_key(cfg)
+
+
 class VLMClient:
     """Chat Completions over `urllib`; one instance per run so the request budget is per run."""
 
@@ -54,19 +104,31 @@ class VLMClient:
         self.cfg = cfg
         self.requests_sent = 0
         self._sleep = sleep
-        self._key = os.environ.get(cfg.api_key_env) or None
-        if self._key is None and cfg.api_key_required:
-            raise VLMError(f"VLM API key missing: set the environment variable {cfg.api_key_env} "
-                           "(or critic.vlm.api_key_required=false for a local server)")
-        if not cfg.base_url.startswith(("http://", "https://")):
-            raise ConfigError("critic.vlm.base_url", f"must be an http(s) URL, got {cfg.base_url!r}")
+        check_base_url(cfg)
+        self._raw = os.environ.get(cfg.api_key_env) or None
+        self._key = api_key(cfg)
 
     def scrub(self, text: str) -> str:
-        """The text with the API key (if any) replaced: for everything recorded or raised."""
-        return text.replace(self._key, "***") if self._key else text
+        """The text with the API key (if any, raw or stripped) replaced: for everything
+        recorded or raised."""
+        for secret in (self._raw, self._key, self._raw.strip() if self._raw else None):
+            if secret:
+                text = text.replace(secret, "***")
+        return text
 
     def chat(self, payload: dict[str, Any]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
-        """POST /chat/completions; returns the reply JSON and one record per attempt."""
+        """POST /chat/completions; returns the reply JSON and one record per attempt.
+
+        Whatever goes wrong, what leaves is a `VLMError` whose text has the key scrubbed.
+        """
+        try:
+            return self._chat(payload)
+        except VLMError as exc:
+            raise VLMError(self.scrub(str(exc))) from None
+        except Exception as exc:
+            raise VLMError(self.scrub(f"VLM request failed: {type(exc).__name__}: {exc}")) from None
+
+    def _chat(self, payload: dict[str, Any]) -> tuple[dict[str, Any], list[dict[str, Any]]]:
         url = self.cfg.base_url.rstrip("/") + "/chat/completions"
         body = json.dumps(payload).encode()
         headers = {"Content-Type": "application/json", "Accept": "application/json"}
@@ -80,7 +142,7 @@ class VLMClient:
             retry_after: float | None = None
             try:
                 req = urllib.request.Request(url, data=body, headers=headers, method="POST")
-                with urllib.request.urlopen(req, timeout=self.cfg.timeout_s) as resp:
+                with _OPENER.open(req, timeout=self.cfg.timeout_s) as resp:
                     text = resp.read().decode("utf-8", errors="replace")
                 attempts.append({"status": resp.status})
                 try:
@@ -91,6 +153,10 @@ class VLMClient:
             except urllib.error.HTTPError as exc:
                 detail = self.scrub(exc.read().decode("utf-8", errors="replace")[:300])
                 attempts.append({"status": exc.code, "error": detail})
+                if 300 <= exc.code < 400:
+                    raise VLMError(f"VLM endpoint {url} answered a redirect (HTTP {exc.code}); "
+                                   "redirects are refused so the API key stays with "
+                                   "critic.vlm.base_url: set base_url to the final URL") from None
                 if exc.code not in _RETRY_STATUS:
                     raise VLMError(f"VLM endpoint {url} answered HTTP {exc.code}: {detail}") from None
                 retry_after = _retry_after(exc.headers.get("Retry-After"))

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import json
-import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,12 +27,44 @@ class ReportPaths:
 
 def default_out_dir(run_name: str) -> Path:
     """`./reports/<run>` relative to the working directory, like the store's default."""
-    return Path("reports") / run_name
+    from store.manifest import check_run_name
+
+    return Path("reports") / check_run_name(run_name, "RUN")
+
+
+#: What a report wrote into its folder: the next report there deletes exactly these files.
+_RECORD = ".embody-report.json"
+
+
+def _forget_previous(out_dir: Path) -> None:
+    """Delete the files an earlier report wrote here (no stale figures), and nothing else:
+    files it did not record, symlinks and anything outside `out_dir` are left alone."""
+    try:
+        files = json.loads((out_dir / _RECORD).read_text()).get("files", [])
+    except (OSError, ValueError, AttributeError):
+        return
+    root = out_dir.resolve()
+    dirs = set()
+    for rel in files if isinstance(files, list) else []:
+        path = out_dir / str(rel)
+        if path.is_symlink() or not path.is_file() or not path.resolve().is_relative_to(root):
+            continue
+        path.unlink()
+        dirs.update(d for d in path.parents if d.resolve().is_relative_to(root) and d != out_dir)
+    for d in sorted(dirs, key=lambda d: len(d.parts), reverse=True):
+        try:
+            d.rmdir()  # only when empty
+        except OSError:
+            pass
+
+
+def _remember(out_dir: Path, paths: list[Path]) -> None:
+    rel = sorted({Path(p).relative_to(out_dir).as_posix() for p in paths})
+    (out_dir / _RECORD).write_text(json.dumps({"files": rel}, indent=1) + "\n")
 
 
 def _figures(data: RunData, out_dir: Path) -> dict[str, list[Path]]:
     fig_dir = out_dir / "figures"
-    shutil.rmtree(fig_dir, ignore_errors=True)  # ours: no stale figures of an earlier report
     out: dict[str, list[Path]] = {"Collision": [], "Wrist trajectories": [],
                                   "Critic comparison sheets": []}
     if len(data.collision):
@@ -66,6 +97,7 @@ def write_report(data: RunData, out_dir: str | Path) -> ReportPaths:
     """Write every report file for `data` under `out_dir` (created if needed)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
+    _forget_previous(out_dir)
     tables: dict[str, Table] = {}
     if len(data.collision) or data.ablation:
         tables["table1_collision"] = assemble.table1(data)
@@ -87,5 +119,8 @@ def write_report(data: RunData, out_dir: str | Path) -> ReportPaths:
                          figures=figs, summary=summary,
                          files=[sequences, summary_path, *previews],
                          failures=data.failures)
+    _remember(out_dir, [index, sequences, summary_path, *previews,
+                        *(p for files in written.values() for p in files.values()),
+                        *(p for ps in figs.values() for p in ps)])
     return ReportPaths(out_dir=out_dir, index=index, summary=summary_path, sequences=sequences,
                        tables=written, figures=[p for ps in figs.values() for p in ps])

@@ -28,10 +28,10 @@ RETARGET, REFINE, RENDER = "retarget", "refine", "render"
 def open_run(store_root: str | Path, run: str) -> tuple[Any, Any]:
     """(ArtifactStore, Manifest) of `run`; InputError naming the known runs when it is absent."""
     from store.artifacts import ArtifactStore
-    from store.manifest import Manifest
+    from store.manifest import Manifest, check_run_name
 
     store = ArtifactStore(store_root)
-    path = store.runs_dir / run / "manifest.json"
+    path = store.runs_dir / check_run_name(run, "RUN") / "manifest.json"
     if not path.is_file():
         runs = sorted(p.parent.name for p in store.runs_dir.glob("*/manifest.json"))
         known = ", ".join(runs) or "none"

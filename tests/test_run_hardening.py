@@ -1,0 +1,274 @@
+"""Hostile or broken runs (issue 10) through the real flow: the VLM key never leaks, corrupt
+artifacts are recomputed and reported, a full disk ends with a summary, killed runs leave no
+Prefect server behind."""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import pathlib
+import signal
+import subprocess
+import sys
+import threading
+import time
+from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
+from pathlib import Path
+
+import pytest
+
+from embody.cli import main
+from store import ArtifactStore, Manifest
+
+SECRET = "sk-LEAKCHECK-4b1d9e-do-not-leak"
+
+
+class Endpoint:
+    """A real HTTP server on 127.0.0.1: `redirect_to` answers 307 there, else a 200 reply."""
+
+    def __init__(self, redirect_to: str | None = None):
+        self.requests: list[dict] = []
+        outer = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self):  # noqa: N802 - http.server API
+                self.rfile.read(int(self.headers.get("Content-Length", 0)))
+                outer.requests.append({"path": self.path, "headers": dict(self.headers)})
+                if redirect_to:
+                    self.send_response(307)
+                    self.send_header("Location", redirect_to + self.path)
+                    self.send_header("Content-Length", "0")
+                    self.end_headers()
+                    return
+                body = json.dumps({"choices": [{"message": {"content": json.dumps(
+                    {"primitives_positions": [], "primitives_orientation": [],
+                     "verdict": "accept", "reason": "ok"})}}]}).encode()
+                self.send_response(200)
+                self.send_header("Content-Type", "application/json")
+                self.send_header("Content-Length", str(len(body)))
+                self.end_headers()
+                self.wfile.write(body)
+
+            def log_message(self, *args):
+                pass
+
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.httpd.daemon_threads = True
+        threading.Thread(target=self.httpd.serve_forever, daemon=True).start()
+        self.origin = f"http://127.0.0.1:{self.httpd.server_address[1]}"
+
+    def close(self):
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+def test_client_strips_the_key_and_refuses_redirects(monkeypatch):
+    from embody.config.critic import VLMConfig
+    from embody.critic.vlm import VLMClient, VLMError
+
+    target, hop = Endpoint(), None
+    try:
+        hop = Endpoint(redirect_to=target.origin)
+        monkeypatch.setenv("EMBODY_VLM_API_KEY", SECRET + "\n")  # as read from a secret file
+        ok = VLMClient(VLMConfig(base_url=target.origin + "/v1", max_retries=0))
+        reply, _ = ok.chat({"model": "m", "messages": []})
+        assert reply["choices"]
+        assert target.requests[-1]["headers"]["Authorization"] == f"Bearer {SECRET}"
+        n = len(target.requests)
+        client = VLMClient(VLMConfig(base_url=hop.origin + "/v1", max_retries=0))
+        with pytest.raises(VLMError, match="redirect") as exc:
+            client.chat({"model": "m", "messages": []})
+        assert SECRET not in str(exc.value)
+        assert len(hop.requests) == 1 and len(target.requests) == n  # never followed
+    finally:
+        target.close()
+        if hop:
+            hop.close()
+
+
+#: The real steps, made cheap (as tests/test_cli_run.py).
+CHEAP = ["--set", "collision.enabled=false", "--set", "ik.iterations=1",
+         "--set", "ik.shape_iterations=10", "--set", "critic.rounds=1",
+         "--set", "render.width=64", "--set", "render.height=48", "--set", "render.keyframes=2",
+         "--set", "render.preview_format=gif", "--set", "render.preview_max_frames=2"]
+
+
+def test_vlm_key_never_reaches_manifest_tables_report_or_stderr(prefect_harness, tmp_path,
+                                                                 monkeypatch, capsys):
+    from test_flow import write_amass
+
+    monkeypatch.chdir(tmp_path)
+    data = write_amass(tmp_path / "data", 1, frames=4)
+    other_host = Endpoint()  # another port: where the redirect points
+    hop = Endpoint(redirect_to=other_host.origin)
+    try:
+        monkeypatch.setenv("EMBODY_VLM_API_KEY", SECRET + "\n")
+        code = main(["run", str(data), "--store", str(tmp_path / "store"), "--name", "vlm",
+                     "--critic", "vlm", "--set", f"critic.vlm.base_url={hop.origin}/v1",
+                     "--set", "critic.vlm.max_retries=0", *CHEAP])
+        out = capsys.readouterr()
+    finally:
+        hop.close()
+        other_host.close()
+    assert code == 1, out.err
+    assert hop.requests and hop.requests[0]["headers"]["Authorization"] == f"Bearer {SECRET}"
+    assert other_host.requests == []  # the key never travelled to the redirect target
+    run_dir = tmp_path / "store" / "runs" / "vlm"
+    manifest = (run_dir / "manifest.json").read_text()
+    assert "redirect" in manifest
+    texts = {"manifest": manifest, "sequences.csv": (run_dir / "sequences.csv").read_text(),
+             "stderr": out.err, "stdout": out.out}
+    for path in (tmp_path / "reports" / "vlm").rglob("*"):
+        if path.is_file() and path.suffix in (".html", ".csv", ".json", ".md"):
+            texts[str(path)] = path.read_text()
+    assert any(name.endswith("index.html") for name in texts)
+    for name, text in texts.items():
+        assert SECRET not in text, name
+
+
+# -- corrupt artifacts and a full disk on the toy pipeline ---------------------------------------------
+@pytest.fixture
+def toy(tmp_path, monkeypatch):
+    from test_flow import write_amass
+
+    monkeypatch.chdir(tmp_path)
+    return write_amass(tmp_path / "data", 3)
+
+
+def _flow(data, store: Path):
+    from flows.dataset import run_flow
+    from test_flow import TOY, _cfg
+
+    return run_flow(data, _cfg(store), pipeline=TOY)
+
+
+def test_a_corrupt_artifact_is_recomputed_and_the_run_says_so(prefect_harness, toy, tmp_path):
+    store = ArtifactStore(tmp_path / "store")
+    first = _flow(toy, store.root)
+    assert first["ok"] == 3 and first["recovered"] == []
+    key = Manifest.load(store, "toy").sequences["seq001"]["steps"]["collide"]
+    chunk = next(p for p in store.path("collide", key).rglob("*")
+                 if p.is_file() and p.name != "zarr.json")
+    chunk.unlink()  # zarr would hand out its fill value (zeros) for the pose
+    again = _flow(toy, store.root)
+    assert again["ok"] == 3
+    assert again["computed"]["collide"] == 1
+    assert [r["id"] for r in again["recovered"]] == ["seq001"]
+    assert "collide/" in again["recovered"][0]["artifact"]
+    assert store.verify("collide", key) is None
+    assert Manifest.load(store, "toy").sequences["seq001"]["recovered"]
+
+
+def test_full_disk_at_the_end_gives_a_summary_not_a_traceback(prefect_harness, toy, tmp_path,
+                                                              monkeypatch):
+    real = pathlib.Path.write_text
+
+    def full_when_finishing(self, text, *a, **kw):
+        if self.name.startswith(".manifest.json") and '"finished": null' not in text:
+            real(self, text[:10], *a, **kw)
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, text, *a, **kw)
+
+    monkeypatch.setattr(pathlib.Path, "write_text", full_when_finishing)
+    summary = _flow(toy, tmp_path / "store")
+    monkeypatch.undo()
+    assert summary["errors"] and "no space left" in summary["errors"][0]
+    assert summary["ok"] == 3 and summary["table"] is None
+    run_dir = tmp_path / "store" / "runs" / "toy"
+    assert list(run_dir.glob(".*.tmp")) == []
+    assert json.loads((run_dir / "manifest.json").read_text())["finished"] is None
+
+
+# -- killed runs and the ephemeral Prefect server -------------------------------------------------------
+_RUN = """
+import sys
+sys.path.insert(0, sys.argv[1])
+from flows.env import configure, on_sigterm
+configure(sys.argv[3])
+on_sigterm()
+from test_flow import TOY, _cfg
+from flows.dataset import run_flow
+from pathlib import Path
+run_flow(sys.argv[2], _cfg(Path(sys.argv[3]), workers=1, batch_size=1), pipeline=TOY)
+"""
+
+
+def _alive(pid: int) -> bool:
+    from flows.env import _alive as alive
+    return alive(pid)
+
+
+def _start(data: Path, store: Path) -> tuple[subprocess.Popen, int, Path]:
+    env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_API_URL", "PREFECT_HOME")}
+    env.update(TOY_SLOW="1.0", PYTHONPATH=os.pathsep.join(sys.path))
+    proc = subprocess.Popen([sys.executable, "-c", _RUN, str(Path(__file__).parent), str(data),
+                             str(store)], env=env, stderr=subprocess.PIPE, text=True)
+    folder = store / "prefect" / "embody-servers"
+    deadline = time.monotonic() + 150
+    while time.monotonic() < deadline:
+        files = list(folder.glob("*.json")) if folder.is_dir() else []
+        if files:
+            return proc, json.loads(files[0].read_text())["server"], files[0]
+        assert proc.poll() is None, proc.stderr.read()
+        time.sleep(0.1)
+    proc.kill()
+    raise AssertionError("the run never started its Prefect server")
+
+
+def test_sigterm_stops_the_prefect_server(toy, tmp_path):
+    proc, server, pidfile = _start(toy, tmp_path / "store")
+    assert _alive(server)
+    os.kill(proc.pid, signal.SIGTERM)
+    try:
+        proc.wait(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    deadline = time.monotonic() + 10
+    while _alive(server) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    alive = _alive(server)
+    if alive:
+        os.kill(server, signal.SIGKILL)
+    assert not alive, "SIGTERM left the Prefect server running"
+    assert not pidfile.exists()
+
+
+def _process(*argv: str, home: Path) -> subprocess.Popen:
+    env = dict(os.environ, PREFECT_HOME=str(home))
+    return subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)", *argv], env=env)
+
+
+def test_the_next_run_stops_servers_orphaned_by_sigkill(tmp_path, monkeypatch, capsys):
+    """What a SIGKILLed run leaves: its pidfile and a live server whose owner is gone. The
+    server here is a process with a Prefect server's command line under the store's home."""
+    from flows.env import configure
+
+    store = tmp_path / "store"
+    home = (store / "prefect").resolve()
+    folder = home / "embody-servers"
+    folder.mkdir(parents=True)
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()  # a dead owner
+    server_args = ("-m", "uvicorn", "--factory", "prefect.server.api.server:create_app")
+    orphan = _process(*server_args, home=home)
+    owned = _process(*server_args, home=home)  # its run is still alive (this process)
+    stranger = _process("not-a-server", home=home)  # pid reuse: not a Prefect server
+    procs = (orphan, owned, stranger)
+    try:
+        for proc, owner in ((orphan, gone.pid), (owned, os.getpid()), (stranger, gone.pid)):
+            (folder / f"{proc.pid}.json").write_text(json.dumps(
+                {"server": proc.pid, "owner": owner, "home": str(home)}))
+        time.sleep(0.3)  # let each exec so /proc shows its command line
+        monkeypatch.setenv("PREFECT_HOME", str(home))
+        configure(store)  # the first thing every run does
+        assert f"pid {orphan.pid}" in capsys.readouterr().err
+        assert orphan.wait(timeout=10) is not None
+        assert owned.poll() is None and stranger.poll() is None
+        assert sorted(p.name for p in folder.iterdir()) == [f"{owned.pid}.json"]
+    finally:
+        for proc in procs:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
