@@ -8,7 +8,7 @@ from typing import Any
 
 import click
 
-from embody.cli.common import build_config, config_options, emit_json, json_option
+from embody.cli.common import build_config, config_options, emit_json, input_options, json_option
 from embody.config import Config
 
 
@@ -30,6 +30,7 @@ def run_options(f):
                      help="Store each sequence's comparison sheet and preview [default: on]."),
         click.option("--robot", default=None, help="Robot definition name (robot.name)."),
         click.option("--name", default=None, help="Run name [default: from the dataset]."),
+        input_options,
         config_options,
     ]):
         f = opt(f)
@@ -42,7 +43,8 @@ def config_from_options(config_files: tuple[str, ...], sets: tuple[str, ...],
     keys = {"store": "run.store", "limit": "run.limit", "workers": "run.workers",
             "runner": "run.runner", "dask_address": "run.dask_address",
             "batch_size": "run.batch_size", "robot": "robot.name", "name": "run.name",
-            "render": "run.render"}
+            "render": "run.render", "fps": "io.fps", "up_axis": "io.up_axis",
+            "hands": "io.hands"}
     extra = [f"{keys[k]}={json.dumps(v)}" for k, v in options.items()
              if k in keys and v is not None]
     critic = options.get("critic")
