@@ -38,10 +38,12 @@ _LAST_NUMBER = re.compile(r"(\d+)(?!.*\d)")
 #   reads `{name}_{frame}_3D.pkl` and subsamples every clip faster than 24 fps to 24 fps
 #   (`if fps > 24: frame_list = sample(frame_list, count=int(24*len(frame_list)/fps))`), so SOKE's
 #   How2Sign data is 24 fps. Raw release frames of a faster clip need `--fps`.
-# - Phoenix-2014T: the RWTH-PHOENIX-Weather 2014 T videos are 25 fps (SOKE's `load_phoenix_sample`
-#   keeps every frame, no resampling).
-# - CSL-Daily: its videos are 30 fps (the CSL-Daily data notes, e.g. Lceoliu/slr_new
-#   CSL-Daily_README.md: "帧率为 30fps"); SOKE's `load_csl_sample` keeps every frame.
+# - Phoenix-2014T: "All recorded videos are at 25 frames per second" (RWTH i6's RWTH-PHOENIX-Weather
+#   database page, www-i6.informatik.rwth-aachen.de .../rwth-phoenix/); SOKE's
+#   `load_phoenix_sample` keeps every frame, no resampling.
+# - CSL-Daily: its videos are 30 fps (a CSL-Daily data description, Lceoliu/slr_new
+#   CSL-Daily_README.md: "帧率为 30fps"; the official CSL-Daily page was not reachable to check);
+#   SOKE's `load_csl_sample` keeps every frame, no resampling.
 HOW2SIGN_FPS = Setting(24.0, "default: How2Sign frame naming; SOKE resamples How2Sign to 24 fps")
 PHOENIX_FPS = Setting(25.0, "default: Phoenix-2014T frame naming; its video is 25 fps")
 CSL_DAILY_FPS = Setting(30.0, "default: per-frame folder without a known naming; "
