@@ -11,6 +11,7 @@ import torch
 from embody.body import load_body_model
 from embody.config import load_config
 from embody.config.render import RenderConfig
+from embody.render import SceneRenderer
 from embody.render.compare import open_renderer
 from embody.render.framing import project
 from embody.retarget import shape_fit
@@ -43,14 +44,9 @@ def _poses(robot) -> dict[str, np.ndarray]:
 
 
 @pytest.fixture(scope="module")
-def setups():
+def robots():
     cfg = load_config()
-    body = load_body_model(cfg.body)
-    out = {}
-    for name in ROBOTS:
-        robot = load_robot(cfg.robot.model_copy(update={"name": name}))
-        out[name] = (robot, body, shape_fit(robot, body, cfg.ik))
-    return out
+    return {name: load_robot(cfg.robot.model_copy(update={"name": name})) for name in ROBOTS}
 
 
 def _image_points(renderer, robot, q: np.ndarray, view: str, links: list[str]) -> np.ndarray:
@@ -64,13 +60,13 @@ def _image_points(renderer, robot, q: np.ndarray, view: str, links: list[str]) -
 
 
 @pytest.mark.parametrize("name", ROBOTS)
-def test_light_robot_contrasts_with_the_background(setups, name):
-    robot, body, fit = setups[name]
+def test_light_robot_contrasts_with_the_background(robots, name):
+    robot = robots[name]
     cfg = RenderConfig()  # the default: 320×240, light robot, neutral light background
     assert (cfg.width, cfg.height) == (320, 240) and cfg.views == ["front", "side"]
     bg_luma = _background(cfg) @ LUMA
     assert bg_luma > 140  # a light background, not the old black
-    renderer = open_renderer(robot, body, fit, cfg)
+    renderer = SceneRenderer(robot, cfg, torso_body=robot.spec.torso_body)
     try:
         for view in cfg.views:
             img = renderer.robot_frames(robot.rest[None], view)[0]
@@ -91,8 +87,11 @@ def test_light_robot_contrasts_with_the_background(setups, name):
 
 
 @pytest.mark.parametrize("name", ROBOTS)
-def test_framing_holds_head_and_hands_of_robot_and_human(setups, name):
-    robot, body, fit = setups[name]
+def test_framing_holds_head_and_hands_of_robot_and_human(robots, name):
+    robot = robots[name]
+    cfg0 = load_config()
+    body = load_body_model(cfg0.body)
+    fit = shape_fit(robot, body, cfg0.ik)
     cfg = RenderConfig(width=160, height=120, preview_format="none")  # framing depends on aspect only
     renderer = open_renderer(robot, body, fit, cfg)
     try:
