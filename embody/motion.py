@@ -43,6 +43,9 @@ class MotionSource:
     path: str = ""
     format: str = "unknown"
     hand_convention: HandConvention = "absolute"
+    #: Where the source's fps, up axis and hand convention came from (`embody.io.conventions`):
+    #: `{"fps"|"up_axis"|"hands": {"value": ..., "origin": "..."}}`.
+    provenance: dict[str, Any] = field(default_factory=dict, compare=False, hash=False)
 
 
 @dataclass
@@ -113,7 +116,8 @@ class Motion:
     def to_attrs(self) -> dict[str, Any]:
         return {"fps": self.fps, "gender": self.gender, "up_axis": self.up_axis,
                 "source": {"path": self.source.path, "format": self.source.format,
-                           "hand_convention": self.source.hand_convention},
+                           "hand_convention": self.source.hand_convention,
+                           "provenance": self.source.provenance},
                 "meta": self.meta}
 
     @classmethod

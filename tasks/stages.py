@@ -44,7 +44,9 @@ def _robot_files(cfg: Any) -> list[Path]:
 
 
 def _load_source(ctx: Context, inputs: dict[str, Any]) -> Motion:
-    return inputs["ref"].load()
+    """The sequence with the `io` overrides (fps, up axis, hands) applied; `io` is in its key."""
+    io = ctx.cfg.io
+    return inputs["ref"].load(fps=io.fps, up_axis=io.up_axis, hands=io.hands)
 
 
 def _source_metrics(motion: Motion) -> dict[str, Any]:
@@ -140,7 +142,8 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
                     **validation_counts(ctx.robot, q, ik.fps)})
 
 
-SOURCE = Step("source", "1", (), _load_source, Motion.from_arrays, metrics=_source_metrics)
+# v2: per-dataset default frame rates, detected up axis / hands (BEAT2), `io` overrides.
+SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=_source_metrics)
 COLLIDE = Step("collide", "1", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)

@@ -164,22 +164,21 @@ def test_report_files_and_page(run) -> None:
     previews = sorted(p.name for p in (report / "figures" / "previews").iterdir())
     assert previews == ["seq0.gif", "seq1.gif"]  # the render stage's, linked from the page
     assert all(f"figures/previews/{p}" in html for p in previews)
-    from test_report_html import CHROMIUM, check_report_page
-    if CHROMIUM is None:
-        pytest.skip("chromium not installed (CI: apt-get install -y chromium)")
+    from conftest import CHROMIUM_INSTALL, require_tool
+    from test_report_html import check_report_page
+    require_tool(("chromium", "chromium-browser"), CHROMIUM_INSTALL)
     attrs = check_report_page(report / "index.html", run["tmp"],
                               {"table1_collision", "table2_ablation", "table3_retargeting"})
     assert int(attrs["images"]) == len(figures)
 
 
-@pytest.mark.skipif(shutil.which("pdflatex") is None, reason="pdflatex not installed")
-def test_tex_tables_compile(run, tmp_path) -> None:
+def test_tex_tables_compile(run, pdflatex, tmp_path) -> None:
     for name in ("table1_collision", "table2_ablation", "table3_retargeting"):
         shutil.copy(run["report"] / f"{name}.tex", tmp_path)
     (tmp_path / "doc.tex").write_text(
         "\\documentclass{article}\\usepackage{booktabs}\\begin{document}"
         "\\input{table1_collision.tex}\\input{table2_ablation.tex}\\input{table3_retargeting.tex}\\end{document}\n")
-    proc = subprocess.run(["pdflatex", "-interaction=nonstopmode", "-halt-on-error", "doc.tex"],
+    proc = subprocess.run([pdflatex, "-interaction=nonstopmode", "-halt-on-error", "doc.tex"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout[-3000:]
 

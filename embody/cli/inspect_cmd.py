@@ -8,7 +8,8 @@ from typing import Any
 
 import click
 
-from embody.cli.common import emit_json, json_option
+from embody.cli.common import (build_config, config_options, emit_json, input_options, input_sets,
+                               json_option, load_input)
 
 
 def _artifact_line(art: dict) -> str:
@@ -36,6 +37,12 @@ def _echo_motion(info: dict[str, Any]) -> None:
     click.echo(f"  frames           {info['frames']} @ {info['fps']:g} fps ({info['duration_s']:.2f} s)")
     converted = ", converted to absolute" if info["hand_convention"] == "relative" else ""
     click.echo(f"  hand convention  {info['hand_convention']} in source{converted}")
+    for name in ("fps", "up_axis", "hands"):
+        item = info.get("provenance", {}).get(name)
+        if item:
+            label = {"fps": "fps from", "up_axis": "up axis", "hands": "hands from"}[name]
+            value = f"{item['value']:g}" if isinstance(item["value"], float) else item["value"]
+            click.echo(f"  {label:<16} {value}: {item['origin']}")
     click.echo(f"  gender           {info['gender']}")
     click.echo("  joint ranges (angle, deg):")
     for name, r in info["joint_ranges"].items():
@@ -52,17 +59,20 @@ def _echo_motion(info: dict[str, Any]) -> None:
 
 @click.command("inspect")
 @click.argument("path", type=click.Path())
-@click.option("--fps", type=click.FloatRange(min=0, min_open=True), default=None,
-              help="Frame rate of formats that store none (SOKE, SignAvatars, arrays). [30]")
 @click.option("--split", type=click.Choice(["train", "val", "test"]), default=None,
               help="Split of a SOKE root (datasets only).")
+@input_options
+@config_options
 @json_option
-def command(path: str, fps: float | None, split: str | None, as_json: bool) -> int:
-    """Print format, frames, fps, hand convention, joint ranges, text and artifacts of PATH.
+def command(path: str, split: str | None, fps: float | None, up_axis: str | None,
+            hands: str | None, config_files: tuple[str, ...], sets: tuple[str, ...],
+            as_json: bool) -> int:
+    """Print format, frames, fps, hand convention, joint ranges, text and artifacts of PATH, and
+    where the fps, up axis and hand convention came from (the file, a detected layout, the
+    dataset's documented default, or an override).
 
     For a dataset (a folder of motion files, a SOKE root or a CSV manifest) list its sequences.
     """
-    from embody.io import load
     from embody.io.summary import summarize
 
     target = Path(path)
@@ -75,7 +85,8 @@ def command(path: str, fps: float | None, split: str | None, as_json: bool) -> i
             for seq_id in info["ids"]:
                 click.echo(f"  {seq_id}")
         return 0
-    info = summarize(load(target, fps=fps))
+    cfg = build_config(config_files, tuple(sets) + input_sets(fps, up_axis, hands))
+    info = summarize(load_input(str(target), cfg))
     if as_json:
         emit_json(info)
     else:

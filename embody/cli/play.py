@@ -1,14 +1,43 @@
-"""`embody play`: render an exported trajectory back to an animated preview (MuJoCo offscreen)."""
+"""`embody play`: render an exported trajectory back to an animated preview (MuJoCo offscreen),
+or play it in MuJoCo's interactive viewer (`--viewer`, needs a display)."""
 
 from __future__ import annotations
 
+import os
+import sys
+import time
 from pathlib import Path
 
 import click
 import numpy as np
 
 from embody.cli.common import build_config, config_options
-from embody.errors import InputError
+from embody.errors import InputError, UsageError
+
+
+def has_display() -> bool:
+    """Whether a window can open: always on macOS and Windows, else X11 or Wayland must be set."""
+    if sys.platform == "darwin" or sys.platform.startswith("win"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def run_viewer(robot, q: np.ndarray, dt: float) -> None:
+    """Loop the trajectory in MuJoCo's passive viewer, in real time, until the window closes."""
+    import mujoco
+    import mujoco.viewer
+
+    model = robot.model
+    data = mujoco.MjData(model)
+    with mujoco.viewer.launch_passive(model, data) as viewer:
+        step = 0
+        while viewer.is_running():
+            start = time.monotonic()
+            data.qpos[:] = robot.qpos(q[step % len(q)])
+            mujoco.mj_forward(model, data)
+            viewer.sync()
+            step += 1
+            time.sleep(max(0.0, dt - (time.monotonic() - start)))
 
 
 def preview_frames(num_steps: int, dt: float, preview_fps: float, max_frames: int) -> np.ndarray:
@@ -24,10 +53,16 @@ def preview_frames(num_steps: int, dt: float, preview_fps: float, max_frames: in
               help="Preview path; the suffix follows the format [default: FILE's name + format].")
 @click.option("--format", "fmt", type=click.Choice(["mp4", "gif", "webp"]), default=None,
               help="Preview format [default: render.preview_format, mp4].")
+@click.option("--viewer", is_flag=True,
+              help="Play in MuJoCo's interactive viewer instead (needs a display).")
 @config_options
-def command(file: str, out: str | None, fmt: str | None, config_files: tuple[str, ...],
-            sets: tuple[str, ...]) -> int:
-    """Render FILE (an `embody export` .npz) on its robot as an animated preview."""
+def command(file: str, out: str | None, fmt: str | None, viewer: bool,
+            config_files: tuple[str, ...], sets: tuple[str, ...]) -> int:
+    """Render FILE (an `embody export` .npz) on its robot as an animated preview, or play it in
+    MuJoCo's interactive viewer with `--viewer`."""
+    if viewer and not has_display():
+        raise UsageError("--viewer needs a display, and none is set (DISPLAY / WAYLAND_DISPLAY); "
+                         "run without --viewer to write a preview file instead")
     from embody.render import SceneRenderer, write_preview
     from embody.report.library import Trajectory
     from embody.robot import load_robot
@@ -40,6 +75,9 @@ def command(file: str, out: str | None, fmt: str | None, config_files: tuple[str
         raise InputError(file, "joint_names", f"not joints of {traj.robot}: {missing[:5]}")
     q = np.tile(robot.tpose, (len(traj.q), 1))
     q[:, [robot.joint_index(n) for n in traj.joint_names]] = traj.q
+    if viewer:
+        run_viewer(robot, q, traj.dt)
+        return 0
     steps = preview_frames(len(q), traj.dt, cfg.render.preview_fps, cfg.render.preview_max_frames)
     fmt = fmt or (cfg.render.preview_format if cfg.render.preview_format != "none" else "mp4")
     with SceneRenderer(robot, cfg.render, torso_body=robot.spec.torso_body) as renderer:

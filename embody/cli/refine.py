@@ -8,7 +8,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from embody.cli.common import build_config, config_options, emit_json, json_option
+from embody.cli.common import (build_config, config_options, emit_json, input_options, input_sets,
+                               json_option, load_input)
 
 
 @click.command("refine")
@@ -16,24 +17,26 @@ from embody.cli.common import build_config, config_options, emit_json, json_opti
 @click.argument("out", metavar="OUT", type=click.Path(file_okay=False))
 @click.option("--critic", type=click.Choice(["geometric", "vlm"]), default=None,
               help="Critic to use [default: critic.kind].")
+@input_options
 @config_options
 @json_option
-def command(in_path: str, out: str, critic: str | None, config_files: tuple[str, ...],
-            sets: tuple[str, ...], as_json: bool) -> int:
+def command(in_path: str, out: str, critic: str | None, fps: float | None, up_axis: str | None,
+            hands: str | None, config_files: tuple[str, ...], sets: tuple[str, ...],
+            as_json: bool) -> int:
     """Load IN, shape-fit, build targets, solve IK, refine with the critic; write OUT/.
 
     OUT gets sheet.png (final comparison sheet), the preview, refine.npz (every round's q and
     working targets, plus the JSON record under `attrs`) and, for the VLM critic, each round's
     sheet and keyframes as the critic saw them.
     """
-    cfg = build_config(config_files, sets + ((f"critic.kind={critic}",) if critic else ()))
+    cfg = build_config(config_files, sets + ((f"critic.kind={critic}",) if critic else ())
+                       + input_sets(fps, up_axis, hands))
     from embody.body import load_body_model
     from embody.critic import make_critic, refine, refine_table
-    from embody.io import load
     from embody.retarget import build_targets, shape_fit, solve
     from embody.robot import load_robot
 
-    motion = load(in_path)
+    motion = load_input(in_path, cfg)
     critic_impl = make_critic(cfg.critic)  # fails fast (e.g. a missing VLM key) before the IK
     robot = load_robot(cfg.robot)
     body = load_body_model(cfg.body)

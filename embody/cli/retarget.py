@@ -8,26 +8,29 @@ from pathlib import Path
 import click
 import numpy as np
 
-from embody.cli.common import build_config, config_options, emit_json, json_option
+from embody.cli.common import (build_config, config_options, emit_json, input_options, input_sets,
+                               json_option, load_input)
 
 
 @click.command("retarget")
 @click.argument("in_path", metavar="IN", type=click.Path())
 @click.argument("out_path", metavar="OUT.npz", type=click.Path())
 @click.option("--robot", "robot_name", default=None, help="Robot definition name (overrides robot.name).")
+@input_options
 @config_options
 @json_option
-def command(in_path: str, out_path: str, robot_name: str | None, config_files: tuple[str, ...],
+def command(in_path: str, out_path: str, robot_name: str | None, fps: float | None,
+            up_axis: str | None, hands: str | None, config_files: tuple[str, ...],
             sets: tuple[str, ...], as_json: bool) -> int:
     """Retarget one motion file to the robot and write q, joint names, fps, q at control rate and metrics."""
     from embody.body import load_body_model
-    from embody.io import load
     from embody.retarget import retarget, shape_fit
     from embody.retarget.verify import verify
     from embody.robot import load_robot
 
-    cfg = build_config(config_files, sets + ((f"robot.name={robot_name}",) if robot_name else ()))
-    motion = load(in_path)
+    cfg = build_config(config_files, sets + ((f"robot.name={robot_name}",) if robot_name else ())
+                       + input_sets(fps, up_axis, hands))
+    motion = load_input(in_path, cfg)
     robot = load_robot(cfg.robot)
     body = load_body_model(cfg.body)
     fit = shape_fit(robot, body, cfg.ik)

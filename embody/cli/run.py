@@ -8,7 +8,7 @@ from typing import Any
 
 import click
 
-from embody.cli.common import build_config, config_options, emit_json, json_option
+from embody.cli.common import build_config, config_options, emit_json, input_options, json_option
 from embody.config import Config
 
 
@@ -34,6 +34,7 @@ def run_options(f):
                           "synth-n24-s0.unitree_g1_dex3]."),
         click.option("--overwrite", is_flag=True, default=False,
                      help="Reuse a run name that holds a run of another robot or dataset."),
+        input_options,
         config_options,
     ]):
         f = opt(f)
@@ -46,7 +47,8 @@ def config_from_options(config_files: tuple[str, ...], sets: tuple[str, ...],
     keys = {"store": "run.store", "limit": "run.limit", "workers": "run.workers",
             "runner": "run.runner", "dask_address": "run.dask_address",
             "batch_size": "run.batch_size", "robot": "robot.name", "name": "run.name",
-            "render": "run.render"}
+            "render": "run.render", "fps": "io.fps", "up_axis": "io.up_axis",
+            "hands": "io.hands"}
     extra = [f"{keys[k]}={json.dumps(v)}" for k, v in options.items()
              if k in keys and v is not None]
     critic = options.get("critic")

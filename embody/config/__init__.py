@@ -18,6 +18,7 @@ from embody.config.body import BodyConfig
 from embody.config.collision import CollisionConfig
 from embody.config.critic import CriticConfig
 from embody.config.ik import IKConfig
+from embody.config.io import IOConfig
 from embody.config.render import RenderConfig
 from embody.config.robot import RobotConfig
 from embody.config.run import DebugConfig, RunConfig
@@ -27,6 +28,7 @@ __all__ = ["Config", "Section", "canonical_json", "load_config", "configs_dir", 
 
 
 class Config(Section):
+    io: IOConfig = IOConfig()
     body: BodyConfig = BodyConfig()
     collision: CollisionConfig = CollisionConfig()
     robot: RobotConfig = RobotConfig()

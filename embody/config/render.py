@@ -16,8 +16,9 @@ class RenderConfig(Section):
     height: int = Field(240, ge=16, le=4096)
     #: Keyframes per sequence, picked at motion extrema (holds and extreme wrist positions).
     keyframes: int = Field(8, ge=1, le=64)
-    #: Cameras, each a row pair (reference over robot) in the comparison sheet.
-    views: list[View] = ["front"]
+    #: Cameras, each a row pair (reference over robot) in the comparison sheet. The side view
+    #: shows depth errors (hands too far forward) that are invisible from the front.
+    views: list[View] = ["front", "side"]
     #: OpenGL backend; osmesa needs `libosmesa6`. egl falls back to osmesa when it fails.
     gl: Literal["egl", "osmesa"] = "egl"
     #: Hide geometry below the torso (legs): signing is upper-body, and it halves render time.
@@ -25,12 +26,18 @@ class RenderConfig(Section):
     #: Robot meshes are decimated on a grid of this cell size (m) for rendering only; 0 keeps
     #: them whole. 4 mm is about a pixel at 320×240 and 1.2 m, and makes rendering ~4× faster.
     mesh_cell_m: float = Field(0.004, ge=0.0, le=0.05)
-    #: Free-camera placement around a look-at point given in the robot torso frame (metres).
-    lookat: tuple[float, float, float] = (0.1, 0.0, 0.15)
-    camera_distance: float = Field(1.2, gt=0.1, le=20.0)
+    #: Free-camera look-at point in the robot torso frame (metres) and distance; null (default)
+    #: frames both bodies automatically: head, T-pose arms and raised hands inside the frame,
+    #: for any robot size (`embody.render.framing`). The same camera sees human and robot.
+    lookat: tuple[float, float, float] | None = None
+    camera_distance: float | None = Field(None, gt=0.1, le=20.0)
     camera_elevation: float = Field(-5.0, ge=-89.0, le=89.0)
     #: Colour of the reference body mesh (RGBA 0..1).
     reference_rgba: tuple[float, float, float, float] = (0.85, 0.62, 0.42, 1.0)
+    #: The robot is drawn in one light material (its own dark materials vanish against a dark
+    #: background at 320×240), on a neutral light background, so hands, fingers and face read.
+    robot_rgba: tuple[float, float, float, float] = (0.93, 0.93, 0.91, 1.0)
+    background_rgb: tuple[float, float, float] = (0.62, 0.66, 0.72)
     #: Animated preview: mp4 needs imageio-ffmpeg (falls back to gif), none disables it.
     preview_format: Literal["mp4", "gif", "webp", "none"] = "mp4"
     #: Preview frames per second of motion (plays in real time).

@@ -1,7 +1,12 @@
-"""AMASS-style npz: the field's SMPL-X (165) and SMPL+H (156) files, and embody's own files.
+"""AMASS-style npz: the field's SMPL-X (165) and SMPL+H (156) files, BEAT2, and embody's own files.
 
-AMASS is z-up with absolute hands. Files written by `save` carry an `embody_meta` JSON entry
-saying they are already y-up, so re-loading never rotates twice.
+AMASS is z-up with absolute hands (MoSh++ fits; zero is a flat hand). BEAT2 SMPL-X files
+(co-speech mocap as SynTalker/EMAGE release them) carry AMASS's `mocap_frame_rate` key but are
+detected by `model` = `smplx2020`: they are y-up, and their hands are mean-relative, because
+EMAGE's loaders build the body with `smplx.create(..., use_pca=False)` and leave
+`flat_hand_mean` at smplx's default False. Files written by `save` carry an `embody_meta` JSON
+entry saying they are already y-up, so re-loading never rotates twice. Every file here records
+its frame rate.
 """
 
 from __future__ import annotations
@@ -13,8 +18,8 @@ from typing import Any
 import numpy as np
 
 from embody.errors import InputError
+from embody.io.conventions import Overrides, Setting, normalise
 from embody.io.fields import betas10, field, read_npz, scalar, text
-from embody.io.frames import Z_UP_TO_Y_UP, rotate_root
 from embody.io.npzfile import npz_bytes, write_atomic
 from embody.motion import NUM_JOINTS, Motion, MotionSource
 
@@ -24,6 +29,12 @@ FRAME_RATE_KEYS = ("mocap_frame_rate", "mocap_framerate")
 SMPLH_BODY = slice(0, 66)
 SMPLH_HANDS = slice(66, 156)
 SMPLX_HANDS = slice(75, 165)
+#: BEAT2's SMPL-X model tag (`model` key).
+BEAT2_MODEL = "smplx2020"
+
+
+def is_beat2(data: dict[str, Any]) -> bool:
+    return text(data, "model", "").lower().startswith(BEAT2_MODEL)
 
 
 def is_amass(data: dict[str, Any]) -> bool:
@@ -38,7 +49,8 @@ def smplh_to_smplx(poses: np.ndarray) -> np.ndarray:
     return out
 
 
-def read(path: Path, data: dict[str, Any] | None = None) -> Motion:
+def read(path: Path, data: dict[str, Any] | None = None,
+         overrides: Overrides | None = None) -> Motion:
     data = read_npz(path) if data is None else data
     meta_json = data.get(META_KEY)
     if "poses" not in data:
@@ -50,14 +62,13 @@ def read(path: Path, data: dict[str, Any] | None = None) -> Motion:
         poses, fmt = field(data, "poses", path, width=165), "amass-smplx"
     t = poses.shape[0]
     transl = field(data, "trans", path, rows=t, width=3) if "trans" in data else np.zeros((t, 3))
+    fps_key = next((k for k in FRAME_RATE_KEYS if k in data), None)
     fps = scalar(data, FRAME_RATE_KEYS, path, default=0.0)
-    if fps == 0.0:
+    if fps == 0.0 and (overrides is None or overrides.fps is None):
         raise InputError(path, "mocap_frame_rate", "missing")
-    pose = poses.reshape(t, NUM_JOINTS, 3)
+    fps_setting = Setting(fps, f"data: {fps_key}")
     meta: dict[str, Any] = {}
-    if meta_json is None:
-        pose, transl = rotate_root(pose, transl, Z_UP_TO_Y_UP)
-    else:
+    if meta_json is not None:
         try:
             info = json.loads(text(data, META_KEY, "{}"))
         except json.JSONDecodeError as exc:
@@ -65,9 +76,22 @@ def read(path: Path, data: dict[str, Any] | None = None) -> Motion:
         if info.get("up_axis", "y") != "y" or info.get("hand_convention", "absolute") != "absolute":
             raise InputError(path, META_KEY, "embody files must be y-up with absolute hands")
         meta, fmt = dict(info.get("meta", {})), "embody"
+        up = Setting("y", f"data: {META_KEY}")
+        hands = Setting("absolute", f"data: {META_KEY}")
+    elif is_beat2(data):
+        fmt = "beat2"
+        up = Setting("y", f"detected: BEAT2 layout (model={BEAT2_MODEL}) is y-up")
+        hands = Setting("relative", "detected: BEAT2 layout; EMAGE's loaders use flat_hand_mean=False")
+    else:
+        up = Setting("z", f"default: AMASS layout ({fps_key}) is z-up")
+        hands = Setting("absolute", "default: AMASS (MoSh++) hands are absolute")
+    pose, transl, fps, hand_convention, provenance = normalise(
+        poses.reshape(t, NUM_JOINTS, 3), transl, fps=fps_setting, up_axis=up, hands=hands,
+        overrides=overrides)
     return Motion(pose=pose, transl=transl, betas=betas10(data, "betas", path), fps=fps,
                   gender=text(data, "gender", "neutral"),
-                  source=MotionSource(str(path), fmt, "absolute"), meta=meta)
+                  source=MotionSource(str(path), fmt, hand_convention, provenance),  # type: ignore[arg-type]
+                  meta=meta)
 
 
 def _numpy_json(value: Any) -> Any:

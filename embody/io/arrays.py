@@ -14,9 +14,8 @@ from typing import Any
 import numpy as np
 
 from embody.errors import InputError
+from embody.io.conventions import Overrides, Setting, normalise
 from embody.io.fields import betas10, field, read_npy, read_npz, scalar, text
-from embody.io.frames import Z_UP_TO_Y_UP, rotate_root
-from embody.io.hands import relative_to_absolute
 from embody.motion import NUM_JOINTS, Motion, MotionSource
 
 
@@ -25,6 +24,8 @@ from embody.motion import NUM_JOINTS, Motion, MotionSource
 #: zeros), shape is fixed, hands are mean-relative. Pairs: (feature slice, first 165-d index).
 SOKE_FEATURES = 133
 SOKE_PARTS = ((slice(0, 30), 36), (slice(30, 120), 75), (slice(120, 123), 66))
+#: Plain arrays record no rate: 30 fps unless the npz says (`fps`) or the user does (`--fps`).
+DEFAULT_FPS = Setting(30.0, "default: no frame rate in the file; assumed 30 fps")
 
 
 def soke_features_to_poses(feats: np.ndarray) -> np.ndarray:
@@ -46,7 +47,8 @@ def _poses(data: dict[str, Any], key: str, path: Path) -> tuple[np.ndarray, str]
     return field(data, key, path, width=165), "array"
 
 
-def read(path: Path, data: dict[str, Any] | None = None, fps: float = 30.0) -> Motion:
+def read(path: Path, data: dict[str, Any] | None = None,
+         overrides: Overrides | None = None) -> Motion:
     if data is None:
         data = {"poses": read_npy(path)} if path.suffix == ".npy" else read_npz(path)
     arrays = [k for k in data if np.asarray(data[k]).ndim >= 2]
@@ -60,18 +62,24 @@ def read(path: Path, data: dict[str, Any] | None = None, fps: float = 30.0) -> M
     t = poses.shape[0]
     tkey = "trans" if "trans" in data else "transl"
     transl = field(data, tkey, path, rows=t, width=3) if tkey in data else np.zeros((t, 3))
-    hands = text(data, "hand_convention", "relative" if fmt == "soke-features" else "absolute")
-    up = text(data, "up_axis", "y")
-    if hands not in ("absolute", "relative"):
-        raise InputError(path, "hand_convention", f"expected 'absolute' or 'relative', got {hands!r}")
-    if up not in ("y", "z"):
-        raise InputError(path, "up_axis", f"expected 'y' or 'z', got {up!r}")
-    pose = poses.reshape(t, NUM_JOINTS, 3)
-    if hands == "relative":
-        pose = relative_to_absolute(pose)
-    if up == "z":
-        pose, transl = rotate_root(pose, transl, Z_UP_TO_Y_UP)
-    return Motion(pose=pose, transl=transl, betas=betas10(data, "betas", path),
-                  fps=scalar(data, ("fps", "mocap_frame_rate"), path, fps),
+    if "hand_convention" in data:
+        hands = Setting(text(data, "hand_convention", ""), "data: hand_convention")
+    elif fmt == "soke-features":
+        hands = Setting("relative", "default: SOKE features are mean-relative")
+    else:
+        hands = Setting("absolute", "default: plain arrays assumed absolute")
+    up = (Setting(text(data, "up_axis", ""), "data: up_axis") if "up_axis" in data
+          else Setting("y", "default: plain arrays assumed y-up"))
+    if hands.value not in ("absolute", "relative"):
+        raise InputError(path, "hand_convention", f"expected 'absolute' or 'relative', got {hands.value!r}")
+    if up.value not in ("y", "z"):
+        raise InputError(path, "up_axis", f"expected 'y' or 'z', got {up.value!r}")
+    fps_key = next((k for k in ("fps", "mocap_frame_rate") if k in data), None)
+    fps = (Setting(scalar(data, (fps_key,), path, 0.0), f"data: {fps_key}") if fps_key
+           else DEFAULT_FPS)
+    pose, transl, fps_value, hand_convention, provenance = normalise(
+        poses.reshape(t, NUM_JOINTS, 3), transl, fps=fps, up_axis=up, hands=hands,
+        overrides=overrides)
+    return Motion(pose=pose, transl=transl, betas=betas10(data, "betas", path), fps=fps_value,
                   gender=text(data, "gender", "neutral"),
-                  source=MotionSource(str(path), fmt, hands))  # type: ignore[arg-type]
+                  source=MotionSource(str(path), fmt, hand_convention, provenance))  # type: ignore[arg-type]

@@ -25,8 +25,10 @@ class SequenceRef:
     text: str | None = None
     source_files: tuple[Path, ...] = ()
 
-    def load(self) -> Motion:
-        motion = load(self.path)
+    def load(self, fps: float | None = None, up_axis: str | None = None,
+             hands: str | None = None) -> Motion:
+        """The motion; `fps`/`up_axis`/`hands` override the file's (see `embody.io.load`)."""
+        motion = load(self.path, fps=fps, up_axis=up_axis, hands=hands)
         motion.meta.setdefault("id", self.id)
         if self.text is not None:
             motion.meta["text"] = self.text

@@ -2,16 +2,14 @@
 
 from __future__ import annotations
 
-import math
 from pathlib import Path
 
 from embody.errors import InputError
 from embody.io import amass, arrays, signavatars, soke
+from embody.io.conventions import Overrides
 from embody.io.fields import read_npz, read_pickle
 from embody.motion import Motion
 
-#: Frame rate of formats that do not record one (CSL-Daily and How2Sign video are ~30 fps).
-DEFAULT_FPS = 30.0
 #: Suffixes a dataset folder treats as one motion file each.
 MOTION_SUFFIXES = (".npz", ".npy", ".pkl", ".pickle")
 _MAGIC = {b"PK": ".npz", b"\x93N": ".npy", b"\x80": ".pkl"}
@@ -31,40 +29,46 @@ def _kind(path: Path) -> str:
     raise InputError(path, None, f"unknown motion format (suffix {path.suffix or 'none'!r})")
 
 
-def _load_dir(path: Path, fps: float) -> Motion:
+def _load_dir(path: Path, overrides: Overrides) -> Motion:
     if soke.is_sequence_dir(path):
-        return soke.read(path, fps)
+        return soke.read(path, overrides)
     if not any(path.iterdir()):
         raise InputError(path, None, "empty directory")
     if (path / "poses").is_dir():
         raise InputError(path, None, "a SOKE dataset root: use load_dataset(path, split)")
-    raise InputError(path, None, "directory has no per-frame .pkl files (not a SOKE sequence)")
+    raise InputError(path, None, "directory has no per-frame .pkl or .npz frame files "
+                                 "(not a sequence folder)")
 
 
-def load(path: str | Path, fps: float | None = None) -> Motion:
-    """Read any supported motion file or SOKE sequence folder as a y-up, absolute-hand Motion.
+def load(path: str | Path, fps: float | None = None, up_axis: str | None = None,
+         hands: str | None = None) -> Motion:
+    """Read any supported motion file or per-frame sequence folder as a y-up, absolute-hand Motion.
 
-    `fps` is the frame rate of formats that store none (SOKE, SignAvatars, plain arrays; 30 if
-    not given); files that record their rate keep it.
+    Frame rate, up axis and hand convention come from the file where it records them, else from
+    the detected layout or the dataset's documented default (`embody.io.conventions`); `fps`,
+    `up_axis` ("y" | "z" | "camera") and `hands` ("absolute" | "relative") override all of them.
+    `motion.source.provenance` says where each came from.
     """
     path = Path(path)
-    if fps is None:
-        fps = DEFAULT_FPS
-    elif not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
-        raise InputError(path, "fps", f"must be a positive number, got {fps!r}")
+    overrides = Overrides(fps=fps, up_axis=up_axis, hands=hands)
+    overrides.check(path)
     if path.is_dir():
-        return _load_dir(path, fps)
+        return _load_dir(path, overrides)
     if not path.exists():
         raise InputError(path, None, "no such file or directory")
     kind = _kind(path)
     if kind == ".npy":
-        return arrays.read(path, fps=fps)
+        return arrays.read(path, overrides=overrides)
     if kind == ".npz":
         data = read_npz(path)
-        return amass.read(path, data) if amass.is_amass(data) else arrays.read(path, data, fps)
+        if amass.is_amass(data):
+            return amass.read(path, data, overrides)
+        if "smplx_root_pose" in data:
+            raise InputError(path, None, "a single per-frame file: load its sequence folder instead")
+        return arrays.read(path, data, overrides)
     data = read_pickle(path)
     if signavatars.is_signavatars(data):
-        return signavatars.read(path, data, fps)
+        return signavatars.read(path, data, overrides)
     if isinstance(data, dict) and "smplx_root_pose" in data:
         raise InputError(path, None, "a single SOKE frame: load its sequence folder instead")
     keys = ", ".join(sorted(map(str, data))[:8]) if isinstance(data, dict) else type(data).__name__

@@ -38,6 +38,7 @@ def summarize(motion: Motion) -> dict[str, Any]:
         "fps": motion.fps,
         "duration_s": round(motion.duration, 3),
         "hand_convention": motion.source.hand_convention,
+        "provenance": motion.source.provenance,
         "gender": motion.gender,
         "translation_range_m": np.round(np.ptp(motion.transl, axis=0), 4).tolist(),
         "joint_ranges": joint_ranges(motion),

@@ -34,9 +34,22 @@ def reference_vertices(motion: Motion, body: BodyModel, fit, frames: np.ndarray)
 def open_renderer(robot, body: BodyModel, fit, cfg: RenderConfig) -> SceneRenderer:
     """A renderer for this robot with the fitted body as reference mesh."""
     with torch.no_grad():
-        rest = body.rest_vertices(torch.as_tensor(fit.betas, dtype=torch.float64))
+        betas = torch.as_tensor(fit.betas, dtype=torch.float64)
+        rest = body.rest_vertices(betas)
+        points = fit.apply(body.vertices(reach_poses(), betas)).cpu().numpy().reshape(-1, 3)
     return SceneRenderer(robot, cfg, np.asarray(body.faces), rest.cpu().numpy(),
-                         torso_body=robot.spec.torso_body)
+                         torso_body=robot.spec.torso_body, reference_points=points)
+
+
+def reach_poses() -> torch.Tensor:
+    """Body poses (4,55,3) spanning the arms' reach: T-pose, arms up, arms forward, arms folded
+    across the chest. The framing holds the fitted body in all of them (and the robot's reach)."""
+    pose = torch.zeros((4, 55, 3), dtype=torch.float64)
+    left, right = 16, 17  # SMPL-X shoulders; y-up body frame, the left arm along +x
+    pose[1, left, 2], pose[1, right, 2] = np.pi / 2, -np.pi / 2    # about z: arms up
+    pose[2, left, 1], pose[2, right, 1] = -np.pi / 2, np.pi / 2    # about y: arms forward
+    pose[3, left, 1], pose[3, right, 1] = -np.pi * 0.8, np.pi * 0.8  # across the chest
+    return pose
 
 
 @dataclass

@@ -3,8 +3,10 @@
 Two models share one GL context: a private copy of the robot model, and a one-mesh model of the
 reference body whose vertices are rewritten and re-uploaded every frame (`mjr_uploadMesh`).
 Both are placed in the robot torso frame's world pose at the T-pose and seen through identical
-free cameras, so reference and robot line up pixel for pixel. Shadows, reflections and skybox are
-off and (by default) the legs are hidden: signing is upper-body and this halves the render time.
+free cameras, so reference and robot line up pixel for pixel; the framing fits both bodies
+(`embody.render.framing`). Shadows, reflections and skybox are off and (by default) the legs are
+hidden: signing is upper-body and this halves the render time. The robot is drawn in one light
+material, and every pixel the depth buffer shows as empty gets the neutral background colour.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from typing import Protocol
 import numpy as np
 
 from embody.config.render import RenderConfig
+from embody.render.framing import Framing, fit_camera, robot_points
 from embody.render.gl import create_context
 
 import mujoco  # noqa: E402  (after embody.render.gl has set MUJOCO_GL)
@@ -86,7 +89,9 @@ class SceneRenderer:
 
     def __init__(self, robot: RenderableRobot, cfg: RenderConfig,
                  faces: np.ndarray | None = None, rest_vertices: np.ndarray | None = None,
-                 torso_body: str = "torso_link") -> None:
+                 torso_body: str = "torso_link",
+                 reference_points: np.ndarray | None = None) -> None:
+        """`reference_points` (N,3), torso frame: reference body points the framing must hold."""
         self.cfg = cfg
         self.robot = robot
         self.world_from_torso = np.linalg.inv(np.asarray(robot.torso_from_world, dtype=np.float64))
@@ -94,6 +99,7 @@ class SceneRenderer:
         self._contexts: list[mujoco.MjrContext] = []
         try:
             self._model = self._robot_model(robot.model, torso_body)
+            self.framing = self._framing(reference_points)
             self._data = mujoco.MjData(self._model)
             self._robot_ctx = self._context(self._model)
             self._scene = mujoco.MjvScene(self._model, maxgeom=self._model.ngeom + 100)
@@ -106,6 +112,7 @@ class SceneRenderer:
             self.close()
             raise
         self._rect = mujoco.MjrRect(0, 0, cfg.width, cfg.height)
+        self._background = np.round(np.asarray(cfg.background_rgb) * 255).astype(np.uint8)
         self._option = mujoco.MjvOption()  # groups 0-2 visible: robot visuals, no collision meshes
 
     # --- setup ----------------------------------------------------------------------------
@@ -120,7 +127,34 @@ class SceneRenderer:
         if self.cfg.mesh_cell_m > 0:
             for mesh in range(model.nmesh):
                 cluster_mesh(model, mesh, self.cfg.mesh_cell_m)
+        model.geom_matid[:] = -1  # one light material instead of the robot's dark ones
+        model.geom_rgba[:] = self.cfg.robot_rgba
+        model.vis.headlight.ambient[:] = 0.45
+        model.vis.headlight.diffuse[:] = 0.55
+        model.vis.headlight.specular[:] = 0.2
         return model
+
+    def _framing(self, reference_points: np.ndarray | None) -> Framing:
+        """Configured look-at/distance, or a framing that fits robot (and reference) in every view."""
+        if self.cfg.lookat is not None and self.cfg.camera_distance is not None:
+            return Framing(np.asarray(self.cfg.lookat, dtype=np.float64), self.cfg.camera_distance)
+        model = self._model
+        tpose = np.asarray(getattr(self.robot, "tpose", np.zeros(0)), dtype=np.float64)
+        qpos = self.robot.qpos(tpose) if tpose.size else model.qpos0.copy()
+        links = getattr(getattr(self.robot, "spec", None), "links", {}) or {}
+        shoulders = [links[n].body for n in ("left_shoulder", "right_shoulder") if n in links]
+        visible = model.geom_group < 3  # what MjvOption's default groups draw
+        points = robot_points(model, qpos, np.asarray(self.robot.torso_from_world), visible,
+                              shoulders)
+        if reference_points is not None and len(reference_points):
+            ref = np.asarray(reference_points, dtype=np.float64).reshape(-1, 3)
+            # the upper body: legs are below the signing space (and hidden on the robot)
+            points = np.concatenate([points, ref[ref[:, 2] >= points[:, 2].min()]])
+        auto = fit_camera(points, float(model.vis.global_.fovy), self.cfg.width / self.cfg.height,
+                          tuple(self.cfg.views))
+        lookat = auto.lookat if self.cfg.lookat is None else np.asarray(self.cfg.lookat, float)
+        distance = auto.distance if self.cfg.camera_distance is None else self.cfg.camera_distance
+        return Framing(lookat, distance)
 
     def _context(self, model: mujoco.MjModel) -> mujoco.MjrContext:
         ctx = mujoco.MjrContext(model, mujoco.mjtFontScale.mjFONTSCALE_100)
@@ -133,11 +167,11 @@ class SceneRenderer:
         cam = mujoco.MjvCamera()
         cam.type = mujoco.mjtCamera.mjCAMERA_FREE
         rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
-        cam.lookat[:] = pos + rot @ np.asarray(self.cfg.lookat, dtype=np.float64)
+        cam.lookat[:] = pos + rot @ self.framing.lookat
         forward = -rot[:, 0] if view == "front" else -rot[:, 1]
         cam.azimuth = float(np.degrees(np.arctan2(forward[1], forward[0])))
         cam.elevation = self.cfg.camera_elevation
-        cam.distance = self.cfg.camera_distance
+        cam.distance = self.framing.distance
         return cam
 
     # --- rendering ------------------------------------------------------------------------
@@ -148,10 +182,12 @@ class SceneRenderer:
         for flag in _OFF_FLAGS:
             scene.flags[flag] = 0
         out = np.empty((self.cfg.height, self.cfg.width, 3), dtype=np.uint8)
+        depth = np.empty((self.cfg.height, self.cfg.width), dtype=np.float32)
         # each MjrContext owns a framebuffer; bind this one's (the last created is bound)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, ctx)
         mujoco.mjr_render(self._rect, scene, ctx)
-        mujoco.mjr_readPixels(out, None, self._rect, ctx)
+        mujoco.mjr_readPixels(out, depth, self._rect, ctx)
+        out[depth >= 1.0] = self._background  # nothing drawn there: the far plane
         return np.flipud(out)
 
     def robot_frames(self, q: np.ndarray, view: str = "front") -> np.ndarray:
