@@ -30,6 +30,7 @@ from embody.retarget.costs import WRIST_ELBOW, Residuals
 from embody.retarget.control import control_trajectory, separate
 from embody.retarget.limits import clamp_velocity, limit_violations, velocity_violations
 from embody.retarget.targets import Targets
+from embody.retarget.validation import validation_counts
 from embody.robot import Robot
 from embody.robot.contacts import self_collision_contacts
 
@@ -242,5 +243,7 @@ def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
         q = separate(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits)
     frames, metrics = evaluate(robot, q, targets)
     q_control = control_trajectory(robot, q, targets.fps, cfg.control_rate_hz, cfg.contact_repair)
+    metrics.update({f"control_{k}": v for k, v in
+                    validation_counts(robot, q_control, cfg.control_rate_hz).items()})
     return IKSolution(q=q, joint_names=list(robot.joint_names), fps=targets.fps, q_control=q_control,
                       control_rate_hz=cfg.control_rate_hz, frame_metrics=frames, metrics=metrics)
