@@ -8,7 +8,8 @@ apart along the contact normals. Per contact i, with normal n_i (geom1 → geom2
 point Jacobians J1, J2 of the two bodies, the separation rate is a_i = n_iᵀ (J2 − J1); the
 weighted least-norm step δ = W⁻¹Aᵀ(AW⁻¹Aᵀ + μI)⁻¹(clearance − d) is repeated until the sample is
 clear (a damped Gauss-Newton on the contact distances). The correction is blended into the
-neighbouring samples (a hat window) so it does not create a velocity spike, then the trajectory is
+neighbouring samples (a hat window, wide enough that its ramps use at most half of each joint's
+velocity limit) so it does not create a velocity spike, then the trajectory is
 clipped to the joint box and clamped to the velocity limits, and re-checked; a few passes.
 
 `control_trajectory` is what the library exports: the source-rate trajectory resampled to the
@@ -33,7 +34,7 @@ BOX_MARGIN = 1e-6
 VELOCITY_MARGIN = 1e-5
 #: Cost of moving a joint class in the repair step (larger = moved less): arms move first,
 #: fingers (the handshape carries meaning) and the waist only when needed.
-WEIGHTS = {"arm": 1.0, "hand": 4.0, "waist": 10.0}
+WEIGHTS = {"arm": 1.0, "hand": 25.0, "waist": 25.0}
 
 
 class _Separator:
@@ -108,7 +109,7 @@ def _spread(delta: np.ndarray, half_width: int) -> np.ndarray:
     return out
 
 
-def separate(robot: Robot, q: np.ndarray, fps: float, *, passes: int = 8, blend_s: float = 0.1,
+def separate(robot: Robot, q: np.ndarray, fps: float, *, passes: int = 12, blend_s: float = 0.1,
              box_margin: float = 0.0, velocity_margin: float = 0.0,
              clearance: float = CLEARANCE, enforce_velocity: bool = True) -> np.ndarray:
     """q (T,n) with every sample's penetrating self-contacts removed (MuJoCo's verdict), inside
@@ -118,16 +119,23 @@ def separate(robot: Robot, q: np.ndarray, fps: float, *, passes: int = 8, blend_
     vmax = robot.velocity_limits * (1.0 - velocity_margin)
     sep = _Separator(robot, clearance)
     half = max(int(round(blend_s * fps)), 0)
+    check = np.ones(len(q), dtype=bool)  # samples whose verdict is unknown (unchanged ones keep theirs)
     for _ in range(passes):
-        bad = [t for t in range(len(q)) if sep.contacts(q[t])]
+        bad = [t for t in np.flatnonzero(check) if sep.contacts(q[t])]
         if not bad:
             break
         delta = np.zeros_like(q)
         for t in bad:
             delta[t] = sep.frame(q[t], lower, upper) - q[t]
-        q = np.clip(q + _spread(delta, half), lower, upper)
+        # a wide enough hat that its ramps take at most half of each joint's velocity budget
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ramp = np.nan_to_num(np.abs(delta) / (vmax / fps), nan=0.0, posinf=0.0)
+        width = max(half, int(np.ceil(2.0 * ramp.max())))
+        new = np.clip(q + _spread(delta, width), lower, upper)
         if enforce_velocity:
-            q = clamp_velocity(q, vmax, fps)
+            new = clamp_velocity(new, vmax, fps)
+        check = np.any(new != q, axis=1)
+        q = new
     return q
 
 
