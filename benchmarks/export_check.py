@@ -12,6 +12,12 @@ every exported sample it counts:
 
 Usage: python benchmarks/export_check.py LIBDIR [--limit N]
 Ends with `RESULT files=… penetrating_samples=… limit_violations=… velocity_violations=… bad_files=…`.
+
+Measured 2026-11-23 on the default run (`embody run --no-render`: 24/24 sequences, critic on;
+rendering does not touch the trajectories), exported as npz, gmr and beyondmimic, all 24 files
+each, no --limit: `RESULT files=24 samples=6174 penetrating_samples=0 limit_violations=0
+velocity_violations=0 bad_files=0` for every format (before this check existed the same export
+had 10 of 19 files with penetrating samples, issue 12).
 """
 
 from __future__ import annotations
