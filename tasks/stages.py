@@ -21,19 +21,22 @@ __all__ = ["Metrics", "default_pipeline", "SOURCE", "COLLIDE", "SHAPE_FIT", "RET
 
 @dataclass
 class Metrics:
-    """The `metrics` step's result: a flat dict of numbers, stored as attrs only."""
+    """The `metrics` step's result: a flat dict of numbers (attrs) and the exported
+    control-rate trajectory `q_control` (float64), the exact array the validity figures describe."""
 
     metrics: dict[str, Any] = field(default_factory=dict)
+    q_control: np.ndarray | None = None
 
     def to_arrays(self) -> dict[str, np.ndarray]:
-        return {}
+        return {} if self.q_control is None else {"q_control": np.asarray(self.q_control, np.float64)}
 
     def to_attrs(self) -> dict[str, Any]:
         return {"metrics": self.metrics}
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> "Metrics":
-        return cls(dict(attrs.get("metrics", {})))
+        q = arrays.get("q_control")
+        return cls(dict(attrs.get("metrics", {})), None if q is None else np.asarray(q))
 
 
 def _robot_files(cfg: Any) -> list[Path]:
@@ -131,15 +134,26 @@ def _render_metrics(result: Any) -> dict[str, Any]:
 
 def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     """Smoothness and MuJoCo-verified validity of the final joint trajectory (the refined one
-    when the critic ran): what the report's tables and the library export read."""
+    when the critic ran), on the exact control-rate array `embody export` writes (stored here);
+    the source-rate counters go under `source_*`. What the report's tables and the export read."""
     from embody.metrics import mean_jerk
+    from embody.retarget.control import control_trajectory
     from embody.retarget.validation import validation_counts
     ik = inputs["retarget"]
-    q = np.asarray(inputs["refine"].q if "refine" in inputs else ik.q)
+    if "refine" in inputs:
+        q = np.asarray(inputs["refine"].q, dtype=np.float64)
+        q_control = control_trajectory(ctx.robot, q, ik.fps, ik.control_rate_hz,
+                                       ctx.cfg.ik.contact_repair)
+    else:
+        q, q_control = np.asarray(ik.q, dtype=np.float64), np.asarray(ik.q_control, np.float64)
+    source = validation_counts(ctx.robot, q, ik.fps)
     return Metrics({"frames": int(q.shape[0]), "joints": int(q.shape[-1]),
                     "duration_s": float(q.shape[0] / ik.fps), "mean_jerk": mean_jerk(q, ik.fps),
                     "final": "refine" if "refine" in inputs else "retarget",
-                    **validation_counts(ctx.robot, q, ik.fps)})
+                    "control_frames": int(q_control.shape[0]),
+                    "validation_rate_hz": float(ik.control_rate_hz),
+                    **validation_counts(ctx.robot, q_control, ik.control_rate_hz),
+                    **{f"source_{k}": v for k, v in source.items()}}, q_control)
 
 
 # v2: per-dataset default frame rates, detected up axis / hands (BEAT2), `io` overrides.
@@ -147,9 +161,9 @@ SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=
 COLLIDE = Step("collide", "1", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
-RETARGET = Step("retarget", "1", ("body", "robot", "ik"), _retarget, _ik_solution,
+RETARGET = Step("retarget", "2", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
-REFINE = Step("refine", "2", ("body", "robot", "ik", "render", "critic"), _refine,
+REFINE = Step("refine", "3", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 RENDER = Step("render", "1", ("body", "robot", "render"), _render, _render_result,
@@ -157,8 +171,8 @@ RENDER = Step("render", "1", ("body", "robot", "render"), _render, _render_resul
 RENDER_REFINED = Step("render", "1", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
-METRICS = Step("metrics", "2", (), _trajectory_metrics, Metrics.from_arrays, (RETARGET,))
-METRICS_REFINED = Step("metrics", "2", (), _trajectory_metrics, Metrics.from_arrays,
+METRICS = Step("metrics", "3", (), _trajectory_metrics, Metrics.from_arrays, (RETARGET,))
+METRICS_REFINED = Step("metrics", "3", (), _trajectory_metrics, Metrics.from_arrays,
                        (RETARGET, REFINE))
 
 

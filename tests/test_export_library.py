@@ -8,12 +8,16 @@ import pytest
 
 from embody.errors import InputError
 from embody.report.library import Trajectory, export_library
+from embody.robot import load_robot
 
-NAMES = ("left_shoulder_pitch_joint", "left_elbow_joint", "right_elbow_joint")
+ROBOT = load_robot()
+NAMES = tuple(ROBOT.joint_names)
+ELBOWS = [ROBOT.joint_index(n) for n in ("left_elbow_joint", "right_elbow_joint")]
 
 
 def _traj(sid: str, **validation) -> Trajectory:
-    q = np.linspace(0, 1, 30)[:, None] * np.array([0.1, 0.2, -0.3])
+    q = np.tile(ROBOT.rest, (30, 1))
+    q[:, ELBOWS] = np.linspace(0, 1, 30)[:, None] * np.array([0.2, 0.3])  # forearms rise, apart
     return Trajectory(id=sid, robot="unitree_g1_dex3", joint_names=NAMES, q=q, dt=0.02,
                       text=f"sign {sid}", validation={"joint_limit_violations": 0,
                       "velocity_violations": 0, "self_collision_frames": 0,
@@ -27,11 +31,12 @@ def test_export_excludes_failing(tmp_path, fmt) -> None:
     assert library["id"].tolist() == ["a"]
     assert excluded["id"].tolist() == ["b/2", "c"]
     assert excluded["reason"].tolist() == ["self_collision_frames=3", "joint_limit_violations=1"]
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["library.csv", "excluded.csv",
-                                                                 f"a.{fmt}"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["library.csv", "library.json",
+                                                                 "excluded.csv", f"a.{fmt}"])
     index = pd.read_csv(tmp_path / "library.csv")
     assert index.loc[0, "file"] == f"a.{fmt}" and index.loc[0, "frames"] == 30
     assert index.loc[0, "validation.wrist_pos_mean_mm"] == 12.5
+    assert index.loc[0, "written.self_collision_frames"] == 0
     if fmt == "npz":
         back = Trajectory.load(tmp_path / "a.npz")
         np.testing.assert_array_equal(back.q, trajs[0].q)
@@ -43,7 +48,7 @@ def test_export_excludes_failing(tmp_path, fmt) -> None:
         table = pd.read_csv(tmp_path / "a.csv")
         assert table.columns.tolist() == ["time", *NAMES]
         np.testing.assert_allclose(table["time"], np.arange(30) * 0.02, atol=1e-12)
-        np.testing.assert_allclose(table[list(NAMES)].to_numpy(), trajs[0].q, atol=1e-8)
+        np.testing.assert_array_equal(table[list(NAMES)].to_numpy(), trajs[0].q)  # %.17g: exact
 
 
 def test_reexport_removes_stale_files(tmp_path) -> None:
@@ -51,7 +56,7 @@ def test_reexport_removes_stale_files(tmp_path) -> None:
     (tmp_path / "mine.txt").write_text("keep")
     export_library([_traj("a"), _traj("b", velocity_violations=2)], tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        "a.npz", "excluded.csv", "library.csv", "mine.txt"]
+        "a.npz", "excluded.csv", "library.csv", "library.json", "mine.txt"]
 
 
 def test_safe_names_stay_distinct() -> None:

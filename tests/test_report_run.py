@@ -255,6 +255,43 @@ def test_export_library(run, tmp_path, fmt) -> None:
                  str(run["store"])]) == 2
 
 
+def test_export_refuses_tampered_store(run, tmp_path) -> None:
+    """A stored control-rate array edited to penetrate (its stored counters still 0) is refused:
+    the export validates the file it writes, not the counters it was handed."""
+    import zarr
+
+    from embody.report.reader import run_trajectories
+    from store import ArtifactStore, Manifest
+
+    store = tmp_path / "store"
+    shutil.copytree(run["store"], store)
+    st = ArtifactStore(store)
+    manifest = Manifest.load(st, RUN)
+    ok = [sid for sid, seq in sorted(manifest.sequences.items()) if seq["status"] == "ok"]
+    exported = {t.id for t in run_trajectories(store, RUN, ROBOT)[0]
+                if not any(t.validation[k] for k in ("joint_limit_violations", "velocity_violations",
+                                                     "self_collision_frames"))}
+    sid = sorted(exported)[0]
+    group = zarr.open_group(str(st.path("metrics", manifest.sequences[sid]["steps"]["metrics"])),
+                            mode="r+")
+    from embody.robot import load_robot
+    robot = load_robot()
+    q = robot.rest.copy()
+    for name, v in (("left_shoulder_pitch_joint", -0.6), ("right_shoulder_pitch_joint", -0.6),
+                    ("left_elbow_joint", 1.0), ("right_elbow_joint", 1.0),
+                    ("left_shoulder_yaw_joint", -0.5), ("right_shoulder_yaw_joint", 0.5)):
+        q[robot.joint_index(name)] = v  # the hands inside each other
+    arr = group["q_control"]
+    arr[:] = np.tile(q, (arr.shape[0], 1))
+    out = tmp_path / "lib"
+    assert main(["export", RUN, str(out), "--robot", ROBOT, "--store", str(store)]) == 1
+    excluded = pd.read_csv(out / "excluded.csv").set_index("id")
+    assert excluded.loc[sid, "status"] == "refused"
+    assert "self_collision_frames" in excluded.loc[sid, "reason"]
+    assert sid not in set(pd.read_csv(out / "library.csv")["id"]) and len(ok) >= 1
+    assert not (out / f"{sid}.npz").exists()
+
+
 def test_play_writes_preview(run, tmp_path) -> None:
     from embody.report.reader import run_trajectories
 

@@ -33,7 +33,10 @@ def test_cli_writes_trajectory(motion_file, tmp_path, capsys, monkeypatch, robot
         assert float(z["fps"]) == 30.0 and float(z["dt"]) == pytest.approx(0.02)
         assert z["q_control"].shape == (39, n_joints)  # 23/30 s at 50 Hz → 39 samples
         metrics = json.loads(str(z["metrics"]))
+        assert z["q"].dtype == np.float64 and z["q_control"].dtype == np.float64  # as validated
     assert metrics["joint_limit_violations"] == 0
+    for key in ("joint_limit_violations", "velocity_violations", "self_collision_frames"):
+        assert metrics[key] == 0 and metrics[f"control_{key}"] == 0, key
     assert metrics["wrist_pos_err_mm"] < 150
 
 

@@ -1,39 +1,80 @@
-"""`embody export`: a run's validated trajectories as a robot trajectory library."""
+"""`embody export`: a run's validated trajectories as a robot trajectory library; `--check`
+re-validates a library (yours or one you received) from its files alone."""
 
 from __future__ import annotations
 
 import click
 
 from embody.cli.common import emit_json, json_option
+from embody.export.formats import FORMATS
 
 
 @click.command("export")
-@click.argument("run")
-@click.argument("out", type=click.Path(file_okay=False))
-@click.option("--robot", required=True, help="Robot the trajectories must be for (robot.name).")
+@click.argument("args", nargs=-1, metavar="RUN OUT | --check DIR")
+@click.option("--robot", default=None, help="Robot the trajectories must be for (robot.name); "
+              "with --check, overrides the robot library.json names.")
 @click.option("--store", "store_root", default="embody-store", show_default=True,
               type=click.Path(file_okay=False), help="Artifact store root.")
-@click.option("--format", "fmt", type=click.Choice(["npz", "csv"]), default="npz",
-              show_default=True, help="npz (q, joint names, dt, source, validation) or csv.")
+@click.option("--format", "fmt", type=click.Choice(list(FORMATS)), default="npz",
+              show_default=True, help="npz (q, joint names, dt, source, validation), csv, "
+              "gmr (GMR motion pickle) or beyondmimic (BeyondMimic csv_to_npz input).")
+@click.option("--check", is_flag=True, help="Re-validate the library in DIR with MuJoCo from "
+              "its files alone; exit 1 if any file fails.")
 @json_option
-def command(run: str, out: str, robot: str, store_root: str, fmt: str, as_json: bool) -> int:
-    """Write one file per valid sequence of RUN into OUT, plus library.csv and excluded.csv.
+def command(args: tuple[str, ...], robot: str | None, store_root: str, fmt: str, check: bool,
+            as_json: bool) -> int:
+    """Write one file per valid sequence of RUN into OUT, plus library.csv, library.json and
+    excluded.csv.
 
-    Sequences with joint-limit or velocity-limit violations or self-collision frames, and
-    sequences the run failed, are excluded and listed. Exit 1 when any was excluded.
+    The exported array is the control-rate trajectory the run's metrics step validated; every
+    file is read back as its consumer reads it and re-validated (joint limits, velocity limits,
+    MuJoCo self-collision at every sample). Sequences that fail, and sequences the run failed,
+    are excluded and listed. Exit 1 when any was excluded.
     """
-    from embody.report.reader import run_trajectories
+    if check:
+        if len(args) != 1:
+            raise click.UsageError("--check takes one argument: the library directory")
+        return _check(args[0], robot, as_json)
+    if len(args) != 2:
+        raise click.UsageError("expected RUN OUT (or --check DIR)")
+    if robot is None:
+        raise click.UsageError("Missing option '--robot'.")
     from embody.report.library import export_library
+    from embody.report.reader import run_robot, run_trajectories
+
     from store import check_run_name
 
+    run, out = args
     check_run_name(run, "RUN")
     trajectories, failed = run_trajectories(store_root, run, robot)
-    library, excluded = export_library(trajectories, out, fmt, failed)  # type: ignore[arg-type]
+    library, excluded = export_library(trajectories, out, fmt, failed,  # type: ignore[arg-type]
+                                       robot=run_robot(store_root, run))
     if as_json:
-        emit_json({"out": out, "exported": library["id"].tolist(),
+        emit_json({"out": out, "format": fmt, "exported": library["id"].tolist(),
                    "excluded": excluded[["id", "reason"]].to_dict("records")})
     else:
-        click.echo(f"exported {len(library)} trajectories to {out} (library.csv)")
+        click.echo(f"exported {len(library)} trajectories ({fmt}) to {out} (library.csv, library.json)")
         for row in excluded.itertuples():
             click.echo(f"excluded {row.id}: {row.reason}")
     return 1 if len(excluded) else 0
+
+
+def _check(lib_dir: str, robot_name: str | None, as_json: bool) -> int:
+    from embody.report.library import VIOLATION_KEYS, check_library
+
+    robot = None
+    if robot_name:
+        from embody.config.robot import RobotConfig
+        from embody.robot import load_robot
+        robot = load_robot(RobotConfig(name=robot_name))
+    table = check_library(lib_dir, robot)
+    bad = table[~table["ok"].astype(bool)]
+    if as_json:
+        emit_json({"library": lib_dir, "checked": len(table), "failed": bad["id"].tolist(),
+                   "rows": table.to_dict("records")})
+    else:
+        for row in table.to_dict("records"):
+            counts = " ".join(f"{k}={row[k]:g}" for k in VIOLATION_KEYS if k in row and row[k] == row[k])
+            click.echo(f"{'ok  ' if row['ok'] else 'FAIL'} {row['id']}: {counts} {row['error']}".rstrip())
+        click.echo(f"checked {len(table)} files in {lib_dir}: {len(bad)} failed")
+    return 1 if len(bad) else 0

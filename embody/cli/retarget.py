@@ -25,6 +25,7 @@ def command(in_path: str, out_path: str, robot_name: str | None, fps: float | No
     """Retarget one motion file to the robot and write q, joint names, fps, q at control rate and metrics."""
     from embody.body import load_body_model
     from embody.retarget import retarget, shape_fit
+    from embody.retarget.validation import validation_counts
     from embody.retarget.verify import verify
     from embody.robot import load_robot
 
@@ -36,10 +37,13 @@ def command(in_path: str, out_path: str, robot_name: str | None, fps: float | No
     fit = shape_fit(robot, body, cfg.ik)
     targets, solution = retarget(motion, robot, body, fit, cfg.ik)
     _, metrics = verify(robot, solution, targets)
+    # the written arrays are float64 and both rates are validated as written (MuJoCo contacts)
+    control = validation_counts(robot, solution.q_control, solution.control_rate_hz)
+    metrics.update({f"control_{k}": v for k, v in control.items()})
     out = Path(out_path)
     out.parent.mkdir(parents=True, exist_ok=True)
-    np.savez(out, q=solution.q.astype(np.float32), joint_names=np.array(solution.joint_names),
-             fps=np.float64(solution.fps), q_control=solution.q_control.astype(np.float32),
+    np.savez(out, q=np.asarray(solution.q, np.float64), joint_names=np.array(solution.joint_names),
+             fps=np.float64(solution.fps), q_control=np.asarray(solution.q_control, np.float64),
              dt=np.float64(1.0 / solution.control_rate_hz), robot=np.array(robot.name),
              metrics=np.array(json.dumps(metrics, sort_keys=True)),
              **{f"frame_{k}": v for k, v in solution.frame_metrics.items()})

@@ -66,4 +66,8 @@ class IKConfig(Section):
     hands: bool = True
     #: Clamp per-step joint changes to the velocity limits at the trajectory's fps.
     enforce_velocity_limits: bool = True
+    #: Remove what MuJoCo still finds penetrating after the solve (the proxies leak between
+    #: sampled points and at interpolated control samples), at both rates (`retarget.control`).
+    #: Off only to study the proxies alone.
+    contact_repair: bool = True
     control_rate_hz: float = Field(50.0, gt=0, le=2000)

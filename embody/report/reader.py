@@ -1,8 +1,9 @@
 """Read one run from the artifact store into `RunData` (manifest + the artifacts it names).
 
 Metric dicts come from the manifest (what each step's library call returned). Table III's
-validation counters and the wrist figures need the robot: they are computed here with the
-retargeting stage's own functions on the stored trajectories.
+validation counters are those the metrics step stored for the exported control-rate array
+(computed here with the same functions only for runs that predate them); the wrist figures
+need the robot and use the retargeting stage's own functions on the stored trajectories.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ log = logging.getLogger(__name__)
 
 #: Step names as the orchestrator stores them (tasks/stages.py).
 SOURCE, COLLIDE, SHAPE_FIT = "source", "collide", "shape_fit"
-RETARGET, REFINE, RENDER = "retarget", "refine", "render"
+RETARGET, REFINE, RENDER, METRICS = "retarget", "refine", "render", "metrics"
 
 
 def open_run(store_root: str | Path, run: str) -> tuple[Any, Any]:
@@ -69,15 +70,33 @@ def metrics_frame(manifest: Any, step: str) -> pd.DataFrame:
     return frame
 
 
-def final_validation(robot: Any, seq: dict[str, Any], q: np.ndarray, fps: float) -> dict[str, float]:
-    """Validation counters of a sequence's final trajectory: those the metrics step stored,
-    else computed now (runs made before the metrics step recorded them)."""
+def exported_trajectory(store: Any, robot: Any, seq: dict[str, Any], ik: Any,
+                        q: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
+    """The control-rate array `embody export` writes for a sequence and its validation counters:
+    both as the metrics step stored them; for runs made before it stored them, built now with
+    the same function (`retarget.control.control_trajectory`) and validated here."""
+    from embody.retarget.control import control_trajectory
     from embody.retarget.validation import VALIDATION_KEYS, validation_counts
 
-    stored = seq.get("metrics", {}).get("metrics", {})
-    if all(k in stored for k in VALIDATION_KEYS):
+    stored = seq.get("metrics", {}).get(METRICS, {})
+    if METRICS in seq.get("steps", {}) and "validation_rate_hz" in stored:
+        art = store.read(METRICS, seq["steps"][METRICS])
+        if "q_control" in art.arrays:
+            return (np.asarray(art.arrays["q_control"]),
+                    {k: float(stored[k]) for k in VALIDATION_KEYS})
+    q_control = control_trajectory(robot, q, ik.fps, ik.control_rate_hz)
+    return q_control, validation_counts(robot, q_control, ik.control_rate_hz)
+
+
+def final_validation(store: Any, robot: Any, seq: dict[str, Any], ik: Any,
+                     q: np.ndarray) -> dict[str, float]:
+    """Validation counters of the exported array of a sequence's final trajectory q."""
+    from embody.retarget.validation import VALIDATION_KEYS
+
+    stored = seq.get("metrics", {}).get(METRICS, {})
+    if "validation_rate_hz" in stored and all(k in stored for k in VALIDATION_KEYS):
         return {k: float(stored[k]) for k in VALIDATION_KEYS}
-    return validation_counts(robot, q, fps)
+    return exported_trajectory(store, robot, seq, ik, q)[1]
 
 
 def load_result(store: Any, seq: dict[str, Any], step: str) -> Any:
@@ -176,11 +195,17 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
         extra = {i: validation_counts(robotics.robot, ik[i].q, ik[i].fps) for i in ok}
         data.retarget["self_collision_frames"] = pd.Series(
             {i: v["self_collision_frames"] for i, v in extra.items()})
+    if not refined:  # the IK trajectory is the final one: its validity is the exported array's
+        exported = pd.DataFrame.from_dict(
+            {i: final_validation(store, robotics.robot, seqs[i], ik[i], ik[i].q) for i in ok},
+            orient="index")
+        for key in exported:
+            data.retarget.loc[ok, key] = exported[key]
     if refined:
         data.refine[critic] = [refined[i] for i in sorted(refined)]
         data.refined[critic] = metrics_frame(manifest, REFINE)
         data.validation[critic] = pd.DataFrame.from_dict(
-            {i: final_validation(robotics.robot, seqs[i], r.q, ik[i].fps)
+            {i: final_validation(store, robotics.robot, seqs[i], ik[i], r.q)
              for i, r in refined.items()},
             orient="index")
     worst = data.retarget.loc[ok, "wrist_pos_err_mm"].sort_values(ascending=False, kind="stable")
@@ -219,12 +244,19 @@ def _text(store: Any, seq: dict[str, Any]) -> str:
     return str(doc.get("attributes", {}).get("result", {}).get("meta", {}).get("text", ""))
 
 
+def run_robot(store_root: str | Path, run: str) -> Any:
+    """The robot `run` was retargeted for, as its recorded config loads it."""
+    from embody.robot import load_robot
+
+    return load_robot(run_config(open_run(store_root, run)[1]).robot)
+
+
 def run_trajectories(store_root: str | Path, run: str, robot_name: str
                      ) -> tuple[list[Any], list[tuple[str, str]]]:
-    """The final trajectory of every finished sequence of `run` (refined when the critic ran),
-    validated on `robot_name`; plus (id, reason) of the sequences the run itself failed."""
+    """The exported (control-rate) trajectory of every finished sequence of `run` (from the
+    refined one when the critic ran) with its stored validation counters, and (id, reason) of
+    the sequences the run itself failed."""
     from embody.report.library import Trajectory
-    from embody.retarget.limits import resample
 
     store, manifest = open_run(store_root, run)
     robotics = _Robotics(store, manifest)
@@ -240,14 +272,13 @@ def run_trajectories(store_root: str | Path, run: str, robot_name: str
         if REFINE in seq["steps"]:
             final = load_result(store, seq, REFINE)
             q = np.asarray(final.q, dtype=np.float64)
-            q_control = resample(q, ik.fps, ik.control_rate_hz)
             scores = {**final.final.metrics, "refined": True, "accepted": bool(final.accepted)}
         else:
-            q, q_control = ik.q, ik.q_control
+            q = np.asarray(ik.q, dtype=np.float64)
             scores = {"wrist_mm_mean": ik.metrics.get("wrist_pos_err_mm"),
                       "wrist_deg_mean": ik.metrics.get("wrist_rot_err_deg"), "refined": False}
-        validation = {**scores, **final_validation(robotics.robot, seq, q, ik.fps),
-                      "fps": ik.fps, "control_rate_hz": ik.control_rate_hz}
+        q_control, counts = exported_trajectory(store, robotics.robot, seq, ik, q)
+        validation = {**scores, **counts, "fps": ik.fps, "control_rate_hz": ik.control_rate_hz}
         out.append(Trajectory(id=sid, robot=robot_name, joint_names=tuple(ik.joint_names),
                               q=q_control, dt=1.0 / ik.control_rate_hz, text=_text(store, seq),
                               validation=validation))

@@ -10,8 +10,9 @@ one LAPACK call (`banded.block_pentadiagonal_solve`) solves all frames jointly i
 are clamped to the joint box, so limits are never violated. Residuals are NumPy with geometric
 Jacobians from one batched FK pass per iteration (`cfg.kinematics`: pytorch-kinematics or the
 NumPy tree), computed only for accepted steps. A final clamp (`limits.clamp_velocity`) removes
-what the soft velocity hinge leaves, and the result carries MuJoCo's exact contact count
-(`robot.contacts`) in its metrics.
+what the soft velocity hinge leaves; then MuJoCo's exact contacts are removed where the proxies
+leaked (`control.separate`), at the source rate and at the control rate (`control_trajectory`:
+the array the library exports), and the result carries MuJoCo's contact count in its metrics.
 """
 
 from __future__ import annotations
@@ -26,8 +27,10 @@ from embody.config.ik import IKConfig
 from embody.metrics.trajectory import mean_jerk, position_error, rotation_error_deg
 from embody.retarget.banded import block_pentadiagonal_solve
 from embody.retarget.costs import WRIST_ELBOW, Residuals
-from embody.retarget.limits import clamp_velocity, limit_violations, resample, velocity_violations
+from embody.retarget.control import control_trajectory, separate
+from embody.retarget.limits import clamp_velocity, limit_violations, velocity_violations
 from embody.retarget.targets import Targets
+from embody.retarget.validation import validation_counts
 from embody.robot import Robot
 from embody.robot.contacts import self_collision_contacts
 
@@ -235,7 +238,12 @@ def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
     q = robot.clip(problem.q_full(qi))
     if cfg.enforce_velocity_limits:
         q = clamp_velocity(q, robot.velocity_limits, targets.fps)
+    # MuJoCo has the last word at both rates: every written sample is collision-free
+    if cfg.contact_repair:
+        q = separate(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits)
     frames, metrics = evaluate(robot, q, targets)
-    q_control = resample(q, targets.fps, cfg.control_rate_hz)
+    q_control = control_trajectory(robot, q, targets.fps, cfg.control_rate_hz, cfg.contact_repair)
+    metrics.update({f"control_{k}": v for k, v in
+                    validation_counts(robot, q_control, cfg.control_rate_hz).items()})
     return IKSolution(q=q, joint_names=list(robot.joint_names), fps=targets.fps, q_control=q_control,
                       control_rate_hz=cfg.control_rate_hz, frame_metrics=frames, metrics=metrics)

@@ -1,8 +1,10 @@
 """Validity counters of a joint trajectory, independent of the targets it was solved for.
 
 What a robot may execute: no joint-limit violations, no velocity-limit violations at the
-trajectory's rate, and no penetrating self-contacts in MuJoCo. The pipeline's metrics step,
-the report and the library export all read these same counters.
+trajectory's rate, and no penetrating self-contacts in MuJoCo, at every sample of q exactly as
+given (float64; a float32 file is validated after its cast). The pipeline's metrics step stores
+them for the exported control-rate array, and the report and the library export read them; the
+export also recomputes them on each file it writes.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ VALIDATION_KEYS = ("joint_limit_violations", "velocity_violations", "self_collis
 def validation_counts(robot: Any, q: np.ndarray, fps: float) -> dict[str, float]:
     """Counts of limit violations, velocity violations and MuJoCo self-collision frames of q (T,n)."""
     from embody.retarget.limits import limit_violations, velocity_violations
-    from embody.retarget.verify import self_collision_contacts
+    from embody.robot.contacts import self_collision_contacts
 
     q = np.asarray(q, dtype=np.float64)
     contacts = self_collision_contacts(robot, q)

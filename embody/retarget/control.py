@@ -1,0 +1,151 @@
+"""Collision-free joint trajectories at any rate: MuJoCo contact repair and the control-rate resample.
+
+Interpolating between two collision-free frames is not collision-free when the hands pass within
+millimetres of each other, and the sphere/hull proxies steering the IK are approximations. So the
+last word is MuJoCo's: every sample of a written trajectory is checked with `mj_collision` (the
+same counted pairs as `embody.robot.contacts`), and a sample with penetrating contacts is pushed
+apart along the contact normals. Per contact i, with normal n_i (geom1 → geom2), depth d_i < 0 and
+point Jacobians J1, J2 of the two bodies, the separation rate is a_i = n_iᵀ (J2 − J1); the
+weighted least-norm step δ = W⁻¹Aᵀ(AW⁻¹Aᵀ + μI)⁻¹(clearance − d) is repeated until the sample is
+clear (a damped Gauss-Newton on the contact distances). The correction is blended into the
+neighbouring samples (a hat window, wide enough that its ramps use at most half of each joint's
+velocity limit) so it does not create a velocity spike, then the trajectory is
+clipped to the joint box and clamped to the velocity limits, and re-checked; a few passes.
+
+`control_trajectory` is what the library exports: the source-rate trajectory resampled to the
+control rate, repaired at every control sample, and kept a hair inside the joint box and the
+velocity limits so that a float32 cast (BeyondMimic's reader) cannot push it over.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from embody.retarget.limits import clamp_velocity, resample
+from embody.robot import Robot
+from embody.robot.contacts import counted_geom_pairs
+
+#: Clearance (m) a repaired sample gets between the geoms that penetrated.
+CLEARANCE = 0.002
+#: Margin (rad) kept inside the joint box, and relative margin under the velocity limits, in the
+#: exported control-rate array: larger than float32 rounding (≤ 2.4e-7 rad below 4 rad).
+BOX_MARGIN = 1e-6
+VELOCITY_MARGIN = 1e-5
+#: Cost of moving a joint class in the repair step (larger = moved less): arms move first,
+#: fingers (the handshape carries meaning) and the waist only when needed.
+WEIGHTS = {"arm": 1.0, "hand": 25.0, "waist": 25.0}
+
+
+class _Separator:
+    """Per-sample contact repair on one robot (one MjData, reused)."""
+
+    def __init__(self, robot: Robot, clearance: float = CLEARANCE) -> None:
+        self.robot, self.model, self.clearance = robot, robot.model, clearance
+        self.data = mujoco.MjData(self.model)
+        self.counted = counted_geom_pairs(robot)
+        jid = [self.model.joint(n).id for n in robot.joint_names]
+        self.dof = self.model.jnt_dofadr[jid]
+        hands = {j for side in robot.spec.hands for j in robot.hand_joint_names(side)}
+        waist = set(robot.waist_joint_names)
+        movable = [i for i, n in enumerate(robot.joint_names) if robot.ik_mask[i] or n in hands]
+        self.movable = np.array(movable, dtype=np.int64)
+        self.weight = np.array([WEIGHTS["waist"] if robot.joint_names[i] in waist else
+                                WEIGHTS["hand"] if robot.joint_names[i] in hands else WEIGHTS["arm"]
+                                for i in movable])
+        self.jacp = np.zeros((3, self.model.nv))
+        self.jac2 = np.zeros((3, self.model.nv))
+
+    def contacts(self, q: np.ndarray) -> list[int]:
+        """Indices (into data.contact) of counted penetrating contacts at joint values q."""
+        d = self.data
+        d.qpos[:] = self.model.qpos0
+        d.qpos[self.robot.qpos_adr] = q
+        mujoco.mj_kinematics(self.model, d)
+        mujoco.mj_comPos(self.model, d)
+        mujoco.mj_collision(self.model, d)
+        geom = d.contact.geom[: d.ncon]
+        return [i for i in range(d.ncon)
+                if d.contact.dist[i] < 0 and self.counted[geom[i, 0], geom[i, 1]]]
+
+    def frame(self, q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+              iterations: int = 40) -> np.ndarray:
+        """q moved (least weighted change) until MuJoCo reports no counted penetration."""
+        q = q.copy()
+        m, d = self.model, self.data
+        cols = self.dof[self.movable]
+        for _ in range(iterations):
+            hits = self.contacts(q)
+            if not hits:
+                break
+            rows, gap = [], []
+            for i in hits:
+                c = d.contact[i]
+                n = c.frame[:3]
+                b1, b2 = m.geom_bodyid[c.geom[0]], m.geom_bodyid[c.geom[1]]
+                mujoco.mj_jac(m, d, self.jacp, None, c.pos, b1)
+                mujoco.mj_jac(m, d, self.jac2, None, c.pos, b2)
+                rows.append(n @ (self.jac2 - self.jacp)[:, cols])
+                gap.append(self.clearance - c.dist)
+            a, b = np.array(rows), np.array(gap)
+            winv = 1.0 / self.weight
+            aw = a * winv
+            step = aw.T @ np.linalg.solve(aw @ a.T + 1e-6 * np.eye(len(b)), b)
+            step *= min(1.0, 0.15 / max(np.abs(step).max(), 1e-12))  # linearisation holds for small steps
+            q[self.movable] = np.clip(q[self.movable] + step, lower[self.movable], upper[self.movable])
+        return q
+
+
+def _spread(delta: np.ndarray, half_width: int) -> np.ndarray:
+    """Blend per-sample corrections into ±half_width neighbours with a hat window (per joint the
+    largest weighted correction wins, so overlapping windows never add up)."""
+    out = delta.copy()
+    t = len(delta)
+    for k in range(1, min(half_width, t - 1) + 1):
+        w = 1.0 - k / (half_width + 1)
+        for src, dst in ((slice(0, t - k), slice(k, t)), (slice(k, t), slice(0, t - k))):
+            cand, cur = w * delta[src], out[dst]
+            out[dst] = np.where(np.abs(cand) > np.abs(cur), cand, cur)
+    return out
+
+
+def separate(robot: Robot, q: np.ndarray, fps: float, *, passes: int = 12, blend_s: float = 0.1,
+             box_margin: float = 0.0, velocity_margin: float = 0.0,
+             clearance: float = CLEARANCE, enforce_velocity: bool = True) -> np.ndarray:
+    """q (T,n) with every sample's penetrating self-contacts removed (MuJoCo's verdict), inside
+    the joint box (shrunk by `box_margin`) and the velocity limits (× (1 − velocity_margin))."""
+    q = np.array(q, dtype=np.float64)
+    lower, upper = robot.lower + box_margin, robot.upper - box_margin
+    vmax = robot.velocity_limits * (1.0 - velocity_margin)
+    sep = _Separator(robot, clearance)
+    half = max(int(round(blend_s * fps)), 0)
+    check = np.ones(len(q), dtype=bool)  # samples whose verdict is unknown (unchanged ones keep theirs)
+    for _ in range(passes):
+        bad = [t for t in np.flatnonzero(check) if sep.contacts(q[t])]
+        if not bad:
+            break
+        delta = np.zeros_like(q)
+        for t in bad:
+            delta[t] = sep.frame(q[t], lower, upper) - q[t]
+        # a wide enough hat that its ramps take at most half of each joint's velocity budget
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ramp = np.nan_to_num(np.abs(delta) / (vmax / fps), nan=0.0, posinf=0.0)
+        width = max(half, int(np.ceil(2.0 * ramp.max())))
+        new = np.clip(q + _spread(delta, width), lower, upper)
+        if enforce_velocity:
+            new = clamp_velocity(new, vmax, fps)
+        check = np.any(new != q, axis=1)
+        q = new
+    return q
+
+
+def control_trajectory(robot: Robot, q: np.ndarray, fps: float, rate: float,
+                       repair: bool = True) -> np.ndarray:
+    """The exported control-rate trajectory (float64): q resampled to `rate` Hz, then every
+    sample made collision-free and kept strictly inside the joint and velocity limits."""
+    qc = resample(np.asarray(q, dtype=np.float64), fps, rate)
+    qc = np.clip(qc, robot.lower + BOX_MARGIN, robot.upper - BOX_MARGIN)
+    qc = clamp_velocity(qc, robot.velocity_limits * (1.0 - VELOCITY_MARGIN), rate)
+    if not repair:
+        return qc
+    return separate(robot, qc, rate, box_margin=BOX_MARGIN, velocity_margin=VELOCITY_MARGIN)

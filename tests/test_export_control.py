@@ -1,0 +1,219 @@
+"""The exported trajectory is the validated one: collision-free at every control sample by
+construction, re-validated as written, refused when tampered, readable by its consumers."""
+
+from __future__ import annotations
+
+import json
+import pickle
+
+import mujoco
+import numpy as np
+import pandas as pd
+import pytest
+
+from embody.cli import main
+from embody.config.ik import IKConfig
+from embody.report.library import Trajectory, check_library, export_library
+from embody.retarget.control import control_trajectory
+from embody.retarget.ik import solve
+from embody.retarget.limits import resample
+from embody.retarget.targets import Targets, robot_arm_length
+from embody.retarget.validation import validation_counts
+from embody.robot import load_robot
+from embody.robot.contacts import self_collision_contacts
+
+RATE = 50.0
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot()
+
+
+def _pose(robot, z: float) -> np.ndarray:
+    """Forearms forward, hands in front of the chest; z lifts the left hand and lowers the right."""
+    q = robot.rest.copy()
+    for name, v in (("left_shoulder_pitch_joint", -0.6 - z), ("right_shoulder_pitch_joint", -0.6 + z),
+                    ("left_elbow_joint", 1.0), ("right_elbow_joint", 1.0),
+                    ("left_shoulder_yaw_joint", -0.5), ("right_shoulder_yaw_joint", 0.5)):
+        q[robot.joint_index(name)] = v
+    return robot.clip(q)
+
+
+@pytest.fixture(scope="module")
+def passing(robot):
+    """Two source frames (10 fps) with the hands clear of each other, passing through each other
+    in between: the plain 50 Hz resample penetrates."""
+    q = np.stack([_pose(robot, -0.2), _pose(robot, 0.2)])
+    return q, 10.0
+
+
+def _independent_contacts(robot, q: np.ndarray) -> np.ndarray:
+    """Penetrating contacts per frame between the two hands (left/right wrist subtrees), straight
+    from MuJoCo, without embody's contact filter."""
+    m = robot.model
+    d = mujoco.MjData(m)
+    names = [m.body(b).name for b in m.geom_bodyid]
+    side = np.array([int(n.startswith(("left_wrist", "left_hand")))
+                     - int(n.startswith(("right_wrist", "right_hand"))) for n in names])
+    out = []
+    for qt in q:
+        d.qpos[:] = robot.qpos(qt)
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        g = d.contact.geom[: d.ncon]
+        pen = d.contact.dist[: d.ncon] < 0
+        out.append(int((pen & (side[g[:, 0]] * side[g[:, 1]] == -1)).sum()))
+    return np.array(out)
+
+
+def test_plain_resample_penetrates_between_clear_source_frames(robot, passing):
+    q, fps = passing
+    assert self_collision_contacts(robot, q).sum() == 0
+    plain = resample(q, fps, RATE)
+    assert (self_collision_contacts(robot, plain) > 0).sum() >= 3
+    assert (_independent_contacts(robot, plain) > 0).sum() >= 3
+
+
+def test_control_trajectory_is_collision_free_at_every_sample(robot, passing):
+    q, fps = passing
+    qc = control_trajectory(robot, q, fps, RATE)
+    assert qc.shape == resample(q, fps, RATE).shape and qc.dtype == np.float64
+    assert self_collision_contacts(robot, qc).tolist() == [0] * len(qc)
+    assert _independent_contacts(robot, qc).tolist() == [0] * len(qc)
+    assert validation_counts(robot, qc, RATE) == {"joint_limit_violations": 0.0,
+                                                  "velocity_violations": 0.0,
+                                                  "self_collision_frames": 0.0}
+    # strictly inside the limits, so the float32 cast (BeyondMimic reads float32) stays valid
+    q32 = qc.astype(np.float32).astype(np.float64)
+    assert validation_counts(robot, q32, RATE)["joint_limit_violations"] == 0
+    assert validation_counts(robot, q32, RATE)["velocity_violations"] == 0
+    # the repair is local: samples stay near the interpolation (radians)
+    assert np.abs(qc - resample(q, fps, RATE)).max() < 0.5
+
+
+def test_ik_solution_collision_free_at_both_rates_without_proxies(robot):
+    """Without the proxy penalty the IK plants the hands inside each other; the MuJoCo repair
+    still leaves every written sample (source and control rate) free of penetration."""
+    t = 4
+    q = np.tile(robot.rest, (t, 1))
+    import torch
+    with torch.no_grad():
+        p, r = robot.link_points(torch.tensor(q), ["left_wrist", "right_wrist", "left_elbow", "right_elbow"])
+    eye = np.tile(np.eye(3), (t, 1, 1))
+    targets = Targets(wrist_pos=p[:, :2].numpy().copy(), wrist_rot=r[:, :2].numpy(),
+                      elbow_pos=p[:, 2:].numpy(), torso_rot=eye, head_rot=eye,
+                      hand_q=np.zeros((t, 0)), hand_joints=[], fps=30.0,
+                      arm_length=robot_arm_length(robot))
+    targets.wrist_pos[:, 0] = [0.30, 0.05, 0.10]
+    targets.wrist_pos[:, 1] = [0.30, -0.05, 0.10]
+    sol = solve(robot, targets, IKConfig(w_collision=0.0, iterations=10))
+    assert self_collision_contacts(robot, sol.q).sum() == 0
+    assert self_collision_contacts(robot, sol.q_control).sum() == 0
+    assert sol.metrics["self_collision_frames"] == 0
+
+
+def _trajectory(robot, q: np.ndarray, sid: str = "pass") -> Trajectory:
+    zero = {"joint_limit_violations": 0, "velocity_violations": 0, "self_collision_frames": 0}
+    return Trajectory(id=sid, robot=robot.name, joint_names=tuple(robot.joint_names), q=q,
+                      dt=1.0 / RATE, text="pass", validation=zero)
+
+
+def test_export_refuses_tampered_trajectory(robot, passing, tmp_path):
+    """Stored counters claim 0, but the array penetrates: the export re-validates and refuses."""
+    q, fps = passing
+    good = _trajectory(robot, control_trajectory(robot, q, fps, RATE), "good")
+    bad = _trajectory(robot, resample(q, fps, RATE), "tampered")
+    library, excluded = export_library([good, bad], tmp_path, "npz", robot=robot)
+    assert library["id"].tolist() == ["good"]
+    row = excluded.set_index("id").loc["tampered"]
+    assert row["status"] == "refused" and "self_collision_frames=" in row["reason"]
+    assert not (tmp_path / "tampered.npz").exists()
+    meta = json.loads((tmp_path / "library.json").read_text())
+    assert meta["robot"] == robot.name and meta["format"] == "npz"
+    assert [e["id"] for e in meta["sequences"]] == ["good"]
+    assert meta["sequences"][0]["written"]["self_collision_frames"] == 0
+
+
+@pytest.mark.parametrize("fmt", ["npz", "csv", "gmr", "beyondmimic"])
+def test_check_revalidates_library(robot, passing, tmp_path, fmt, capsys):
+    q, fps = passing
+    export_library([_trajectory(robot, control_trajectory(robot, q, fps, RATE))], tmp_path, fmt,
+                   robot=robot)
+    table = check_library(tmp_path, robot)
+    assert table["ok"].tolist() == [True] and table["self_collision_frames"].tolist() == [0]
+    assert main(["export", "--check", str(tmp_path)]) == 0
+    # a received file edited to penetrate fails the check
+    path = tmp_path / pd.read_csv(tmp_path / "library.csv")["file"][0]
+    bad = resample(q, fps, RATE)
+    if fmt == "npz":
+        _trajectory(robot, bad).save(path.with_suffix(""), "npz")
+    elif fmt == "gmr":
+        motion = pickle.loads(path.read_bytes())
+        motion["dof_pos"] = bad
+        path.write_bytes(pickle.dumps(motion))
+    elif fmt == "csv":
+        _trajectory(robot, bad).save(path.with_suffix(""), "csv")
+    else:
+        rows = np.loadtxt(path, delimiter=",")
+        rows[:, 7:] = bad
+        np.savetxt(path, rows, delimiter=",")
+    capsys.readouterr()
+    assert main(["export", "--check", str(tmp_path)]) == 1
+    assert "FAIL pass" in capsys.readouterr().out
+    assert main(["export", "--check", str(tmp_path / "nowhere")]) == 2
+
+
+def test_gmr_pickle_round_trip(robot, passing, tmp_path):
+    """Read as GMR's consumers do (pickle.load; qpos = root_pos | root_rot xyzw→wxyz | dof_pos)."""
+    q, fps = passing
+    qc = control_trajectory(robot, q, fps, RATE)
+    path = _trajectory(robot, qc).save(tmp_path / "m", "gmr", robot)
+    assert path.suffix == ".pkl"
+    with open(path, "rb") as f:
+        motion = pickle.load(f)
+    assert set(motion) == {"fps", "root_pos", "root_rot", "dof_pos", "local_body_pos", "link_body_list"}
+    assert motion["fps"] == 50 and motion["local_body_pos"] is None
+    t = len(qc)
+    assert motion["root_pos"].shape == (t, 3) and motion["root_rot"].shape == (t, 4)
+    assert motion["dof_pos"].shape == (t, robot.model.nq - 7) and motion["dof_pos"].dtype == np.float64
+    m = robot.model
+    for k in (0, t // 2, t - 1):
+        qpos = np.concatenate([motion["root_pos"][k], motion["root_rot"][k][[3, 0, 1, 2]],
+                               motion["dof_pos"][k]])
+        np.testing.assert_array_equal(qpos, robot.qpos(qc[k]))  # MJCF qpos order, fingers included
+    np.testing.assert_allclose(np.linalg.norm(motion["root_rot"], axis=1), 1.0)
+    assert m.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+
+
+def test_beyondmimic_csv_round_trip(robot, passing, tmp_path):
+    """Read as BeyondMimic's csv_to_npz does: loadtxt(delimiter=","), float32, base pos 0:3,
+    base quat xyzw 3:7 (→ wxyz by [3, 0, 1, 2]), joint positions 7:."""
+    q, fps = passing
+    qc = control_trajectory(robot, q, fps, RATE)
+    path = _trajectory(robot, qc).save(tmp_path / "m", "beyondmimic", robot)
+    motion = np.loadtxt(path, delimiter=",").astype(np.float32)
+    assert motion.shape == (len(qc), 7 + robot.n_joints)
+    base_pos, base_rot = motion[:, :3], motion[:, 3:7][:, [3, 0, 1, 2]]
+    np.testing.assert_allclose(base_pos, np.tile(robot.model.qpos0[:3], (len(qc), 1)), atol=1e-6)
+    np.testing.assert_allclose(base_rot, np.tile(robot.model.qpos0[3:7], (len(qc), 1)), atol=1e-6)
+    np.testing.assert_allclose(motion[:, 7:], qc, atol=1e-6)
+    assert validation_counts(robot, motion[:, 7:].astype(np.float64), RATE)["joint_limit_violations"] == 0
+
+
+def test_proxies_cover_fingers_against_other_palm_and_thighs(robot):
+    """Every finger link of each hand carries proxy points paired with the other hand's palm hull
+    and with every thigh hull (the differentiable penalty sees these contacts)."""
+    from embody.robot.proxies import robot_proxies
+
+    p = robot_proxies(robot)
+    pairs = {(p.bodies[p.sphere_body[s]], p.bodies[p.hull_body[h]]) for s, h in p.hull_pairs}
+    thighs = {b for b in p.bodies if "_hip_" in b}
+    assert thighs
+    for side, other in (("left", "right"), ("right", "left")):
+        fingers = [b for b in p.bodies if b.startswith(f"{side}_hand_")]
+        assert len(fingers) == 7
+        for f in fingers:
+            assert (f, f"{other}_wrist_yaw_link") in pairs, f  # the palm
+            for t in thighs:
+                assert (f, t) in pairs, (f, t)
