@@ -19,7 +19,8 @@ orientation, body scale, contact distances) and compared here, in NumPy only:
   path-length ratio robot/human and the correlation of the speed profiles.
 - *Contact*: per frame and channel (hand-hand, each hand to face, to chest), the human is in
   contact when its surfaces come within `contact_eps`; the robot when its geoms do without
-  penetrating deeper than `penetration_tol`. Precision, recall and F1 over frame events.
+  penetrating deeper than `penetration_tol`, within `robot_eps` (the robot keeps its collision
+  margin, so its touch sits a little farther out). Precision, recall and F1 over frame events.
 """
 
 from __future__ import annotations
@@ -111,7 +112,7 @@ def location(human: Track, robot: Track, radius: float) -> dict[str, np.ndarray]
         vr = relative_location(robot, side, names, k)
         err.append(np.linalg.norm(vh - vr, axis=-1))
         near.append(d < radius)
-        agree.append((kr == k) & (dr < radius))
+        agree.append(kr == k)
         idx.append(k)
         dist.append(d)
     return {"err": np.stack(err, 1), "near": np.stack(near, 1), "agree": np.stack(agree, 1),
@@ -186,14 +187,15 @@ def movement(human: Track, robot: Track) -> dict[str, float]:
             "speed_corr": float(np.mean(corr)) if corr else float("nan")}
 
 
-def contacts(human: Track, robot: Track, eps: float, penetration: float) -> dict[str, np.ndarray]:
+def contacts(human: Track, robot: Track, eps: float, penetration: float,
+             robot_eps: float | None = None) -> dict[str, np.ndarray]:
     """Frame events (T,C) of human and robot contact, robot penetrations, and P/R/F1 counts."""
     hc = human.contact if human.contact is not None else np.full((len(human.points), len(CONTACTS)), np.nan)
     rc = robot.contact if robot.contact is not None else np.full_like(hc, np.nan)
     measured = np.isfinite(hc) & np.isfinite(rc)
     h = measured & (hc < eps)
     pen = measured & (rc < -penetration)
-    r = measured & (rc < eps) & ~pen
+    r = measured & (rc < (eps if robot_eps is None else robot_eps)) & ~pen
     return {"human": h, "robot": r, "penetration": pen, "tp": h & r}
 
 
@@ -205,7 +207,8 @@ def _f1(tp: int, hp: int, rp: int) -> tuple[float, float, float]:
 
 
 def compare(human: Track, robot: Track, *, radius: float = 0.5, eps: float = 0.015,
-            penetration: float = 0.002) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+            penetration: float = 0.002, robot_eps: float | None = None
+            ) -> tuple[dict[str, np.ndarray], dict[str, float]]:
     """All fidelity measures: per-frame arrays and the sequence's aggregates (flat floats)."""
     if len(human.points) != len(robot.points):
         raise ValueError(f"frame counts differ: human {len(human.points)}, robot {len(robot.points)}")
@@ -213,7 +216,7 @@ def compare(human: Track, robot: Track, *, radius: float = 0.5, eps: float = 0.0
     ori = orientation(human, robot)
     shape = handshape(human, robot)
     mov = movement(human, robot)
-    con = contacts(human, robot, eps, penetration)
+    con = contacts(human, robot, eps, penetration, robot_eps)
     near = loc["near"]
     tp, hp, rp = int(con["tp"].sum()), int(con["human"].sum()), int(con["robot"].sum())
     p, r, f = _f1(tp, hp, rp)
@@ -238,3 +241,9 @@ def compare(human: Track, robot: Track, *, radius: float = 0.5, eps: float = 0.0
               "palm_deg": ori["palm_deg"], "pointing_deg": ori["pointing_deg"],
               "contact_human": con["human"], "contact_robot": con["robot"]}
     return frames, metrics
+
+
+def compare_with(human: Track, robot: Track, cfg) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """`compare` with the thresholds of a `FidelityConfig`."""
+    return compare(human, robot, radius=cfg.location_radius, eps=cfg.contact_eps,
+                   penetration=cfg.penetration_tol, robot_eps=cfg.robot_contact_eps)
