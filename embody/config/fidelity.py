@@ -18,3 +18,6 @@ class FidelityConfig(Section):
     robot_contact_eps: float = Field(0.03, gt=0.0, le=0.2)
     #: A robot contact deeper than this (m) is a penetration, and does not count as a contact.
     penetration_tol: float = Field(0.002, ge=0.0, le=0.05)
+    #: With location-preserving targets, also solve the plain shape-fit IK in the metrics step,
+    #: so Table III compares both (costs one more IK solve per sequence).
+    baseline: bool = True
