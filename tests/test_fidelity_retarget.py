@@ -93,5 +93,5 @@ def test_critic_moves_a_hand_planted_below_the_chin_up(setup):
     moves = {p["name"]: p["amount"] for p in first.action["primitives_positions"]}
     assert moves.get("move_right_up", 0.0) >= 0.05, first.action
     assert first.action["verdict"] == "revise"
-    assert result.rounds[1].metrics["location_err"] < 0.5 * first.metrics["location_err"]
+    assert result.rounds[1].metrics["location_err"] < 0.8 * first.metrics["location_err"]
     assert result.final is result.rounds[1]  # critic.keep auto: the better fidelity score
