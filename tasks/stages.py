@@ -21,22 +21,22 @@ __all__ = ["Metrics", "default_pipeline", "SOURCE", "COLLIDE", "SHAPE_FIT", "RET
 
 @dataclass
 class Metrics:
-    """The `metrics` step's result: a flat dict of numbers (attrs) and the exported
-    control-rate trajectory `q_control` (float64), the exact array the validity figures describe."""
+    """The `metrics` step's result: a flat dict of numbers (attrs) and arrays: the exported
+    control-rate trajectory `q_control` (float64, the exact array the validity figures describe)
+    and the final trajectory's per-frame location error per hand and the human's nearest landmark."""
 
     metrics: dict[str, Any] = field(default_factory=dict)
-    q_control: np.ndarray | None = None
+    arrays: dict[str, np.ndarray] = field(default_factory=dict)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
-        return {} if self.q_control is None else {"q_control": np.asarray(self.q_control, np.float64)}
+        return dict(self.arrays)
 
     def to_attrs(self) -> dict[str, Any]:
         return {"metrics": self.metrics}
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> "Metrics":
-        q = arrays.get("q_control")
-        return cls(dict(attrs.get("metrics", {})), None if q is None else np.asarray(q))
+        return cls(dict(attrs.get("metrics", {})), {k: np.asarray(v) for k, v in arrays.items()})
 
 
 def _robot_files(cfg: Any) -> list[Path]:
@@ -78,7 +78,7 @@ def _shape_fit_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
 
 def _retarget(ctx: Context, inputs: dict[str, Any]) -> Any:
     from embody.retarget import build_targets, solve
-    targets = build_targets(inputs["collide"].motion, ctx.body, inputs["shape_fit"], ctx.robot)
+    targets = build_targets(inputs["collide"].motion, ctx.body, inputs["shape_fit"], ctx.robot, ctx.cfg.ik)
     return solve(ctx.robot, targets, ctx.cfg.ik)
 
 
@@ -92,7 +92,7 @@ def _refine(ctx: Context, inputs: dict[str, Any]) -> Any:
     from embody.critic import refine
     from embody.retarget import build_targets
     motion, fit = inputs["collide"].motion, inputs["shape_fit"]
-    targets = build_targets(motion, ctx.body, fit, ctx.robot)
+    targets = build_targets(motion, ctx.body, fit, ctx.robot, ctx.cfg.ik)
     return refine(motion, ctx.body, fit, ctx.robot, targets, inputs["retarget"], ctx.cfg.critic,
                   ctx.cfg.ik, ctx.cfg.render, critic=ctx.critic)
 
@@ -117,7 +117,7 @@ def _render(ctx: Context, inputs: dict[str, Any]) -> Any:
         q, keyframes = refined.q, refined.keyframes
     else:
         q = inputs["retarget"].q
-        targets = build_targets(motion, ctx.body, fit, ctx.robot)
+        targets = build_targets(motion, ctx.body, fit, ctx.robot, ctx.cfg.ik)
         keyframes = select_keyframes(targets.wrist_pos, ctx.cfg.render.keyframes)
     title = f"{motion.meta.get('id', '')}: {'refined' if refined is not None else 'IK only'}"
     return render_sequence(motion, ctx.body, fit, ctx.robot, q, keyframes, ctx.cfg.render, title)
@@ -132,10 +132,41 @@ def _render_metrics(result: Any) -> dict[str, Any]:
     return {"keyframes": int(len(result.keyframes)), "preview": result.preview_suffix or ""}
 
 
+def _fidelity(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Sign fidelity against the human that IK retargets (after collision mitigation), per row of
+    Table III: `ik` (shape-fit targets only; solved here as the baseline when the run used
+    location-preserving targets), `preserving` (the retarget step then) and `refined`."""
+    from embody.metrics.embodiments import human_track, robot_track
+    from embody.metrics.fidelity import compare_with
+    from embody.retarget import build_targets, solve
+    from embody.retarget.validation import validation_counts
+    motion, ik, cfg = inputs["collide"].motion, inputs["retarget"], ctx.cfg
+    human = human_track(motion, ctx.body)
+    rows: dict[str, np.ndarray] = {}
+    out: dict[str, Any] = {}
+    if cfg.ik.location_preserving and cfg.fidelity.baseline:
+        plain = cfg.ik.model_copy(update={"location_preserving": False})
+        base = solve(ctx.robot, build_targets(motion, ctx.body, inputs["shape_fit"], ctx.robot, plain), plain)
+        rows["ik"] = base.q
+        out.update({f"fidelity.ik.{k}": v for k, v in validation_counts(ctx.robot, base.q, ik.fps).items()})
+        out["fidelity.ik.mean_jerk"] = base.metrics["jerk"]
+    rows["preserving" if cfg.ik.location_preserving else "ik"] = np.asarray(ik.q)
+    if "refine" in inputs:
+        rows["refined"] = np.asarray(inputs["refine"].q)
+    frames: dict[str, np.ndarray] = {}
+    for row, q in rows.items():
+        per_frame, metrics = compare_with(human, robot_track(ctx.robot, q, ik.fps), cfg.fidelity)
+        out.update({f"fidelity.{row}.{k}": v for k, v in metrics.items()})
+        frames = {"location_err": per_frame["location_err"], "location_landmark": per_frame["location_landmark"]}
+    out["fidelity.final"] = list(rows)[-1]
+    return out, frames
+
+
 def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
-    """Smoothness and MuJoCo-verified validity of the final joint trajectory (the refined one
-    when the critic ran), on the exact control-rate array `embody export` writes (stored here);
-    the source-rate counters go under `source_*`. What the report's tables and the export read."""
+    """Smoothness, MuJoCo-verified validity and sign fidelity of the final joint trajectory (the
+    refined one when the critic ran). Validity is measured on the exact control-rate array
+    `embody export` writes (stored here as `q_control`); the source-rate counters go under
+    `source_*`. Every number the report's tables and the export read."""
     from embody.metrics import mean_jerk
     from embody.retarget.control import control_trajectory
     from embody.retarget.validation import validation_counts
@@ -147,13 +178,15 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     else:
         q, q_control = np.asarray(ik.q, dtype=np.float64), np.asarray(ik.q_control, np.float64)
     source = validation_counts(ctx.robot, q, ik.fps)
+    fidelity, frames = _fidelity(ctx, inputs)
     return Metrics({"frames": int(q.shape[0]), "joints": int(q.shape[-1]),
                     "duration_s": float(q.shape[0] / ik.fps), "mean_jerk": mean_jerk(q, ik.fps),
                     "final": "refine" if "refine" in inputs else "retarget",
                     "control_frames": int(q_control.shape[0]),
                     "validation_rate_hz": float(ik.control_rate_hz),
                     **validation_counts(ctx.robot, q_control, ik.control_rate_hz),
-                    **{f"source_{k}": v for k, v in source.items()}}, q_control)
+                    **{f"source_{k}": v for k, v in source.items()}, **fidelity},
+                   {"q_control": q_control, **frames})
 
 
 # v2: per-dataset default frame rates, detected up axis / hands (BEAT2), `io` overrides.
@@ -171,9 +204,11 @@ RENDER = Step("render", "1", ("body", "robot", "render"), _render, _render_resul
 RENDER_REFINED = Step("render", "1", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
-METRICS = Step("metrics", "3", (), _trajectory_metrics, Metrics.from_arrays, (RETARGET,))
-METRICS_REFINED = Step("metrics", "3", (), _trajectory_metrics, Metrics.from_arrays,
-                       (RETARGET, REFINE))
+# v4: the exported control-rate array (validated) and sign fidelity.
+METRICS = Step("metrics", "4", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+               Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
+METRICS_REFINED = Step("metrics", "4", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+                       Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 
 def default_pipeline(critic: bool = False, render: bool = False) -> Pipeline:

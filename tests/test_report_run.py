@@ -118,7 +118,8 @@ def test_tables_equal_library_metric_functions(run) -> None:
 
     t3 = pd.read_csv(run["report"] / "table3_retargeting.csv").set_index("Method")
     lib3 = refine_table(refined)
-    for method, label in (("IK only", "IK-only"), ("Refined (geometric)", "refined")):
+    # location-preserving targets (the default): the retarget step's row is "Location-preserving"
+    for method, label in (("Location-preserving", "IK-only"), ("Refined (geometric)", "refined")):
         for header, key, scale in (("Wrist pos. mean (mm)", "wrist_mm_mean", 1),
                                    ("Wrist pos. p95 (mm)", "wrist_mm_p95", 1),
                                    ("Wrist rot. mean (deg)", "wrist_deg_mean", 1),
@@ -127,6 +128,12 @@ def test_tables_equal_library_metric_functions(run) -> None:
             assert _close(t3.loc[method, header], lib3.loc[label, key] * scale), (method, header)
         assert t3.loc[method, "N"] == 2
         assert t3.loc[method, "Limit viol."] == 0  # the IK clips to the limits
+    # the plain shape-fit IK (solved by the metrics step) and the fidelity columns of every row
+    assert t3.loc["IK only", "N"] == 2 and t3.loc["IK only", "Limit viol."] == 0
+    for method in ("IK only", "Location-preserving", "Refined (geometric)"):
+        assert t3.loc[method, "Location err. (scale)"] >= 0 and 0 <= t3.loc[method, "Palm orient. (deg)"] <= 180
+    seqs = pd.read_csv(run["report"] / "sequences.csv").set_index("id")
+    assert seqs.loc["seq0", "metrics.fidelity.refined.location_err"] >= 0
 
     summary = json.loads((run["report"] / "summary.json").read_text())
     assert summary["sequences.ok"] == 2 and summary["sequences.failed"] == 1
@@ -134,7 +141,7 @@ def test_tables_equal_library_metric_functions(run) -> None:
     assert _close(summary["collision.improved_pct"],
                   number(table1(coll).loc["Improved n/N (%)", "value"]))
     assert _close(summary["retarget.refined.wrist_pos_mean_mm"], lib3.loc["refined", "wrist_mm_mean"])
-    assert _close(summary["retarget.ik_only.wrist_pos_mean_mm"], lib3.loc["IK-only", "wrist_mm_mean"])
+    assert _close(summary["retarget.preserving.wrist_pos_mean_mm"], lib3.loc["IK-only", "wrist_mm_mean"])
     for key in ("collision.pose_mse_median", "collision.daccel_mse_median",
                 "collision.runtime_mean_s", "retarget.refined.wrist_rot_mean_deg",
                 "retarget.limit_violations", "retarget.self_collision_frames"):

@@ -114,7 +114,7 @@ def test_residual_jacobian_matches_finite_differences(robot):
     q[:, robot.joint_index("left_shoulder_roll_joint")] = -0.25
     targets = _targets_from_q(robot, q)
     targets.wrist_pos = targets.wrist_pos + 0.03  # non-zero position and rotation residuals
-    res = Residuals(robot, targets, IKConfig())
+    res = Residuals(robot, targets, IKConfig(w_torso_rot=0.0))  # the 18 rows: wrists, elbows, wrist rotations
     r, jac = res(q, jacobian=True)
     assert r.shape[1] > 4 * 3 + 2 * 3  # collision rows are present
     ik = res.ik
@@ -199,7 +199,7 @@ def test_collision_scale_weights_the_proxy_term(robot):
     # the tracking phase's faint collision term: residual rows and Jacobian scale by √scale
     q = _smooth_random_q(robot, 3, seed=4)
     q[:, robot.joint_index("left_shoulder_roll_joint")] = -0.25
-    res = Residuals(robot, _targets_from_q(robot, q), IKConfig())
+    res = Residuals(robot, _targets_from_q(robot, q), IKConfig(w_torso_rot=0.0))  # 18 tracking rows
     full, jf = res(q, jacobian=True)
     faint, jt = res(q, jacobian=True, collision=1e-3)
     off, _ = res(q, collision=0.0)

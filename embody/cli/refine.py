@@ -41,7 +41,7 @@ def command(in_path: str, out: str, critic: str | None, fps: float | None, up_ax
     robot = load_robot(cfg.robot)
     body = load_body_model(cfg.body)
     fit = shape_fit(robot, body, cfg.ik)
-    targets = build_targets(motion, body, fit, robot)
+    targets = build_targets(motion, body, fit, robot, cfg.ik)
     solution = solve(robot, targets, cfg.ik)
     out_dir = Path(out)
     result = refine(motion, body, fit, robot, targets, solution, cfg.critic, cfg.ik, cfg.render,

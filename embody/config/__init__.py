@@ -17,6 +17,7 @@ from embody.config.base import Section, canonical_json
 from embody.config.body import BodyConfig
 from embody.config.collision import CollisionConfig
 from embody.config.critic import CriticConfig
+from embody.config.fidelity import FidelityConfig
 from embody.config.ik import IKConfig
 from embody.config.io import IOConfig
 from embody.config.render import RenderConfig
@@ -35,6 +36,7 @@ class Config(Section):
     ik: IKConfig = IKConfig()
     render: RenderConfig = RenderConfig()
     critic: CriticConfig = CriticConfig()
+    fidelity: FidelityConfig = FidelityConfig()
     run: RunConfig = RunConfig()
     debug: DebugConfig = DebugConfig()
 

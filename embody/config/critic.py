@@ -35,10 +35,11 @@ class CriticConfig(Section):
     kind: Literal["geometric", "vlm"] = "geometric"
     #: Critique rounds after the IK-only solution (the paper uses 2).
     rounds: int = Field(2, ge=0, le=20)
-    #: Which round is the result: `best` = closest to the reference wrists (mean mm; what the
-    #: geometric critic optimises, so a revision that made things worse is not kept), `last` =
-    #: the last revision (trust the critic's judgement, e.g. a VLM seeing more than wrist
-    #: distances), `auto` = best for the geometric critic, last for the VLM.
+    #: Which round is the result: `best` = the best fidelity score (landmark-relative location
+    #: error plus palm angle, against the human; mean wrist mm to the reference when the body is
+    #: unknown), so a revision that made things worse is not kept; `last` = the last revision
+    #: (trust the critic's judgement, e.g. a VLM seeing more than the numbers); `auto` = best for
+    #: the geometric critic, last for the VLM.
     keep: Literal["auto", "best", "last"] = "auto"
     #: Default primitive amounts when an action names no amount.
     position_step_m: float = Field(0.10, gt=0.0, le=0.5)
@@ -51,6 +52,12 @@ class CriticConfig(Section):
     #: Geometric critic: accept when every side's mean offset / arm length and yaw are below these.
     accept_position: float = Field(0.03, gt=0.0, le=1.0)
     accept_yaw_deg: float = Field(8.0, gt=0.0, le=180.0)
+    #: Geometric critic against the human (landmark-relative location): accept when every side's
+    #: offset from where the human's palm sits, relative to the nearest landmark, is below this
+    #: many body scales (shoulder widths; 0.1 ≈ 2.4 cm on G1) and the palm normal is within
+    #: `accept_palm_deg`.
+    accept_location: float = Field(0.1, gt=0.0, le=5.0)
+    accept_palm_deg: float = Field(20.0, gt=0.0, le=180.0)
     #: Geometric critic: amounts are rounded to these quanta (a VLM speaks in coarse steps too).
     position_quantum_m: float = Field(0.01, gt=0.0, le=0.5)
     angle_quantum_deg: float = Field(5.0, gt=0.0, le=90.0)

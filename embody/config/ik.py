@@ -22,7 +22,9 @@ class IKConfig(Section):
     #: Wrist orientation error (rad², rotation vector) against position (m²).
     w_wrist_rot: float = Field(0.02, ge=0)
     w_elbow_pos: float = Field(0.01, ge=0)
-    w_torso_rot: float = Field(0.0, ge=0)
+    #: Torso orientation (spine3 → torso link): a leaning signer gives a leaning robot within its
+    #: waist limits, so chest-anchored targets (below) stay where the chest is.
+    w_torso_rot: float = Field(0.01, ge=0)
     w_head_rot: float = Field(0.0, ge=0)
     #: Second differences of q (rad²): smoothness over the whole sequence. Redundant motion
     #: (elbow swivel, waist) is smoothed for free; tracking barely pays at this weight.
@@ -42,6 +44,16 @@ class IKConfig(Section):
     #: and ≤32-plane polytopes, so MuJoCo's exact meshes touch between points at smaller margins
     #: (benchmarks/ik_self_collision.py: 136 → 48 self-collision frames on the 24-sequence run).
     collision_margin: float = Field(0.015, ge=0, le=0.1)
+    # --- location-preserving targets (embody/retarget/targets.py) ---
+    #: Blend each wrist target towards a landmark-anchored one near the face and body.
+    location_preserving: bool = True
+    #: Blend weight 1 when the human hand is within `anchor_near` body scales (shoulder widths)
+    #: of a landmark, 0 beyond `anchor_far`, linear between.
+    anchor_near: float = Field(0.5, ge=0.0, le=5.0)
+    anchor_far: float = Field(1.0, gt=0.0, le=5.0)
+    #: Softness (body scales) of the soft-min over (hand point, landmark) anchors: targets stay
+    #: smooth when the nearest landmark changes.
+    anchor_softness: float = Field(0.15, gt=0.0, le=1.0)
     # --- solver (Levenberg-Marquardt over the banded whole-sequence system) ---
     #: FK backend of the solver's residuals and geometric Jacobians: the pytorch-kinematics chain
     #: (cut down to the bodies the costs use, all frames in one batched call per iteration) or the

@@ -33,6 +33,14 @@ class CritiqueContext:
     keyframe_pngs: list[bytes] = field(default_factory=list)
     keyframes: list[int] = field(default_factory=list)
     text: str = ""
+    #: The human as reference (when the body and the robot's landmarks are known): per frame and
+    #: hand (T,2,3) how far the robot palm must move, torso frame (m), to sit where the human's
+    #: is relative to the nearest face/body landmark (0 where the human hand is near none), and
+    #: this round's fidelity aggregates (`location_err` in body scales, `palm_deg`).
+    location_offset: np.ndarray | None = None
+    fidelity: dict[str, float] = field(default_factory=dict)
+    #: Robot body scale (m): location thresholds are in body scales.
+    body_scale: float = 0.0
     #: Filled by the critic: request/response record for this round (JSON-able).
     record: dict[str, Any] = field(default_factory=dict)
 

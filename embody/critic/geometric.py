@@ -1,8 +1,13 @@
-"""The offline default critic: measures the wrist offsets a VLM would describe, deterministically.
+"""The offline default critic: measures the offsets a VLM would describe, deterministically.
 
-Per side it takes the reference-minus-robot wrist offset in the torso frame (judged relative to
-arm length, so thresholds transfer across robots), over the whole sequence or over the worst
-window when one window is clearly worse, plus the mean yaw offset. It answers with the position
+It judges against the human. When the loop gives it the landmark-relative location offsets
+(`CritiqueContext.location_offset`: where the robot palm must move so that it sits relative to
+the robot's chin, cheek, sternum ... as the human's palm sits relative to the human's), it uses
+those, judged in body scales (`critic.accept_location`), and accepts only when the location error
+and the palm-orientation error (`critic.accept_palm_deg`) are under their thresholds. Without
+them (no body or robot landmarks) it falls back to the reference wrists (IK targets), judged in
+arm lengths. Either way, per side it takes the offset over the whole sequence or over the worst
+window when one window is clearly worse, plus the mean yaw offset, and answers with the position
 and yaw primitives that cancel them, amounts quantised like a human critic would speak.
 """
 
@@ -51,9 +56,13 @@ class GeometricCritic(Critic):
         length = int(np.clip(round(cfg.window_s * context.fps), 1, num_frames))
         prims: list[Primitive] = []
         notes: list[str] = []
+        human = context.location_offset is not None and context.body_scale > 0
         for s, side in enumerate(SIDES):
-            offset = (np.asarray(context.reference_pos[:, s], np.float64)
-                      - np.asarray(context.robot_pos[:, s], np.float64))
+            if human:
+                offset = np.asarray(context.location_offset[:, s], np.float64)
+            else:
+                offset = (np.asarray(context.reference_pos[:, s], np.float64)
+                          - np.asarray(context.robot_pos[:, s], np.float64))
             whole = offset.mean(axis=0)
             start, worst = worst_window(offset, length)
             window: tuple[int, int] | None = None
@@ -61,12 +70,14 @@ class GeometricCritic(Critic):
             if (length < num_frames
                     and np.linalg.norm(worst) > cfg.window_factor * np.linalg.norm(whole)):
                 window, dominant = (start, start + length - 1), worst
-            ratio = float(np.linalg.norm(dominant)) / context.arm_length
+            scale = context.body_scale if human else context.arm_length
+            ratio = float(np.linalg.norm(dominant)) / scale
+            threshold = cfg.accept_location if human else cfg.accept_position
             yaw = mean_yaw_deg(context.reference_rot[:, s], context.robot_rot[:, s])
-            notes.append(f"{side}: offset {ratio:.3f} arm lengths"
+            notes.append(f"{side}: offset {ratio:.3f} {'body scales from the landmark' if human else 'arm lengths'}"
                          + (f" in frames {window[0]}-{window[1]}" if window else "")
                          + f", yaw {yaw:+.1f} deg")
-            if ratio >= cfg.accept_position:
+            if ratio >= threshold:
                 for axis, (positive, negative) in enumerate(_AXES):
                     # y: "in" is −y for the left hand, +y for the right
                     value = dominant[axis] * (-1.0 if (axis == 1 and side == "left") else 1.0)
@@ -80,5 +91,9 @@ class GeometricCritic(Critic):
                 turn_in = (yaw > 0) == (side == "right")
                 if amount > 0:
                     prims.append(Primitive(f"{side}_yaw_{'in' if turn_in else 'out'}", amount))
-        verdict = "revise" if prims else "accept"
+        palm = context.fidelity.get("palm_deg", 0.0) if human else 0.0
+        if human:
+            notes.append(f"location error {context.fidelity.get('location_err', float('nan')):.3f} "
+                         f"body scales, palm {palm:.1f} deg")
+        verdict = "revise" if prims or palm >= cfg.accept_palm_deg else "accept"
         return Action(tuple(prims), verdict, "; ".join(notes))

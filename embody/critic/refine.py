@@ -195,6 +195,7 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
 
     out = Path(out_dir) if out_dir is not None else None
     critic = critic or make_critic(cfg_critic)
+    judge = _HumanJudge(motion, body, robot, targets.fps) if body is not None and robot.spec.landmarks else None
     ref_pos = np.asarray(targets.wrist_pos, dtype=np.float64)
     ref_rot = np.asarray(targets.wrist_rot, dtype=np.float64)
     limits = Limits(targets.num_frames, cfg_critic.position_step_m, cfg_critic.angle_step_deg,
@@ -210,13 +211,16 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
             pos, rot = robot_wrists(robot, q)
             record = RoundRecord(index, q, np.asarray(working.wrist_pos), np.asarray(working.wrist_rot),
                                  wrist_metrics(ref_pos, ref_rot, pos, rot, targets.arm_length))
+            location_offset, fidelity = judge(q) if judge is not None else (None, {})
+            record.metrics.update(fidelity)
             rounds.append(record)
             last = index == cfg_critic.rounds
             if last and critic.needs_images:  # a VLM verdict nobody acts on is not worth a request
                 break
             context = CritiqueContext(index, targets.fps, targets.arm_length, ref_pos, ref_rot,
                                       pos, rot, limits, keyframes=keyframes.tolist(),
-                                      text=str(motion.meta.get("text", "")))
+                                      text=str(motion.meta.get("text", "")), location_offset=location_offset,
+                                      fidelity=fidelity, body_scale=robot.body_scale if judge else 0.0)
             if critic.needs_images:
                 comp = renders.comparison(q)
                 context.sheet_png = comp.sheet_png(f"round {index}")
@@ -261,7 +265,38 @@ def _chosen_round(rounds: list[RoundRecord], cfg: CriticConfig) -> int:
     keep = cfg.keep if cfg.keep != "auto" else ("best" if cfg.kind == "geometric" else "last")
     if keep == "last":
         return len(rounds) - 1
-    return int(np.argmin([r.metrics["wrist_mm_mean"] for r in rounds]))
+    key = "fidelity_score" if all("fidelity_score" in r.metrics for r in rounds) else "wrist_mm_mean"
+    return int(np.argmin([r.metrics[key] for r in rounds]))
+
+
+class _HumanJudge:
+    """The human as the critic's reference: landmark-relative palm offsets and fidelity per round."""
+
+    def __init__(self, motion, body, robot, fps: float) -> None:
+        from embody.metrics.embodiments import human_track
+
+        self.robot, self.fps = robot, fps
+        self.human = human_track(motion, body, with_contacts=False)
+
+    def __call__(self, q: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
+        from embody.metrics.embodiments import robot_track
+        from embody.metrics.fidelity import LOCATION_LANDMARKS, compare, nearest_landmark, relative_location
+
+        robot = robot_track(self.robot, q, self.fps, with_contacts=False)
+        _, m = compare(self.human, robot)
+        names = [n for n in LOCATION_LANDMARKS if self.human.has(n) and robot.has(n)]
+        hips = [i for i, n in enumerate(names) if n.endswith("_hip")]
+        offset = np.zeros((len(q), 2, 3))
+        for s, side in enumerate(("left", "right")):
+            k, d = nearest_landmark(self.human, side, names)
+            diff = relative_location(self.human, side, names, k) - relative_location(robot, side, names, k)
+            move = np.einsum("tab,tb->ta", robot.torso, diff) * robot.scale  # robot torso frame, m
+            near = (d < 0.5) & ~np.isin(k, hips)  # a sign's place; not a hand resting by the thigh
+            offset[:, s] = np.where(near[:, None], move, 0.0)
+        fidelity = {"location_err": m["location_err"], "location_err_mm": m["location_err_mm"],
+                    "palm_deg": m["palm_deg"], "handshape_err": m["handshape_err"],
+                    "fidelity_score": m["location_err"] + m["palm_deg"] / 180.0}
+        return offset, fidelity
 
 
 _TABLE_METRICS = ("wrist_mm_mean", "wrist_mm_p95", "wrist_deg_mean", "wrist_deg_p95",

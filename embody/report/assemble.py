@@ -52,7 +52,22 @@ TABLE3_COUNTS = {
     "Vel. viol.": "velocity_violations",
     "Self-coll. frames": "self_collision_frames",
 }
+#: Table III fidelity columns: header → `embody.metrics.fidelity` aggregate, stored by the
+#: metrics step as `fidelity.<row>.<key>` (row: ik, preserving, refined).
+TABLE3_FIDELITY = {
+    "Location err. (mm)": "location_err_mm",
+    "Location err. (scale)": "location_err",
+    "Location agree (%)": "location_agree_pct",
+    "Palm orient. (deg)": "palm_deg",
+    "Handshape err.": "handshape_err",
+    "Movement DTW (scale)": "movement_dtw",
+    "Contact F1": "contact_f1",
+}
 TABLE3_KEYS = {
+    "Location err. (mm)": "location_err_mm", "Location err. (scale)": "location_err",
+    "Location agree (%)": "location_agree_pct", "Palm orient. (deg)": "palm_deg",
+    "Handshape err.": "handshape_err", "Movement DTW (scale)": "movement_dtw",
+    "Contact F1": "contact_f1",
     "Wrist pos. mean (mm)": "wrist_pos_mean_mm", "Wrist pos. p95 (mm)": "wrist_pos_p95_mm",
     "Wrist rot. mean (deg)": "wrist_rot_mean_deg", "DTW wrist (mm)": "wrist_dtw_mm",
     "Limit viol.": "limit_violations", "Vel. viol.": "velocity_violations",
@@ -127,6 +142,28 @@ def _counts(frame: pd.DataFrame) -> dict[str, float]:
             for h, k in TABLE3_COUNTS.items()}
 
 
+def _fidelity(data: RunData, row: str) -> dict[str, float]:
+    """Mean fidelity of one Table III row over sequences; contact F1 pooled over all frames."""
+    frame = data.other.get("metrics", pd.DataFrame())
+    out: dict[str, float] = {}
+    for header, key in TABLE3_FIDELITY.items():
+        col = f"fidelity.{row}.{key}"
+        values = pd.to_numeric(frame[col], errors="coerce") if col in frame else pd.Series(dtype=float)
+        out[header] = float(values.mean()) if values.notna().any() else math.nan
+    cols = [f"fidelity.{row}.contact_{k}" for k in ("tp", "frames_human", "frames_robot")]
+    if all(c in frame for c in cols):
+        tp, hp, rp = (float(pd.to_numeric(frame[c], errors="coerce").sum()) for c in cols)
+        p, r = (tp / rp if rp else math.nan), (tp / hp if hp else math.nan)
+        out["Contact F1"] = 2 * p * r / (p + r) if rp and hp and p + r > 0 else (0.0 if rp or hp else math.nan)
+    return out
+
+
+def _baseline_counts(data: RunData) -> dict[str, float]:
+    frame = data.other.get("metrics", pd.DataFrame())
+    return {h: float(pd.to_numeric(frame[f"fidelity.ik.{k}"], errors="coerce").sum())
+            if f"fidelity.ik.{k}" in frame else math.nan for h, k in TABLE3_COUNTS.items()}
+
+
 def table3(data: RunData) -> Table:
     """IK-only vs refined (one row per critic) from `refine_table`, plus validation counts.
 
@@ -153,10 +190,25 @@ def table3(data: RunData) -> Table:
             rows.append({"Method": f"Refined ({critic})" if refined else "IK only",
                          **{h: row[k] * s for h, (k, s) in TABLE3_FROM_REFINE.items()},
                          **counts, "N": int(row["n"])})
-    columns = ["Method", "Wrist pos. mean (mm)", "Wrist pos. p95 (mm)", "Wrist rot. mean (deg)",
-               "DTW wrist (mm)", *TABLE3_COUNTS, "Rounds", "Accepted (%)", "N"]
+    # Sign fidelity (the human as reference): with location-preserving targets the retarget step's
+    # row is "Location-preserving" and the metrics step's plain shape-fit solve is "IK only".
+    metrics = data.other.get("metrics", pd.DataFrame())
+    preserving = "fidelity.preserving.location_err" in metrics
+    for row in rows:
+        if row["Method"] == "IK only":
+            if preserving:
+                row["Method"] = "Location-preserving"
+            row.update(_fidelity(data, "preserving" if preserving else "ik"))
+        else:
+            row.update(_fidelity(data, "refined"))
+    if preserving:
+        rows.insert(0, {"Method": "IK only", **_fidelity(data, "ik"), **_baseline_counts(data),
+                        "N": int(metrics["fidelity.ik.location_err"].notna().sum())})
+    columns = ["Method", *TABLE3_FIDELITY, "Wrist pos. mean (mm)", "Wrist pos. p95 (mm)",
+               "Wrist rot. mean (deg)", "DTW wrist (mm)", *TABLE3_COUNTS, "Rounds", "Accepted (%)", "N"]
     frame = pd.DataFrame(rows).reindex(columns=columns)
-    return Table("table3_retargeting", "Table III: retargeting fidelity, IK-only vs refined",
+    return Table("table3_retargeting",
+                 "Table III: retargeting fidelity, IK-only vs refined",
                  frame)
 
 
@@ -195,14 +247,15 @@ def summary(data: RunData, tables: dict[str, Table]) -> dict[str, Any]:
             out[f"collision.{key}"] = _cell(t1, row, col)
     t3 = tables.get("table3_retargeting")
     if t3 is not None:
-        labels = [("IK only", "retarget.ik_only")]
+        labels = [("IK only", "retarget.ik_only"), ("Location-preserving", "retarget.preserving")]
         labels += [(f"Refined ({c})", f"retarget.refined.{c}") for c in sorted(data.refine)]
         if data.refine:  # the first critic's row doubles as "the refined result"
             labels.append((f"Refined ({sorted(data.refine)[0]})", "retarget.refined"))
         for label, prefix in labels:
             for header, key in TABLE3_KEYS.items():
                 out[f"{prefix}.{key}"] = _cell(t3, label, header)
-        final = "retarget.refined" if data.refine else "retarget.ik_only"
+        final = "retarget.refined" if data.refine else (
+            "retarget.preserving" if _row(t3, "Location-preserving") is not None else "retarget.ik_only")
         for key in ("limit_violations", "velocity_violations", "self_collision_frames"):
             out[f"retarget.{key}"] = out[f"{final}.{key}"]
     return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in out.items()}

@@ -137,7 +137,7 @@ class _Robotics:
         from embody.retarget import build_targets
 
         body, fit = self._body_fit()
-        return np.asarray(build_targets(motion, body, fit, self.robot).wrist_pos)
+        return np.asarray(build_targets(motion, body, fit, self.robot, self.cfg.ik).wrist_pos)
 
     def sheet(self, motion: Any, result: Any, title: str) -> bytes:
         """The critic's final comparison sheet (human over robot at its keyframes), re-rendered

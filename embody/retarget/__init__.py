@@ -18,5 +18,5 @@ def retarget(motion: Motion, robot: Robot, body: BodyModel, fit: ShapeFit | None
     """Motion → (targets, IK solution) with the (cached) shape fit."""
     cfg = cfg or IKConfig()
     fit = fit or shape_fit(robot, body, cfg)
-    targets = build_targets(motion, body, fit, robot)
+    targets = build_targets(motion, body, fit, robot, cfg)
     return targets, solve(robot, targets, cfg, init=init)

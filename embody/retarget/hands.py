@@ -3,35 +3,58 @@
 Each human finger is reduced to a curl fraction in [0, 1] (0 = flat, 1 = fully closed), so a
 handshape reads the same on a hand with fewer fingers. Curl of a long finger is the sum of its
 three joints' flexion, i.e. the axis-angle component about the flexion axis (−z for the left
-hand, +z for the right: with flat palms down in the T-pose, fingers curl towards −y). The thumb's
-flexion axis varies with opposition, so its curl is the summed rotation magnitude.
+hand, +z for the right: with flat palms down in the T-pose, fingers curl towards −y).
 
-| robot finger (Dex3) | robot joints (base → tip)            | human source                      |
-|---------------------|--------------------------------------|-----------------------------------|
-| thumb               | thumb_0 (rotation), thumb_1, thumb_2 | thumb1-3 curl (thumb_0 kept at 0) |
-| index               | index_0 ← MCP, index_1 ← PIP+DIP     | index1 ; index2+index3            |
-| middle              | middle_0 ← MCP, middle_1 ← PIP+DIP   | mean of middle, ring and pinky    |
+The thumb moves along SMPL-X's relaxed-hand path (thumb1-3 of the hands mean): its position on
+that path, t = Σ θ_i·m_i / Σ |m_i|² (0 straight, 1 relaxed, ≈1.6 across the palm in a fist,
+< 0 spread out, as in a Y), carries both its opposition and its flexion. A summed rotation
+magnitude (the old curl) saturated for any relaxed hand; this does not:
+opposition = clip(t / `FULL_OPPOSITION`), flexion = clip(t / `FULL_THUMB`), so a relaxed thumb
+sits mid-range. On Dex3 the flexion joints (thumb_1, thumb_2) bring the thumb to the fingers,
+and `thumb_0` chooses which finger it meets; opposition turns it towards the index (the
+pinch, up to `OPPOSE_RANGE` of its range; the direction is found from the hand's own landmarks:
+the side that brings the half-closed thumb's tip nearer the index fingertip).
 
-A joint's value is `curl × closed`, with `closed` its limit farther from zero (the closing
-direction on both Dex3 hands), so outputs are always within the limits.
+| robot finger (Dex3) | robot joints (base → tip)            | human source                              |
+|---------------------|--------------------------------------|-------------------------------------------|
+| thumb               | thumb_0 ← opposition, thumb_1, thumb_2 ← flexion | thumb1-3 along the relaxed path |
+| index               | index_0 ← MCP, index_1 ← PIP+DIP     | index1 ; index2+index3                    |
+| middle              | middle_0 ← MCP, middle_1 ← PIP+DIP   | mean of middle, ring and pinky (merged: Dex3 has three fingers) |
+
+A flexion joint's value is `curl × closed`, with `closed` its limit farther from zero (the
+closing direction on both Dex3 hands), so outputs are always within the limits.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
+from embody.io.hands import hand_mean
 from embody.motion import JOINT_NAMES
 from embody.robot import Robot
+
+_OPPOSE: dict[tuple[int, str], float] = {}
 
 #: Human flexion (rad) that counts as fully closed: MCP, PIP+DIP and the whole thumb.
 FULL_MCP = 1.5
 FULL_DISTAL = 2.6
-FULL_THUMB = 2.0
+FULL_THUMB = 2.2
+#: Position on the relaxed thumb path that counts as fully opposed (a fist's thumb is ≈1.6).
+FULL_OPPOSITION = 1.6
+#: Share of thumb_0's range used at full opposition (half: the thumb meets the index tip).
+OPPOSE_RANGE = 0.5
 _AXIS = {"left": np.array([0.0, 0.0, -1.0]), "right": np.array([0.0, 0.0, 1.0])}
 
 
 def _joint(side: str, name: str) -> int:
     return JOINT_NAMES.index(f"{side}_{name}")
+
+
+def thumb_path(pose: np.ndarray, side: str) -> np.ndarray:
+    """Position (T,) of the thumb on the SMPL-X relaxed-hand path (0 straight, 1 relaxed)."""
+    mean = hand_mean().astype(np.float64)[(0 if side == "left" else 15) + 12:(0 if side == "left" else 15) + 15]
+    theta = np.stack([pose[:, _joint(side, f"thumb{i}")] for i in (1, 2, 3)], 1)
+    return np.einsum("tia,ia->t", theta, mean) / float((mean**2).sum())
 
 
 def finger_curls(pose: np.ndarray, side: str) -> dict[str, np.ndarray]:
@@ -51,8 +74,9 @@ def finger_curls(pose: np.ndarray, side: str) -> dict[str, np.ndarray]:
 
     index = long_finger("index")
     rest = [long_finger(f) for f in ("middle", "ring", "pinky")]
-    thumb = sum(np.linalg.norm(pose[:, _joint(side, f"thumb{i}")], axis=-1) for i in (1, 2, 3))
-    return {"thumb": np.clip(thumb / FULL_THUMB, 0.0, 1.0),
+    t = thumb_path(pose, side)
+    return {"thumb": np.clip(t / FULL_THUMB, 0.0, 1.0),
+            "thumb_opposition": np.clip(t / FULL_OPPOSITION, 0.0, 1.0),
             "index_mcp": index[0], "index_distal": index[1],
             "middle_mcp": np.mean([r[0] for r in rest], axis=0),
             "middle_distal": np.mean([r[1] for r in rest], axis=0)}
@@ -62,6 +86,28 @@ def _closed(robot: Robot, name: str) -> float:
     j = robot.joint_index(name)
     lo, hi = robot.lower[j], robot.upper[j]
     return float(hi if abs(hi) >= abs(lo) else lo)
+
+
+def opposition_sign(robot: Robot, side: str, joint: str) -> float:
+    """+1 or −1: the direction of `joint` that brings the thumb tip nearer the index fingertip
+    (from the robot's landmarks; the closing limit's sign when it has none)."""
+    key = (id(robot), joint)
+    if key not in _OPPOSE:
+        names = [f"{side}_thumb_tip", f"{side}_index_tip"]
+        if all(n in robot.spec.landmarks for n in names):
+            dist = []
+            for sign in (1.0, -1.0):
+                q = robot.tpose.copy()
+                q[robot.joint_index(joint)] = sign * 0.5
+                for jn in robot.hand_joint_names(side):  # thumb half closed, as when opposing
+                    if "thumb_0" not in jn and "thumb" in jn:
+                        q[robot.joint_index(jn)] = 0.5 * _closed(robot, jn)
+                p, _, _ = robot.landmark_points(q[None], names)
+                dist.append(np.linalg.norm(p[0, 0] - p[0, 1]))
+            _OPPOSE[key] = 1.0 if dist[0] < dist[1] else -1.0
+        else:
+            _OPPOSE[key] = float(np.sign(_closed(robot, joint)) or 1.0)
+    return _OPPOSE[key]
 
 
 def retarget_hands(pose: np.ndarray, robot: Robot) -> tuple[np.ndarray, list[str]]:
@@ -75,14 +121,18 @@ def retarget_hands(pose: np.ndarray, robot: Robot) -> tuple[np.ndarray, list[str
             continue
         curls = finger_curls(pose, side)
         sources = {
-            "thumb": [np.zeros(len(pose)), curls["thumb"], curls["thumb"]],
+            "thumb": [curls["thumb_opposition"], curls["thumb"], curls["thumb"]],
             "index": [curls["index_mcp"], curls["index_distal"]],
             "middle": [curls["middle_mcp"], curls["middle_distal"]],
         }
         for finger in ("thumb", "index", "middle"):
-            for jn, curl in zip(fingers.get(finger, []), sources[finger]):
+            for k, (jn, curl) in enumerate(zip(fingers.get(finger, []), sources[finger])):
                 j = robot.joint_index(jn)
-                value = curl * _closed(robot, jn)
+                if finger == "thumb" and k == 0:  # opposition: towards the fingers, up to the limit
+                    sign = opposition_sign(robot, side, jn)
+                    value = curl * OPPOSE_RANGE * (robot.upper[j] if sign > 0 else robot.lower[j])
+                else:
+                    value = curl * _closed(robot, jn)
                 columns.append(np.clip(value, robot.lower[j], robot.upper[j]))
                 names.append(jn)
     q = np.stack(columns, axis=1) if columns else np.zeros((len(pose), 0))

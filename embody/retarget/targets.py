@@ -9,6 +9,24 @@ rotation is the identity, so a human link rotated by G(t) (body frame) maps to t
 rotation  R · G(t) · Rᵀ · R_link^tpose , where R is the body→robot change of axes and
 R_link^tpose the robot link's rotation at its T-pose (torso frame). At the T-pose the target is
 exactly the robot's T-pose orientation: palms down on both.
+
+Location-preserving wrist targets (`ik.location_preserving`): a sign is placed relative to the
+face and body, and the shape fit alone does not keep that (robot and human proportions differ:
+a G1 torso is much thinner, so hands land too far forward). Each human hand point the robot also
+has (palm centre, thumb/index/middle tips) is expressed relative to each body landmark (chin,
+cheek, forehead, sternum, ...) in the human torso frame and per human body scale; rescaled to the
+robot's scale and added to the robot's landmark of the same name (torso-frame landmarks turn
+with the tracked torso orientation, so targets are chest-relative, not pelvis-relative), it gives
+where that hand point should be, hence (through the hand's own FK at the retargeted finger
+angles) where the wrist should be. A soft-min over (point, landmark) pairs keeps this smooth as
+the nearest landmark changes. The blend weight rises from 0 (`anchor_far` body scales away) to 1
+(`anchor_near`): near the body the anchored target wins, far from it the shape-fit target stays.
+
+Contact vs collision margin: an anchored touch aims the touching point at the robot's surface
+(offset ≈ 0), while the self-collision term keeps `collision_margin` between proxies. We keep the
+margin (no penetration, ever) and let it decide the last centimetre: the robot touches at the
+margin, and the fidelity measure counts a robot contact within `fidelity.robot_contact_eps`
+(≥ contact_eps + margin) when it does not penetrate.
 """
 
 from __future__ import annotations
@@ -20,6 +38,8 @@ import numpy as np
 import torch
 
 from embody.body.base import BodyModel
+from embody.body.landmarks import body_landmarks
+from embody.config.ik import IKConfig
 from embody.motion import Motion
 from embody.retarget.hands import retarget_hands
 from embody.retarget.shape_fit import ShapeFit
@@ -74,8 +94,74 @@ def tpose_rotations(robot: Robot, links: list[str]) -> np.ndarray:
     return r[0].numpy()
 
 
-def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot) -> Targets:
-    """Targets for every frame of `motion` (its hands must be absolute, as `Motion` guarantees)."""
+#: Landmarks a hand is anchored to, and the hand points anchored (when the robot has them).
+ANCHOR_LANDMARKS = ("forehead", "left_eye", "right_eye", "nose", "mouth", "chin", "left_cheek",
+                    "right_cheek", "throat", "left_shoulder", "right_shoulder", "sternum", "belly")
+HAND_POINTS = ("palm", "thumb_tip", "index_tip", "middle_tip")
+
+
+def _torso_descendants(robot: Robot) -> set[str]:
+    from embody.robot.contacts import subtree_ids
+    ids = subtree_ids(robot.model, robot.spec.torso_body)
+    return {robot.model.body(b).name for b in ids}
+
+
+def anchored_wrists(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot, wrist_rot: np.ndarray,
+                    torso_rot: np.ndarray, hand_q: np.ndarray, hand_joints: list[str],
+                    cfg: IKConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Landmark-anchored wrist positions (T,2,3) in the torso frame and their blend weights (T,2)."""
+    t = motion.num_frames
+    lm_names = [n for n in ANCHOR_LANDMARKS if n in robot.spec.landmarks]
+    if not lm_names:
+        return np.zeros((t, 2, 3)), np.zeros((t, 2))
+    # the human, on its own shape, relative to its pelvis (root rotation removed as above)
+    pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
+    pose[:, 0] = 0.0
+    betas = np.asarray(motion.betas, dtype=np.float64)
+    hl = body_landmarks(body, betas)
+    with torch.no_grad():
+        tr = body.joint_transforms(pose, torch.as_tensor(betas)).numpy()
+    hp, _ = hl.positions(tr)
+    axes = fit.rotation
+    hp = hp @ axes.T
+    h_torso = axes @ tr[:, body.joint_index("spine3"), :3, :3] @ axes.T
+    # the robot: landmarks at the T-pose, turned with the torso target where they ride on it
+    q0 = np.tile(robot.tpose, (t, 1))
+    if hand_joints:
+        q0[:, [robot.joint_index(n) for n in hand_joints]] = hand_q
+    rp, _, rnames = robot.landmark_points(robot.tpose[None], lm_names)
+    on_torso = _torso_descendants(robot)
+    r_lm = np.where(np.array([robot.spec.landmarks[n].body in on_torso for n in rnames])[None, :, None],
+                    np.einsum("tab,kb->tka", torso_rot, rp[0]), rp[0][None])
+    out, weight = np.zeros((t, 2, 3)), np.zeros((t, 2))
+    s_h, s_r = hl.scale, robot.body_scale
+    for k, side in enumerate(("left", "right")):
+        points = [n for n in HAND_POINTS if f"{side}_{n}" in robot.spec.landmarks]
+        # each hand point's offset from the wrist link point, in the wrist link's frame (finger FK)
+        wp, wr = robot.link_poses(q0, [f"{side}_wrist"])
+        tips, _, _ = robot.landmark_points(q0, [f"{side}_{n}" for n in points])
+        local = np.einsum("tba,tpb->tpa", wr[:, 0], tips - wp)  # (T,P,3)
+        human = np.stack([hp[:, hl.index(f"{side}_{n}")] for n in points], 1)  # (T,P,3)
+        h_lm = np.stack([hp[:, hl.index(n)] for n in lm_names], 1)  # (T,L,3)
+        rel = human[:, :, None] - h_lm[:, None]  # (T,P,L,3)
+        dist = np.linalg.norm(rel, axis=-1) / s_h
+        rel_local = np.einsum("tba,tplb->tpla", h_torso, rel) * (s_r / s_h)
+        target_point = r_lm[:, None] + np.einsum("tab,tplb->tpla", torso_rot, rel_local)
+        wrist = target_point - np.einsum("tab,tpb->tpa", wrist_rot[:, k], local)[:, :, None]
+        dmin = dist.reshape(t, -1).min(1)
+        alpha = np.exp(-(dist - dmin[:, None, None]) / cfg.anchor_softness)
+        alpha /= alpha.sum((1, 2), keepdims=True)
+        out[:, k] = np.einsum("tpl,tpla->ta", alpha, wrist)
+        span = max(cfg.anchor_far - cfg.anchor_near, 1e-9)
+        x = np.clip((cfg.anchor_far - dmin) / span, 0.0, 1.0)
+        weight[:, k] = x * x * (3.0 - 2.0 * x)  # smoothstep: no kink where anchoring starts
+    return out, weight
+
+
+def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
+                  cfg: IKConfig | None = None) -> Targets:
+    """Targets for every frame of `motion` (its hands must be absolute, as `Motion` guarantees).
+    With `cfg.location_preserving` the wrist targets are blended towards landmark-anchored ones."""
     pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
     pose[:, 0] = 0.0  # root rotation: targets are relative to the pelvis
     betas = torch.as_tensor(fit.betas, dtype=torch.float64)
@@ -95,11 +181,18 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot) 
     sides = ("left", "right")
     identity = np.tile(np.eye(3), (len(pos), 1, 1))
     hand_q, hand_joints = retarget_hands(motion.pose, robot)
+    wrist_pos = np.stack([pos[:, idx(f"{s}_wrist")] for s in sides], axis=1)
+    wrist_rot = np.stack([mapped_rot(f"{s}_wrist", f"{s}_wrist") for s in sides], axis=1)
+    torso_rot = mapped_rot("spine3", "spine3") if "spine3" in robot.spec.links else identity
+    if cfg is not None and cfg.location_preserving and robot.spec.landmarks:
+        anchored, weight = anchored_wrists(motion, body, fit, robot, wrist_rot, torso_rot, hand_q,
+                                           hand_joints, cfg)
+        wrist_pos = wrist_pos + weight[..., None] * (anchored - wrist_pos)
     return Targets(
-        wrist_pos=np.stack([pos[:, idx(f"{s}_wrist")] for s in sides], axis=1),
-        wrist_rot=np.stack([mapped_rot(f"{s}_wrist", f"{s}_wrist") for s in sides], axis=1),
+        wrist_pos=wrist_pos,
+        wrist_rot=wrist_rot,
         elbow_pos=np.stack([pos[:, idx(f"{s}_elbow")] for s in sides], axis=1),
-        torso_rot=mapped_rot("spine3", "spine3") if "spine3" in robot.spec.links else identity,
+        torso_rot=torso_rot,
         head_rot=mapped_rot("head", "head") if "head" in robot.spec.links else identity,
         hand_q=hand_q, hand_joints=hand_joints, fps=motion.fps, arm_length=robot_arm_length(robot),
     )

@@ -111,6 +111,27 @@ class Robot:
         refs = [self.spec.links[n] for n in links]
         return self.points_from(self.body_transforms(q, [r.body for r in refs]), links)
 
+    def landmark_points(self, q: np.ndarray, names: list[str] | None = None
+                        ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """Landmark positions (T,K,3) and palm normals (T,2,3) [left, right] in the torso frame
+        (NumPy FK); `names` defaults to every landmark the robot defines."""
+        names = list(self.spec.landmarks) if names is None else list(names)
+        refs = [self.spec.landmarks[n] for n in names]
+        normals = [self.spec.palm_normals[s] for s in ("left", "right") if s in self.spec.palm_normals]
+        fk = self.fk(sorted({r.body for r in refs + normals}))
+        rot, pos = fk.forward(np.atleast_2d(np.asarray(q, dtype=np.float64)))
+        idx = [fk.index[r.body] for r in refs]
+        pts = pos[:, idx] + np.einsum("tlab,lb->tla", rot[:, idx], np.array([r.offset for r in refs]))
+        nidx = [fk.index[r.body] for r in normals]
+        nrm = np.einsum("tlab,lb->tla", rot[:, nidx], np.array([r.offset for r in normals]).reshape(-1, 3))
+        return pts, nrm, names
+
+    @cached_property
+    def body_scale(self) -> float:
+        """Shoulder-landmark distance at the T-pose (m): normalises fidelity distances."""
+        p, _, _ = self.landmark_points(self.tpose[None], ["left_shoulder", "right_shoulder"])
+        return float(np.linalg.norm(p[0, 0] - p[0, 1]))
+
     def points_from(self, t: torch.Tensor, links: list[str]) -> tuple[torch.Tensor, torch.Tensor]:
         """Link points/rotations from transforms (B,L,4,4) of the links' bodies, in `links` order."""
         refs = [self.spec.links[n] for n in links]
@@ -162,6 +183,9 @@ def build_robot(name: str, spec: RobotSpec, mjcf_path: Path, where: str) -> Robo
     for key, ref in spec.links.items():
         if ref.body not in body_names:
             raise ConfigError(f"{where}:links.{key}.body", f"no body {ref.body!r} in {mjcf_path.name}")
+    for key, ref in [*spec.landmarks.items(), *spec.palm_normals.items()]:
+        if ref.body not in body_names:
+            raise ConfigError(f"{where}:landmarks.{key}.body", f"no body {ref.body!r} in {mjcf_path.name}")
     for key in ("root_body", "torso_body"):
         if getattr(spec, key) not in body_names:
             raise ConfigError(f"{where}:{key}", f"no body {getattr(spec, key)!r} in {mjcf_path.name}")

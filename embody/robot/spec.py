@@ -71,6 +71,11 @@ class RobotSpec(_Strict):
     collision: CollisionSpec = CollisionSpec()
     proxies: dict[str, ProxySpec] = {}
     proxy_pairs: list[tuple[str, str]] = []
+    #: Named surface points (`embody.body.landmarks` names) for sign fidelity; a hand without
+    #: fingers has only wrist and palm.
+    landmarks: dict[str, LinkRef] = {}
+    #: Per side, the palm normal (palms down at the T-pose) as a unit `offset` direction in `body`.
+    palm_normals: dict[str, LinkRef] = {}
 
 
 def read_spec(path: Path) -> RobotSpec:

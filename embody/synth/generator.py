@@ -88,13 +88,17 @@ def _nondominant(sign: Sign, right: np.ndarray, place: np.ndarray) -> np.ndarray
     return space.location("rest", "left")
 
 
-def plan_sequence(rng: np.random.Generator) -> Plan:
-    """Choose signs, artifacts and keyframes (times in unscaled frames)."""
+def plan_sequence(rng: np.random.Generator, signs: list[Sign] | None = None) -> Plan:
+    """Choose signs, artifacts and keyframes (times in unscaled frames). Given `signs`, those
+    are signed, without artifacts (e.g. one sequence per lexicon location)."""
     plan = Plan()
-    n_signs = int(rng.integers(3, 7))
-    plan.signs = [LEXICON[i] for i in rng.choice(len(LEXICON), n_signs, replace=False)]
+    if signs is None:
+        n_signs = int(rng.integers(3, 7))
+        plan.signs = [LEXICON[i] for i in rng.choice(len(LEXICON), n_signs, replace=False)]
+    else:
+        plan.signs, n_signs = list(signs), len(signs)
     inject: dict[int, str] = {}
-    if rng.random() >= 0.15:  # most sequences get 1-2 penetrations, a few stay clean
+    if signs is None and rng.random() >= 0.15:  # most sequences get 1-2 penetrations, a few stay clean
         kinds = rng.choice(artifacts.PENETRATIONS, size=int(rng.integers(1, 3)), replace=False)
         where = rng.choice(n_signs, size=len(kinds), replace=False)
         inject = {int(j): str(kind) for kind, j in zip(kinds, where)}
@@ -149,11 +153,15 @@ def _key_poses(plan: Plan, rng: np.random.Generator, ik: ArmIK) -> tuple[np.ndar
     return solved, float(err.max())
 
 
-def generate_sequence(seed: int, index: int, ik: ArmIK | None = None) -> Motion:
-    """One synthetic signing sequence (absolute hands, y-up, 30 fps) with its artifact record."""
+def generate_sequence(seed: int, index: int, ik: ArmIK | None = None,
+                      signs: list[Sign] | None = None) -> Motion:
+    """One synthetic signing sequence (absolute hands, y-up, 30 fps) with its artifact record.
+
+    Its metadata records each sign's ground truth: frames, lexicon location (where the dominant
+    hand is placed) and two-handedness (`contact`: the hands meet)."""
     rng = _rng(seed, index)
     ik = ik or ArmIK()
-    plan = plan_sequence(rng)
+    plan = plan_sequence(rng, signs)
     raw_end = plan.keys[-1].time
     frames = int(np.clip(round(raw_end * rng.uniform(0.8, 1.1)), MIN_FRAMES, MAX_FRAMES))
     scale = (frames - 1) / raw_end
@@ -178,7 +186,9 @@ def generate_sequence(seed: int, index: int, ik: ArmIK | None = None) -> Motion:
     gloss = [sign.gloss for sign in plan.signs]
     meta = {
         "text": " ".join(gloss), "gloss": gloss, "artifacts": records,
-        "signs": [{"gloss": s.gloss, "start": window(j)[0], "end": window(j)[1], "hands": s.hands}
+        "signs": [{"gloss": s.gloss, "start": window(j)[0], "end": window(j)[1], "hands": s.hands,
+                   "location": s.location, "handshape": s.handshape, "movement": s.movement,
+                   "contact": "hands" if s.hands == "contact" else ""}
                   for j, s in enumerate(plan.signs)],
         "seed": seed, "index": index, "generator": GENERATOR_VERSION,
         "ik_error_max_m": round(ik_error, 5),

@@ -1,0 +1,205 @@
+"""Fidelity `Track`s of the two embodiments: the human body (landmarks + mesh contacts) and the
+robot (YAML landmarks + MuJoCo geom distances), each on its own body and in its own torso frame.
+
+Human contacts are closest distances between the skinned mesh's vertex sets (hand, face, chest,
+by dominant skinning joint; a KD-tree per frame). Robot contacts are MuJoCo's own
+`mj_geomDistance` between collision geoms: the hand's geoms (the wrist landmark body's subtree,
+near the palm), the face's (the geoms closest to the face landmarks) and the chest's (closest to
+sternum and belly). A negative distance is a penetration.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from embody.body.base import BodyModel
+from embody.body.landmarks import LANDMARKS, body_landmarks
+from embody.metrics.fidelity import CONTACTS, SIDES, Track
+from embody.motion import Motion
+from embody.robot import Robot
+
+#: Body (x=left, y=up, z=forward) → (forward, left, up).
+BODY_TO_FLU = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+_FACE_JOINTS = ("head", "jaw", "left_eye", "right_eye")
+_CHEST_JOINTS = ("spine2", "spine3")
+_FACE_LANDMARKS = ("forehead", "nose", "mouth", "chin", "left_cheek", "right_cheek")
+_CHEST_LANDMARKS = ("sternum", "belly")
+#: Distances beyond this (m) are reported as this: only near contact matters.
+_REACH = 0.05
+#: Frames skinned at once for the human contacts (memory bound).
+_CHUNK = 64
+
+
+def _hand_joints(body: BodyModel, side: str) -> list[str]:
+    return [n for n in body.joint_names if n.startswith(f"{side}_") and
+            (n.endswith(("wrist", "hand")) or any(f in n for f in ("thumb", "index", "middle", "ring", "pinky")))]
+
+
+def _vertex_sets(body: BodyModel) -> dict[str, np.ndarray]:
+    dominant = np.asarray(body.skin_weights).argmax(1)
+
+    def verts(joints) -> np.ndarray:
+        ids = [body.joint_names.index(j) for j in joints if j in body.joint_names]
+        return np.flatnonzero(np.isin(dominant, ids))
+
+    out = {f"{s}_hand": verts(_hand_joints(body, s)) for s in SIDES}
+    out["face"], out["chest"] = verts(_FACE_JOINTS), verts(_CHEST_JOINTS)
+    return out
+
+
+class _SubsetSkin:
+    """Linear blend skinning of a vertex subset (SMPL-X's pose correctives left out; exact for
+    the mannequin): the contact measure needs only hands, face and chest every frame."""
+
+    def __init__(self, body: BodyModel, betas: np.ndarray, vertices: np.ndarray) -> None:
+        b = torch.as_tensor(np.asarray(betas), dtype=torch.float64)
+        zero = torch.zeros(1, 55, 3, dtype=torch.float64)
+        with torch.no_grad():
+            self.rest = body.vertices(zero, b)[0].numpy()[vertices]
+            inv_rest = np.linalg.inv(body.joint_transforms(zero, b)[0].numpy())
+        weight = np.asarray(body.skin_weights, dtype=np.float64)[vertices]
+        self.joints = np.flatnonzero(weight.any(0))  # the joints these vertices follow
+        self.inv_rest = inv_rest[self.joints]
+        self.weight = weight[:, self.joints].astype(np.float32)
+
+    def __call__(self, transforms: np.ndarray) -> np.ndarray:
+        """(T,J,4,4) → (T,V,3): Σ_j w_j T_j(t) T_j(rest)⁻¹ v_rest, blended by one matmul."""
+        bone = (transforms[:, self.joints] @ self.inv_rest)[..., :3, :].reshape(len(transforms), -1, 12)
+        blended = (self.weight @ bone.astype(np.float32)).astype(np.float64).reshape(len(transforms), -1, 3, 4)
+        return np.einsum("tvab,vb->tva", blended[..., :3], self.rest) + blended[..., 3]
+
+
+def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray) -> np.ndarray:
+    """Closest mesh distances (T, len(CONTACTS)) between hands, face and chest (m), from the
+    body's joint transforms (T,J,4,4)."""
+    sets = _vertex_sets(body)
+    order = list(sets)
+    allv = np.concatenate([sets[k] for k in order])
+    bounds = np.cumsum([0] + [len(sets[k]) for k in order])
+    part = {k: slice(bounds[i], bounds[i + 1]) for i, k in enumerate(order)}
+    skin = _SubsetSkin(body, betas, allv)
+    pairs = {"hands": ("left_hand", "right_hand"), "left_face": ("left_hand", "face"),
+             "right_face": ("right_hand", "face"), "left_chest": ("left_hand", "chest"),
+             "right_chest": ("right_hand", "chest")}
+    out = np.zeros((len(transforms), len(CONTACTS)))
+    for start in range(0, len(transforms), _CHUNK):
+        verts = skin(np.asarray(transforms[start:start + _CHUNK], dtype=np.float64))
+        for t, v in enumerate(verts):
+            trees = {}
+            for c, name in enumerate(CONTACTS):
+                a, b = pairs[name]
+                if len(v[part[a]]) == 0 or len(v[part[b]]) == 0:
+                    out[start + t, c] = np.nan
+                    continue
+                va, vb = v[part[a]], v[part[b]]
+                lo, hi = vb.min(0) - _REACH, vb.max(0) + _REACH
+                va = va[((va > lo) & (va < hi)).all(1)]  # broad phase: only hand points nearby
+                if len(va) == 0:
+                    out[start + t, c] = _REACH
+                    continue
+                if b not in trees:
+                    trees[b] = cKDTree(vb)
+                d, _ = trees[b].query(va, k=1, distance_upper_bound=_REACH)
+                out[start + t, c] = float(min(d.min(), _REACH))
+    return out
+
+
+def human_track(motion: Motion, body: BodyModel, with_contacts: bool = True) -> Track:
+    """The human's landmarks, palm normals, torso frame and contacts, on its own shape."""
+    betas = np.asarray(motion.betas, dtype=np.float64)
+    lm = body_landmarks(body, betas)
+    pose = torch.as_tensor(np.asarray(motion.pose), dtype=torch.float64)
+    transl = None if motion.transl is None else torch.as_tensor(np.asarray(motion.transl), dtype=torch.float64)
+    with torch.no_grad():
+        transforms = body.joint_transforms(pose, torch.as_tensor(betas), transl).numpy()
+        rest_t = body.joint_transforms(torch.zeros(1, 55, 3, dtype=torch.float64), torch.as_tensor(betas)).numpy()
+    points, normals = lm.positions(transforms)
+    rest, _ = lm.positions(rest_t)
+    a = BODY_TO_FLU
+    spine = transforms[:, body.joint_index("spine3"), :3, :3]
+    torso = a @ spine @ a.T
+    contact = human_contacts(body, transforms, betas) if with_contacts else None
+    return Track(names=tuple(LANDMARKS), points=points @ a.T, normals=normals @ a.T, torso=torso,
+                 scale=lm.scale, rest=rest[0] @ a.T, contact=contact, fps=float(motion.fps))
+
+
+def _geom_surface_distance(model: mujoco.MjModel, data: mujoco.MjData, g: int, p: np.ndarray) -> float:
+    """Rough distance of a point to a geom (mesh: nearest vertex; primitives: centre − size)."""
+    pos, rot = data.geom_xpos[g], data.geom_xmat[g].reshape(3, 3)
+    if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
+        m = model.geom_dataid[g]
+        v = model.mesh_vert[model.mesh_vertadr[m]: model.mesh_vertadr[m] + model.mesh_vertnum[m]]
+        return float(np.linalg.norm(v @ rot.T + pos - p, axis=1).min())
+    return float(max(np.linalg.norm(p - pos) - model.geom_size[g].max(), 0.0))
+
+
+class RobotContactGeoms:
+    """The robot's collision geoms per contact channel (hands, face, chest), found at the T-pose."""
+
+    def __init__(self, robot: Robot) -> None:
+        m = robot.model
+        d = mujoco.MjData(m)
+        d.qpos[:] = robot.qpos(robot.tpose)
+        mujoco.mj_kinematics(m, d)
+        world = np.linalg.inv(robot.torso_from_world)
+        pts, _, names = robot.landmark_points(robot.tpose[None])
+        at = {n: world[:3, :3] @ pts[0, i] + world[:3, 3] for i, n in enumerate(names)}
+        groups = list(robot.spec.collision.geom_groups)
+        coll = [g for g in range(m.ngeom) if m.geom_group[g] in groups]
+
+        def closest(lnames) -> list[int]:
+            out = set()
+            for n in lnames:
+                if n not in at:
+                    continue
+                body = m.body(robot.spec.landmarks[n].body).id
+                cand = [g for g in coll if m.geom_bodyid[g] == body] or coll
+                out.add(min(cand, key=lambda g: _geom_surface_distance(m, d, g, at[n])))
+            return sorted(out)
+
+        from embody.robot.contacts import subtree_ids
+        self.sets: dict[str, list[int]] = {"face": closest(_FACE_LANDMARKS), "chest": closest(_CHEST_LANDMARKS)}
+        for s in SIDES:
+            wrist = robot.spec.landmarks[f"{s}_wrist"].body
+            sub = subtree_ids(m, wrist)
+            palm = at[f"{s}_palm"]
+            self.sets[f"{s}_hand"] = [g for g in coll if m.geom_bodyid[g] in sub and (
+                m.geom_bodyid[g] != m.body(wrist).id or np.linalg.norm(d.geom_xpos[g] - palm) < 0.12)]
+        self.pairs = {"hands": ("left_hand", "right_hand"), "left_face": ("left_hand", "face"),
+                      "right_face": ("right_hand", "face"), "left_chest": ("left_hand", "chest"),
+                      "right_chest": ("right_hand", "chest")}
+
+
+def robot_contacts(robot: Robot, q: np.ndarray, distmax: float = 0.1) -> np.ndarray:
+    """MuJoCo's closest signed distances (T, len(CONTACTS)) per channel (m; < 0 penetrates)."""
+    geoms = RobotContactGeoms(robot)
+    m = robot.model
+    d = mujoco.MjData(m)
+    fromto = np.zeros(6)
+    out = np.full((len(q), len(CONTACTS)), distmax)
+    for t, qt in enumerate(np.asarray(q, dtype=np.float64)):
+        d.qpos[:] = robot.qpos(qt)
+        mujoco.mj_kinematics(m, d)
+        for c, name in enumerate(CONTACTS):
+            a, b = geoms.pairs[name]
+            best = distmax
+            for ga in geoms.sets[a]:
+                for gb in geoms.sets[b]:
+                    best = min(best, mujoco.mj_geomDistance(m, d, ga, gb, distmax, fromto))
+            out[t, c] = best
+    return out
+
+
+def robot_track(robot: Robot, q: np.ndarray, fps: float, with_contacts: bool = True) -> Track:
+    """The robot's landmarks, palm normals, torso frame and MuJoCo contacts for joint values q."""
+    q = np.atleast_2d(np.asarray(q, dtype=np.float64))
+    points, normals, names = robot.landmark_points(q)
+    rest, _, _ = robot.landmark_points(robot.tpose[None])
+    fk = robot.fk([robot.spec.torso_body])
+    rot, _ = fk.forward(q)
+    torso = rot[:, fk.index[robot.spec.torso_body]]
+    return Track(names=tuple(names), points=points, normals=normals, torso=torso, scale=robot.body_scale,
+                 rest=rest[0], contact=robot_contacts(robot, q) if with_contacts else None, fps=fps)

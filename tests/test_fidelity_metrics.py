@@ -1,0 +1,91 @@
+"""Fidelity metrics on built cases: identical motion → 0, a known offset → that error, a known
+contact → recall 1, a penetrating robot contact does not count."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from embody.body.landmarks import LANDMARKS
+from embody.metrics.fidelity import CONTACTS, Track, compare
+
+
+def _track(seed: int = 0, t: int = 30, scale: float = 0.3, spin: float = 0.0) -> Track:
+    """A made-up body: fixed landmarks, palms moving on smooth paths, torso turned by `spin`."""
+    rng = np.random.default_rng(seed)
+    rest = rng.normal(size=(len(LANDMARKS), 3)) * scale
+    for side in ("left", "right"):  # ring and pinky as the middle finger: the 5→3 mapping is exact
+        for f in ("ring", "pinky"):
+            rest[LANDMARKS.index(f"{side}_{f}_tip")] = rest[LANDMARKS.index(f"{side}_middle_tip")]
+    points = np.repeat(rest[None], t, 0).copy()
+    s = np.linspace(0, 1, t)[:, None]
+    for side in ("left", "right"):
+        i = LANDMARKS.index(f"{side}_palm")
+        points[:, i] = rest[LANDMARKS.index("chin")] + 0.05 * np.hstack([np.sin(6 * s), s, np.cos(3 * s)])
+    c, si = np.cos(spin), np.sin(spin)
+    rot = np.array([[c, -si, 0], [si, c, 0], [0, 0, 1]])
+    torso = np.repeat(rot[None], t, 0)
+    normals = np.repeat(np.array([[0, 0, -1.0], [0, 0, -1.0]])[None], t, 0)
+    contact = np.full((t, len(CONTACTS)), 0.1)
+    return Track(names=LANDMARKS, points=points @ rot.T, normals=normals @ rot.T, torso=torso,
+                 scale=scale, rest=rest @ rot.T, contact=contact)
+
+
+def test_identical_motion_scores_zero():
+    h = _track()
+    r = _track(spin=0.7)  # same body turned: every measure is in the torso frame
+    _, m = compare(h, r)
+    for key in ("location_err", "palm_deg", "pointing_deg", "handshape_err", "movement_dtw"):
+        assert m[key] == pytest.approx(0.0, abs=1e-6), key
+    assert m["location_agree_pct"] == 100.0 and m["path_ratio"] == pytest.approx(1.0)
+    assert m["speed_corr"] == pytest.approx(1.0)
+    assert np.isnan(m["contact_f1"]) and m["penetration_frames"] == 0
+
+
+def test_known_offset_gives_that_error_in_body_scales():
+    h = _track()
+    r = _track(scale=0.3)
+    r.scale = 0.24  # a smaller robot: distances compare per body scale
+    r.points = r.points * 0.8
+    r.rest = r.rest * 0.8
+    shift = np.array([0.0, 0.0, -0.08])  # the robot's right palm 8 cm too low
+    r.points[:, LANDMARKS.index("right_palm")] += shift
+    _, m = compare(h, r)
+    # left palm exact, right palm off by 0.08 / 0.24 scales: mean over hands
+    assert m["location_err"] == pytest.approx(0.5 * 0.08 / 0.24, rel=1e-6)
+    assert m["location_err_mm"] == pytest.approx(0.5 * 80.0, rel=1e-6)
+
+
+def test_palm_orientation_error():
+    h, r = _track(), _track()
+    r.normals = r.normals.copy()
+    r.normals[:, 1] = [0.0, np.sin(np.radians(30)), -np.cos(np.radians(30))]
+    _, m = compare(h, r)
+    assert m["palm_deg"] == pytest.approx(15.0, abs=1e-6)  # 30° on one hand of two
+
+
+def test_known_contact_gives_recall_one_and_penetration_does_not_count():
+    h, r = _track(), _track()
+    h.contact[10:20, CONTACTS.index("right_face")] = 0.005  # the human touches its face
+    r.contact[10:20, CONTACTS.index("right_face")] = 0.0
+    _, m = compare(h, r)
+    assert m["contact_recall"] == 1.0 and m["contact_precision"] == 1.0 and m["contact_f1"] == 1.0
+    r.contact[10:15, CONTACTS.index("right_face")] = -0.01  # half of it through the face
+    _, m = compare(h, r)
+    assert m["contact_recall"] == 0.5 and m["penetration_frames"] == 5
+    r.contact[:, :] = 0.1  # the robot never touches
+    _, m = compare(h, r)
+    assert m["contact_recall"] == 0.0 and m["contact_f1"] == 0.0
+
+
+def test_handshape_flexion_error():
+    h, r = _track(), _track()
+    i, p = LANDMARKS.index("right_index_tip"), LANDMARKS.index("right_palm")
+    r.points = r.points.copy()
+    # robot index tip pulled halfway to the palm: flexion 0.5 vs the human's straight finger
+    r.points[:, i] = r.points[:, p] + 0.5 * (r.rest[i] - r.rest[p])
+    _, m = compare(h, r)
+    # human flexion: its palm moved away from rest, so compute the expected value directly
+    from embody.metrics.fidelity import flexion
+    expected = np.abs(flexion(h, "right", "index") - 0.5).mean() / 6  # 1 of 6 finger slots
+    assert m["handshape_err"] == pytest.approx(expected, abs=1e-9)
