@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import codecs
+import collections
 import gzip
+import importlib
 import io
 import pickle
 import zipfile
@@ -15,17 +18,48 @@ import numpy as np
 from embody.errors import InputError
 
 
+def _numpy_attr(name: str) -> Any:
+    """`name` from numpy's core modules, whichever layout this numpy has (1.x `numpy.core`,
+    2.x `numpy._core`), so pickles written by either load under either."""
+    for module in ("numpy._core.multiarray", "numpy._core.numeric", "numpy.core.multiarray",
+                   "numpy.core.numeric"):
+        try:
+            obj = getattr(importlib.import_module(module), name, None)
+        except ImportError:
+            continue
+        if obj is not None:
+            return obj
+    raise pickle.UnpicklingError(f"this numpy has no {name}")
+
+
 class _NumpyUnpickler(pickle.Unpickler):
     """Unpickles plain containers and numpy arrays only: field pickles need nothing else,
-    and refusing other classes keeps a hostile pickle from running code."""
+    and refusing other classes keeps a hostile pickle from running code.
 
-    _ALLOWED_PREFIXES = ("numpy.", "numpy")
-    _ALLOWED = {("collections", "OrderedDict"), ("builtins", "set"), ("builtins", "frozenset"),
-                ("builtins", "complex"), ("builtins", "slice"), ("builtins", "range")}
+    Only exact (module, name) pairs are resolved, from a fixed table: a module prefix would let
+    a dotted name (`numpy.lib._datasource` + `os.system`) reach any attribute of any module.
+    """
+
+    _CORE_NAMES = {"numpy.core.multiarray": ("_reconstruct", "scalar"),
+                   "numpy._core.multiarray": ("_reconstruct", "scalar"),
+                   "numpy.core.numeric": ("_frombuffer",),
+                   "numpy._core.numeric": ("_frombuffer",)}
+    _ALLOWED: dict[tuple[str, str], Any] = {
+        ("numpy", "ndarray"): np.ndarray, ("numpy", "dtype"): np.dtype,
+        ("collections", "OrderedDict"): collections.OrderedDict,
+        ("builtins", "set"): set, ("builtins", "frozenset"): frozenset,
+        ("builtins", "complex"): complex, ("builtins", "slice"): slice,
+        ("builtins", "range"): range,
+        # protocol 0-2 pickles store bytes as _codecs.encode(text, "latin1")
+        ("_codecs", "encode"): codecs.encode,
+    }
 
     def find_class(self, module: str, name: str) -> Any:
-        if module == "numpy" or module.startswith("numpy.") or (module, name) in self._ALLOWED:
-            return super().find_class(module, name)
+        if "." not in name:
+            if (module, name) in self._ALLOWED:
+                return self._ALLOWED[(module, name)]
+            if name in self._CORE_NAMES.get(module, ()):
+                return _numpy_attr(name)
         raise pickle.UnpicklingError(f"refusing to unpickle {module}.{name}")
 
 
