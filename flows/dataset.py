@@ -189,6 +189,8 @@ class _Driver:
 def write_tables(store: ArtifactStore, run: str) -> Path:
     """`runs/<run>/sequences.csv`: one row per sequence, status, error and every scalar metric."""
     import pandas as pd
+
+    from embody.csvsafe import csv_safe
     manifest = Manifest.load(store, run)
     rows = []
     for sid, seq in manifest.sequences.items():
@@ -199,7 +201,7 @@ def write_tables(store: ArtifactStore, run: str) -> Path:
                         if isinstance(v, (int, float, str, bool)) or v is None})
         rows.append(row)
     path = manifest.path.parent / "sequences.csv"
-    pd.DataFrame(rows).to_csv(path, index=False)
+    csv_safe(pd.DataFrame(rows)).to_csv(path, index=False)
     return path
 
 
@@ -223,13 +225,13 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
 
     t0 = time.perf_counter()
     store = ArtifactStore(cfg.run.store)
-    data = load_dataset(dataset, split)
+    data = load_dataset(dataset, split, cfg.io)
     refs = list(data)[: cfg.run.limit] if cfg.run.limit else list(data)
     run = cfg.run.name or default_run_name(Path(dataset), split)
     pipeline = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
     ctx = Context(cfg=cfg, store_root=str(store.root), run=run)
     manifest = Manifest(store, run)
-    manifest.start([r.id for r in refs], dataset=str(dataset), split=split,
+    manifest.start([r.id for r in refs], dataset=str(Path(dataset).resolve()), split=split,
                    steps=pipeline.names, config=cfg.model_dump(mode="json"))
     size = cfg.run.batch_size
     batches = [[new_record(r) for r in refs[i:i + size]] for i in range(0, len(refs), size)]

@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 from typing import Any, Iterable
 
+from embody.errors import InputError
 from store.artifacts import ArtifactStore
 
 __all__ = ["Manifest", "load_manifests", "write_json_atomic"]
@@ -37,8 +38,19 @@ class Manifest:
 
     @classmethod
     def load(cls, store: ArtifactStore, run: str) -> "Manifest":
+        """Read a run's manifest; an unreadable or malformed one is an InputError naming it
+        (gc must stop rather than treat that run's artifacts as unreferenced)."""
         m = cls(store, run)
-        m.data = json.loads(m.path.read_text())
+        try:
+            m.data = json.loads(m.path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(m.path, None, f"corrupt run manifest: {type(exc).__name__}: "
+                                           f"{' '.join(str(exc).split())}") from None
+        seqs = m.data.get("sequences") if isinstance(m.data, dict) else None
+        if not isinstance(seqs, dict) or not isinstance(m.data.get("shared", {}), dict) or not all(
+                isinstance(s, dict) and isinstance(s.get("steps", {}), dict) for s in seqs.values()):
+            raise InputError(m.path, "sequences", "corrupt run manifest: expected an object of "
+                                                  "sequences, each with an object 'steps'")
         return m
 
     @property

@@ -44,7 +44,7 @@ def _robot_files(cfg: Any) -> list[Path]:
 
 
 def _load_source(ctx: Context, inputs: dict[str, Any]) -> Motion:
-    return inputs["ref"].load()
+    return inputs["ref"].load(limits=ctx.cfg.io)
 
 
 def _source_metrics(motion: Motion) -> dict[str, Any]:

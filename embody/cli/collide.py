@@ -24,7 +24,7 @@ def command(src: str, dst: str, preset: str | None, config_files: tuple[str, ...
 
     extra = (f"collision.mask={preset}",) if preset else ()
     cfg = build_config(config_files, sets + extra)
-    motion = load(src)
+    motion = load(src, limits=cfg.io)
     result = mitigate(motion, load_body_model(cfg.body), cfg.collision)
     fixed = result.motion
     fixed.meta["collision"] = {k: v for k, v in result.metrics.items()}

@@ -8,7 +8,7 @@ from typing import Any
 
 import click
 
-from embody.cli.common import emit_json, json_option
+from embody.cli.common import build_config, config_options, emit_json, json_option
 
 
 def _artifact_line(art: dict) -> str:
@@ -23,10 +23,10 @@ def _is_dataset(path: Path) -> bool:
                                                and not is_sequence_dir(path))
 
 
-def _dataset_info(path: Path, split: str | None) -> dict[str, Any]:
+def _dataset_info(path: Path, split: str | None, limits: Any = None) -> dict[str, Any]:
     from embody.io import load_dataset
 
-    ds = load_dataset(path, split)
+    ds = load_dataset(path, split, limits)
     return {"dataset": str(path), "kind": ds.kind, "sequences": len(ds), "ids": ds.ids}
 
 
@@ -57,7 +57,9 @@ def _echo_motion(info: dict[str, Any]) -> None:
 @click.option("--split", type=click.Choice(["train", "val", "test"]), default=None,
               help="Split of a SOKE root (datasets only).")
 @json_option
-def command(path: str, fps: float | None, split: str | None, as_json: bool) -> int:
+@config_options
+def command(path: str, fps: float | None, split: str | None, as_json: bool,
+            config_files: tuple[str, ...] = (), sets: tuple[str, ...] = ()) -> int:
     """Print format, frames, fps, hand convention, joint ranges, text and artifacts of PATH.
 
     For a dataset (a folder of motion files, a SOKE root or a CSV manifest) list its sequences.
@@ -65,9 +67,10 @@ def command(path: str, fps: float | None, split: str | None, as_json: bool) -> i
     from embody.io import load
     from embody.io.summary import summarize
 
+    limits = build_config(config_files, sets).io
     target = Path(path)
     if split is not None or _is_dataset(target):
-        info = _dataset_info(target, split)
+        info = _dataset_info(target, split, limits)
         if as_json:
             emit_json(info)
         else:
@@ -75,7 +78,7 @@ def command(path: str, fps: float | None, split: str | None, as_json: bool) -> i
             for seq_id in info["ids"]:
                 click.echo(f"  {seq_id}")
         return 0
-    info = summarize(load(target, fps=fps))
+    info = summarize(load(target, fps=fps, limits=limits))
     if as_json:
         emit_json(info)
     else:

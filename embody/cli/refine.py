@@ -33,7 +33,7 @@ def command(in_path: str, out: str, critic: str | None, config_files: tuple[str,
     from embody.retarget import build_targets, shape_fit, solve
     from embody.robot import load_robot
 
-    motion = load(in_path)
+    motion = load(in_path, limits=cfg.io)
     critic_impl = make_critic(cfg.critic)  # fails fast (e.g. a missing VLM key) before the IK
     robot = load_robot(cfg.robot)
     body = load_body_model(cfg.body)

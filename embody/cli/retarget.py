@@ -27,7 +27,7 @@ def command(in_path: str, out_path: str, robot_name: str | None, config_files: t
     from embody.robot import load_robot
 
     cfg = build_config(config_files, sets + ((f"robot.name={robot_name}",) if robot_name else ()))
-    motion = load(in_path)
+    motion = load(in_path, limits=cfg.io)
     robot = load_robot(cfg.robot)
     body = load_body_model(cfg.body)
     fit = shape_fit(robot, body, cfg.ik)

@@ -61,7 +61,7 @@ def prepare(dataset: str | None, split: str | None, cfg: Config) -> Path:
     configure(cfg.run.store)
     from flows.dataset import resolve_dataset
     path = resolve_dataset(dataset, cfg)
-    load_dataset(path, split)
+    load_dataset(path, split, cfg.io)
     return path
 
 

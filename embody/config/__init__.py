@@ -18,6 +18,7 @@ from embody.config.body import BodyConfig
 from embody.config.collision import CollisionConfig
 from embody.config.critic import CriticConfig
 from embody.config.ik import IKConfig
+from embody.config.io import IOConfig
 from embody.config.render import RenderConfig
 from embody.config.robot import RobotConfig
 from embody.config.run import DebugConfig, RunConfig
@@ -27,6 +28,7 @@ __all__ = ["Config", "Section", "canonical_json", "load_config", "configs_dir", 
 
 
 class Config(Section):
+    io: IOConfig = IOConfig()
     body: BodyConfig = BodyConfig()
     collision: CollisionConfig = CollisionConfig()
     robot: RobotConfig = RobotConfig()
@@ -51,9 +53,11 @@ def configs_dir() -> Path:
 
 def _read_yaml(path: Path) -> dict[str, Any]:
     try:
-        text = Path(path).read_text()
+        text = Path(path).read_text(encoding="utf-8")
     except OSError as exc:
         raise ConfigError(str(path), f"cannot read config file: {exc.strerror or exc}") from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError(str(path), f"not UTF-8 text (byte {exc.start})") from None
     try:
         data = yaml.safe_load(text) or {}
     except yaml.YAMLError as exc:

@@ -46,9 +46,10 @@ def _poses(data: dict[str, Any], key: str, path: Path) -> tuple[np.ndarray, str]
     return field(data, key, path, width=165), "array"
 
 
-def read(path: Path, data: dict[str, Any] | None = None, fps: float = 30.0) -> Motion:
+def read(path: Path, data: dict[str, Any] | None = None, fps: float = 30.0,
+         limits: Any = None) -> Motion:
     if data is None:
-        data = {"poses": read_npy(path)} if path.suffix == ".npy" else read_npz(path)
+        data = {"poses": read_npy(path, limits)} if path.suffix == ".npy" else read_npz(path, limits)
     arrays = [k for k in data if np.asarray(data[k]).ndim >= 2]
     if "poses" in data:
         key = "poses"
@@ -60,8 +61,8 @@ def read(path: Path, data: dict[str, Any] | None = None, fps: float = 30.0) -> M
     t = poses.shape[0]
     tkey = "trans" if "trans" in data else "transl"
     transl = field(data, tkey, path, rows=t, width=3) if tkey in data else np.zeros((t, 3))
-    hands = text(data, "hand_convention", "relative" if fmt == "soke-features" else "absolute")
-    up = text(data, "up_axis", "y")
+    hands = text(data, "hand_convention", "relative" if fmt == "soke-features" else "absolute", path)
+    up = text(data, "up_axis", "y", path)
     if hands not in ("absolute", "relative"):
         raise InputError(path, "hand_convention", f"expected 'absolute' or 'relative', got {hands!r}")
     if up not in ("y", "z"):
@@ -73,5 +74,5 @@ def read(path: Path, data: dict[str, Any] | None = None, fps: float = 30.0) -> M
         pose, transl = rotate_root(pose, transl, Z_UP_TO_Y_UP)
     return Motion(pose=pose, transl=transl, betas=betas10(data, "betas", path),
                   fps=scalar(data, ("fps", "mocap_frame_rate"), path, fps),
-                  gender=text(data, "gender", "neutral"),
+                  gender=text(data, "gender", "neutral", path),
                   source=MotionSource(str(path), fmt, hands))  # type: ignore[arg-type]

@@ -5,9 +5,11 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from embody.config.io import IOConfig
 from embody.errors import InputError
 from embody.io import amass, arrays, signavatars, soke
 from embody.io.fields import read_npz, read_pickle
+from embody.io.limits import check_frame_count, check_motion
 from embody.motion import Motion
 
 #: Frame rate of formats that do not record one (CSL-Daily and How2Sign video are ~30 fps).
@@ -31,8 +33,9 @@ def _kind(path: Path) -> str:
     raise InputError(path, None, f"unknown motion format (suffix {path.suffix or 'none'!r})")
 
 
-def _load_dir(path: Path, fps: float) -> Motion:
+def _load_dir(path: Path, fps: float, limits: IOConfig | None) -> Motion:
     if soke.is_sequence_dir(path):
+        check_frame_count(path, len(soke.frame_files(path)), limits)  # before reading any
         return soke.read(path, fps)
     if not any(path.iterdir()):
         raise InputError(path, None, "empty directory")
@@ -41,26 +44,32 @@ def _load_dir(path: Path, fps: float) -> Motion:
     raise InputError(path, None, "directory has no per-frame .pkl files (not a SOKE sequence)")
 
 
-def load(path: str | Path, fps: float | None = None) -> Motion:
+def load(path: str | Path, fps: float | None = None, limits: IOConfig | None = None) -> Motion:
     """Read any supported motion file or SOKE sequence folder as a y-up, absolute-hand Motion.
 
     `fps` is the frame rate of formats that store none (SOKE, SignAvatars, plain arrays; 30 if
-    not given); files that record their rate keep it.
+    not given); files that record their rate keep it. `limits` (the `io` config) bounds frames,
+    fps, pose and translation; sizes are checked before decompression where the format allows.
     """
-    path = Path(path)
+    motion = _load(Path(path), fps, limits)
+    check_motion(motion, limits)
+    return motion
+
+
+def _load(path: Path, fps: float | None, limits: IOConfig | None) -> Motion:
     if fps is None:
         fps = DEFAULT_FPS
     elif not (isinstance(fps, (int, float)) and math.isfinite(fps) and fps > 0):
         raise InputError(path, "fps", f"must be a positive number, got {fps!r}")
     if path.is_dir():
-        return _load_dir(path, fps)
+        return _load_dir(path, fps, limits)
     if not path.exists():
         raise InputError(path, None, "no such file or directory")
     kind = _kind(path)
     if kind == ".npy":
-        return arrays.read(path, fps=fps)
+        return arrays.read(path, fps=fps, limits=limits)
     if kind == ".npz":
-        data = read_npz(path)
+        data = read_npz(path, limits)
         return amass.read(path, data) if amass.is_amass(data) else arrays.read(path, data, fps)
     data = read_pickle(path)
     if signavatars.is_signavatars(data):

@@ -18,6 +18,7 @@ from typing import Any, Iterable, Literal
 import numpy as np
 import pandas as pd
 
+from embody.csvsafe import csv_safe
 from embody.errors import InputError
 
 from embody.retarget.validation import VALIDATION_KEYS
@@ -149,6 +150,6 @@ def export_library(trajectories: Iterable[Trajectory], out_dir: str | Path,
     excluded.sort(key=lambda row: row["id"])
     excl = pd.DataFrame(excluded, columns=["id", "robot", "text", "frames", "dt", "duration_s",
                                            "status", "reason"]).astype({"frames": "Int64"})
-    library.to_csv(out_dir / "library.csv", index=False, lineterminator="\n")
-    excl.to_csv(out_dir / "excluded.csv", index=False, lineterminator="\n")
+    csv_safe(library).to_csv(out_dir / "library.csv", index=False, lineterminator="\n")
+    csv_safe(excl).to_csv(out_dir / "excluded.csv", index=False, lineterminator="\n")
     return library, excl
