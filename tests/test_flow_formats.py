@@ -25,18 +25,14 @@ def _poses(rng, width=165):
     return rng.normal(0, 0.1, (T, width))
 
 
-def _amass(d: Path, rng) -> list[str]:
-    d.mkdir()
-    np.savez(d / "a.npz", poses=_poses(rng), trans=np.zeros((T, 3)), betas=np.zeros(16),
+def _amass(d: Path, rng) -> None:
+    np.savez(d / "amass.npz", poses=_poses(rng), trans=np.zeros((T, 3)), betas=np.zeros(16),
              gender="neutral", mocap_frame_rate=30.0)
-    return [str(d)]
 
 
-def _smplh(d: Path, rng) -> list[str]:
-    d.mkdir()
-    np.savez(d / "h.npz", poses=_poses(rng, 156), trans=np.zeros((T, 3)), betas=np.zeros(16),
+def _smplh(d: Path, rng) -> None:
+    np.savez(d / "smplh.npz", poses=_poses(rng, 156), trans=np.zeros((T, 3)), betas=np.zeros(16),
              mocap_framerate=60.0)
-    return [str(d)]
 
 
 def _soke_frame(rng) -> dict:
@@ -57,69 +53,62 @@ def _soke(d: Path, rng) -> list[str]:
     return [str(d), "--split", "train"]
 
 
-def _signavatars(d: Path, rng) -> list[str]:
-    d.mkdir()
+def _signavatars(d: Path, rng) -> None:
     smplx = rng.normal(0, 0.1, (T, 182))
     smplx[:, 179:] = 0
-    (d / "clip.pkl").write_bytes(pickle.dumps({"smplx": smplx}))
-    return [str(d)]
+    (d / "signavatars.pkl").write_bytes(pickle.dumps({"smplx": smplx}))
 
 
-def _arrays(d: Path, rng) -> list[str]:
-    d.mkdir()
-    np.save(d / "p.npy", _poses(rng))
-    np.savez(d / "q.npz", poses=_poses(rng).reshape(T, 55, 3), fps=24.0)
-    return [str(d)]
+def _arrays(d: Path, rng) -> None:
+    np.save(d / "plain.npy", _poses(rng))
+    np.savez(d / "plain55.npz", poses=_poses(rng).reshape(T, 55, 3), fps=24.0)
 
 
-def _manifest(d: Path, rng) -> list[str]:
-    (d / "clips").mkdir(parents=True)
-    np.save(d / "clips" / "x.npy", _poses(rng))
-    np.savez(d / "clips" / "y.npz", poses=_poses(rng), mocap_frame_rate=30.0)
-    (d / "list.csv").write_text('path,text\nclips/x.npy,"=cmd|calc"\nclips/y.npz,hi\n')
-    return [str(d / "list.csv")]
-
-
-FORMATS = {"amass": (_amass, 1), "smplh": (_smplh, 1), "soke": (_soke, 2),
-           "signavatars": (_signavatars, 1), "arrays": (_arrays, 2), "manifest": (_manifest, 2)}
-
-
-@pytest.fixture(scope="module")
-def store(tmp_path_factory):
-    return tmp_path_factory.mktemp("formats") / "store"  # shared: the shape fit runs once
-
-
-@pytest.mark.parametrize("fmt", list(FORMATS))
-def test_each_format_runs_through_the_flow(prefect_harness, tmp_path, store, capsys,
-                                           monkeypatch, fmt):
-    monkeypatch.chdir(tmp_path)
-    make, n = FORMATS[fmt]
-    args = make(tmp_path / "data", np.random.default_rng(0))
-    code = main(["run", *args, "--store", str(store), "--name", fmt, *CHEAP])
+def _run(args: list[str], store: Path, name: str, capsys) -> dict:
+    code = main(["run", *args, "--store", str(store), "--name", name, *CHEAP])
     out = capsys.readouterr()
     assert code == 0, out.err
     summary = json.loads(out.out)
-    assert (summary["ok"], summary["total"]) == (n, n)
+    assert summary["ok"] == summary["total"]
     manifest = json.loads(Path(summary["manifest"]).read_text())
     assert Path(manifest["dataset"]).is_absolute()
     for seq in manifest["sequences"].values():
-        assert {"source", "retarget", "metrics"} <= set(seq["steps"])
+        assert {"source", "collide", "retarget", "metrics"} <= set(seq["steps"])
         assert seq["metrics"]["source"]["frames"] == T
-    if fmt == "manifest":  # a formula-like text cell is escaped in the report's table
-        table = (Path(summary["report"]) / "sequences.csv").read_text()
-        assert ",'=cmd|calc," in table and ",=cmd" not in table
+    return summary
 
 
-def test_soke_source_key_follows_frame_bytes(prefect_harness, tmp_path, store, capsys,
-                                             monkeypatch):
+def test_every_file_format_runs_through_the_flow(prefect_harness, tmp_path, capsys,
+                                                 monkeypatch):
+    """One CSV manifest lists a file of each format (and a SOKE sequence folder)."""
     monkeypatch.chdir(tmp_path)
-    args = _soke(tmp_path / "data", np.random.default_rng(1))
-    run = ["run", *args, "--store", str(store), "--name", "soke-edit", *CHEAP]
-    assert main(run) == 0
-    first = json.loads(capsys.readouterr().out)
+    rng = np.random.default_rng(0)
+    data = tmp_path / "data"
+    (data / "clips").mkdir(parents=True)
+    for make in (_amass, _smplh, _signavatars, _arrays):
+        make(data / "clips", rng)
+    _soke(data / "soke", rng)
+    files = sorted(p.name for p in (data / "clips").iterdir())
+    rows = [f"clips/{f},{f}" for f in files] + ["soke/poses/s1,\"=cmd|calc\""]
+    (data / "list.csv").write_text("path,text\n" + "\n".join(rows) + "\n")
+    summary = _run([str(data / "list.csv")], tmp_path / "store", "formats", capsys)
+    assert summary["total"] == 6
+    fps = {sid: seq["metrics"]["source"]["fps"] for sid, seq in
+           json.loads(Path(summary["manifest"]).read_text())["sequences"].items()}
+    assert fps["clips/smplh"] == 60.0 and fps["clips/plain55"] == 24.0
+    # a formula-like text cell is escaped in the report's per-sequence table
+    table = (Path(summary["report"]) / "sequences.csv").read_text()
+    assert ",'=cmd|calc," in table and ",=cmd" not in table
+
+
+def test_soke_root_runs_and_its_key_follows_frame_bytes(prefect_harness, tmp_path, capsys,
+                                                        monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    args = [str(tmp_path / "data"), "--split", "train"]
+    _soke(tmp_path / "data", np.random.default_rng(1))
+    first = _run(args, tmp_path / "store", "soke", capsys)
     frame = tmp_path / "data" / "poses" / "s2" / "002.pkl"
     frame.write_bytes(pickle.dumps(_soke_frame(np.random.default_rng(9))))
-    assert main(run) == 0
-    second = json.loads(capsys.readouterr().out)
-    assert first["computed"]["source"] == 2
+    second = _run(args, tmp_path / "store", "soke", capsys)
+    assert first["total"] == 2 and first["computed"]["source"] == 2
     assert second["computed"]["source"] == 1  # only the edited sequence is read again

@@ -98,10 +98,10 @@ def _npy_header(fh: Any) -> tuple[tuple[int, ...], np.dtype]:
     version = np.lib.format.read_magic(fh)
     if version == (1, 0):
         shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
-    elif version == (2, 0):
+    elif version in ((2, 0), (3, 0)):  # 3.0 differs only in allowing utf-8 field names
         shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
     else:
-        shape, _, dtype = np.lib.format._read_array_header(fh, version)  # 3.0: utf-8 names
+        raise ValueError(f"unsupported .npy format version {version}")
     return tuple(int(n) for n in shape), dtype
 
 
