@@ -52,8 +52,8 @@ def _source_metrics(motion: Motion) -> dict[str, Any]:
 
 
 def _collide(ctx: Context, inputs: dict[str, Any]) -> Any:
-    from embody.collision import mitigate
-    return mitigate(inputs["source"], ctx.body, ctx.cfg.collision)
+    from embody.collision.windows import mitigate_windowed
+    return mitigate_windowed(inputs["source"], ctx.body, ctx.cfg.collision)
 
 
 def _collision_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:

@@ -19,7 +19,7 @@ def command(src: str, dst: str, preset: str | None, config_files: tuple[str, ...
             sets: tuple[str, ...], as_json: bool) -> int:
     """Optimise the masked joints of IN against the self-collision energy; write OUT (npz)."""
     from embody.body import load_body_model
-    from embody.collision import mitigate
+    from embody.collision.windows import mitigate_windowed as mitigate
     from embody.io import load, save
 
     extra = (f"collision.mask={preset}",) if preset else ()
