@@ -45,4 +45,4 @@ def test_long_motion_is_mitigated_in_windows(tmp_path):
 def test_window_config_is_checked():
     with pytest.raises(ConfigError, match="window_overlap"):
         load_config(sets=["collision.window_frames=40", "collision.window_overlap=30"])
-    assert CollisionConfig().window_frames == 1000
+    assert CollisionConfig().window_frames == 500

@@ -60,8 +60,7 @@ def _signavatars(d: Path, rng) -> None:
 
 
 def _arrays(d: Path, rng) -> None:
-    np.save(d / "plain.npy", _poses(rng))
-    np.savez(d / "plain55.npz", poses=_poses(rng).reshape(T, 55, 3), fps=24.0)
+    np.save(d / "plain.npy", _poses(rng).reshape(T, 55, 3))
 
 
 def _run(args: list[str], store: Path, name: str, capsys) -> dict:
@@ -80,25 +79,24 @@ def _run(args: list[str], store: Path, name: str, capsys) -> dict:
 
 def test_every_file_format_runs_through_the_flow(prefect_harness, tmp_path, capsys,
                                                  monkeypatch):
-    """One CSV manifest lists a file of each format (and a SOKE sequence folder)."""
+    """One CSV manifest lists a file of each format (SOKE roots: the next test)."""
     monkeypatch.chdir(tmp_path)
     rng = np.random.default_rng(0)
     data = tmp_path / "data"
     (data / "clips").mkdir(parents=True)
     for make in (_amass, _smplh, _signavatars, _arrays):
         make(data / "clips", rng)
-    _soke(data / "soke", rng)
     files = sorted(p.name for p in (data / "clips").iterdir())
-    rows = [f"clips/{f},{f}" for f in files] + ["soke/poses/s1,\"=cmd|calc\""]
+    rows = [f"clips/{f},\"=cmd|{f}\"" for f in files]
     (data / "list.csv").write_text("path,text\n" + "\n".join(rows) + "\n")
     summary = _run([str(data / "list.csv")], tmp_path / "store", "formats", capsys)
-    assert summary["total"] == 6
+    assert summary["total"] == 4
     fps = {sid: seq["metrics"]["source"]["fps"] for sid, seq in
            json.loads(Path(summary["manifest"]).read_text())["sequences"].items()}
-    assert fps["clips/smplh"] == 60.0 and fps["clips/plain55"] == 24.0
-    # a formula-like text cell is escaped in the report's per-sequence table
+    assert fps["clips/smplh"] == 60.0 and fps["clips/plain"] == 30.0
+    # formula-like text cells are escaped in the report's per-sequence table
     table = (Path(summary["report"]) / "sequences.csv").read_text()
-    assert ",'=cmd|calc," in table and ",=cmd" not in table
+    assert ",'=cmd|smplh.npz," in table and ",=cmd" not in table
 
 
 def test_soke_root_runs_and_its_key_follows_frame_bytes(prefect_harness, tmp_path, capsys,

@@ -83,9 +83,10 @@ class CollisionConfig(Section):
     #: Part volumes: convex pieces overfilling the body by more than this fraction get split.
     max_overfill: float = Field(0.10, gt=0, le=1)
     #: Longer sequences are mitigated in windows of this many frames sharing `window_overlap`
-    #: frames (cross-faded), so memory is bounded by the window, not the sequence length.
-    window_frames: int = Field(1000, ge=16, le=1_000_000)
-    window_overlap: int = Field(50, ge=2, le=10_000)
+    #: frames (cross-faded), so memory is bounded by the window, not the sequence length
+    #: (benchmarks/memory.py: ~3.9 GB peak with 1,000-frame windows; sign clips average ~160).
+    window_frames: int = Field(500, ge=16, le=1_000_000)
+    window_overlap: int = Field(30, ge=2, le=10_000)
 
     @model_validator(mode="after")
     def _overlap_fits(self) -> "CollisionConfig":
