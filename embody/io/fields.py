@@ -113,9 +113,11 @@ def npz_shapes(path: Path) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
         if len(members) > 1000:
             raise ValueError(f"{len(members)} members")
         for info in members:
-            key = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+            if not info.filename.endswith(".npy"):  # numpy hands these back as raw bytes
+                out[info.filename] = ((info.file_size,), np.dtype(np.uint8))
+                continue
             with zf.open(info) as fh:
-                out[key] = _npy_header(fh)
+                out[info.filename[:-4]] = _npy_header(fh)
     return out
 
 
