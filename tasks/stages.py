@@ -72,9 +72,10 @@ def _shape_fit_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
 
 
 def _retarget(ctx: Context, inputs: dict[str, Any]) -> Any:
-    from embody.retarget import build_targets, solve
+    from embody.retarget import build_targets
+    from embody.retarget.windows import solve_windowed
     targets = build_targets(inputs["collide"].motion, ctx.body, inputs["shape_fit"], ctx.robot)
-    return solve(ctx.robot, targets, ctx.cfg.ik)
+    return solve_windowed(ctx.robot, targets, ctx.cfg.ik)
 
 
 def _ik_solution(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
