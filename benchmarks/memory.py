@@ -8,7 +8,7 @@ iteration counts are cut (`--collision-steps`, `--ik-iterations`) to keep the ru
 peaks are those of the default settings otherwise. `--unwindowed` sets the collision window
 past the sequence length: the memory before windowing (issue 10 measured >20 GB at 20,000).
 
-    python benchmarks/memory.py [--frames 2000 20000] [--unwindowed] [--collision-steps 3]
+    python benchmarks/memory.py [--frames 2000 20000] [--unwindowed] [--fast] [--collision-steps 3]
 """
 
 from __future__ import annotations
@@ -41,7 +41,8 @@ def _motion(frames: int):
     return Motion(pose=pose, transl=np.zeros((frames, 3)), betas=np.zeros(10), fps=30.0)
 
 
-def child(frames: int, unwindowed: bool, collision_steps: int, ik_iterations: int) -> dict:
+def child(frames: int, unwindowed: bool, collision_steps: int, ik_iterations: int,
+          fast: bool) -> dict:
     """One case in this process: stage timings and the process's peak RSS (MB)."""
     from embody.body import load_body_model
     from embody.collision.windows import mitigate_windowed
@@ -55,7 +56,9 @@ def child(frames: int, unwindowed: bool, collision_steps: int, ik_iterations: in
     sets = [f"io.max_frames={max(frames, 2)}", f"collision.steps={collision_steps}",
             f"ik.iterations={ik_iterations}", f"ik.tracking_iterations={min(ik_iterations, 8)}"]
     if unwindowed:
-        sets.append(f"collision.window_frames={frames + 1}")
+        sets += [f"collision.window_frames={frames + 1}", f"ik.window_frames={frames + 1}"]
+    if fast:  # fewer collision points and the NumPy FK: same memory shape, a fraction of the time
+        sets += ["collision.vertex_stride=64", "ik.kinematics=tree"]
     cfg = load_config(sets=sets)
     times, rss = {}, {}
 
@@ -94,17 +97,20 @@ def main() -> None:
     ap.add_argument("--unwindowed", action="store_true")
     ap.add_argument("--collision-steps", type=int, default=3)
     ap.add_argument("--ik-iterations", type=int, default=2)
+    ap.add_argument("--fast", action="store_true",
+                    help="collision.vertex_stride=64 and ik.kinematics=tree (for a busy machine)")
     ap.add_argument("--child", type=int, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args()
     if args.child is not None:
         print(json.dumps(child(args.child, args.unwindowed, args.collision_steps,
-                               args.ik_iterations)))
+                               args.ik_iterations, args.fast)))
         return
     results = {}
     for frames in args.frames:
         cmd = [sys.executable, __file__, "--child", str(frames), "--collision-steps",
                str(args.collision_steps), "--ik-iterations", str(args.ik_iterations)]
         cmd += ["--unwindowed"] if args.unwindowed else []
+        cmd += ["--fast"] if args.fast else []
         out = subprocess.run(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT)
         if out.returncode != 0:
             results[frames] = None
@@ -112,7 +118,7 @@ def main() -> None:
         row = json.loads(out.stdout.strip().splitlines()[-1])
         print(json.dumps(row))
         results[frames] = max(row["peak_rss_mb_after"].values())
-    mode = "unwindowed" if args.unwindowed else "windowed"
+    mode = ("unwindowed" if args.unwindowed else "windowed") + ("-fast" if args.fast else "")
     print("RESULT " + f"mode={mode} " + " ".join(
         f"peak_rss_mb_{f}={v if v is not None else 'failed'}" for f, v in results.items()))
 
