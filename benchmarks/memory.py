@@ -11,9 +11,12 @@ past the sequence length: the memory before windowing (issue 10 measured >20 GB 
     python benchmarks/memory.py [--frames 2000 20000] [--unwindowed] [--fast] [--collision-steps 3]
 
 Measured 2026-11-23 on the shared 2-core machine (load ~7), `--fast --collision-steps 1
---ik-iterations 1`: 2,000 frames peak 1,154 MB after collide (5 windows), 3,009 MB after IK
-(one 2,000-frame window); 20,000 frames: 1,374 MB peak after 16 min of windowed collide (the
-run did not finish before the deadline). Default settings, 2,000 frames with 1,000-frame
+--ik-iterations 1`:
+    RESULT mode=windowed-fast peak_rss_mb_2000=3009 peak_rss_mb_20000=16766
+Per stage (peak so far): 2,000 frames: collide 1,154 MB (5 windows), retarget 3,009 MB;
+20,000 frames: collide 1,242 MB (43 windows: bounded), retarget 16,766 MB (10 IK windows:
+NOT bounded yet; build_targets + evaluate at 20,000 frames peak at only 1.8 GB, so memory is
+retained across the per-window solves; open). Default settings, 2,000 frames with 1,000-frame
 collision windows: 3,880 MB. Issue 10 measured >20 GB (collide) and >12 GB (no collide) at
 20,000 frames before windowing.
 """
