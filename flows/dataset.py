@@ -240,16 +240,11 @@ class _Driver:
         return out
 
 
-def _cell(value: Any) -> Any:
-    """A CSV cell a spreadsheet shows as text, never evaluates (leading = + - @)."""
-    if isinstance(value, str) and value[:1] in ("=", "+", "-", "@"):
-        return "'" + value
-    return value
-
-
 def write_tables(store: ArtifactStore, run: str, manifest: Manifest | None = None) -> Path:
     """`runs/<run>/sequences.csv`: one row per sequence, status, error and every scalar metric."""
     import pandas as pd
+
+    from embody.csvsafe import csv_safe
     manifest = manifest or Manifest.load(store, run)
     rows = []
     for sid, seq in manifest.sequences.items():
@@ -258,11 +253,11 @@ def write_tables(store: ArtifactStore, run: str, manifest: Manifest | None = Non
         for step, metrics in seq["metrics"].items():
             row.update({f"{step}.{k}": v for k, v in metrics.items()
                         if isinstance(v, (int, float, str, bool)) or v is None})
-        rows.append({k: _cell(v) for k, v in row.items()})
+        rows.append(row)
     path = manifest.path.parent / "sequences.csv"
     tmp = path.with_name(f".{path.name}.tmp")
     try:
-        pd.DataFrame(rows).to_csv(tmp, index=False)
+        csv_safe(pd.DataFrame(rows)).to_csv(tmp, index=False)
         tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)
@@ -291,7 +286,7 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
 
     t0 = time.perf_counter()
     store = ArtifactStore(cfg.run.store)
-    data = load_dataset(dataset, split)
+    data = load_dataset(dataset, split, cfg.io)
     refs = list(data)[: cfg.run.limit] if cfg.run.limit else list(data)
     run = run_name(cfg, dataset, split)
     pipeline = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)

@@ -35,13 +35,36 @@ def content_key(step: str, version: str, config: Mapping[str, str],
     return _sha256(json.dumps(doc, sort_keys=True, separators=(",", ":")))
 
 
+def _update_file(h: "hashlib._Hash", path: Path) -> None:
+    """Length-prefixed bytes, streamed: a source file may be large."""
+    h.update(path.stat().st_size.to_bytes(8, "little"))
+    with path.open("rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+
+
+def _folder_files(folder: Path) -> list[Path]:
+    """A sequence folder's frame files: every visible regular file, sorted by name."""
+    return sorted(p for p in folder.iterdir() if p.is_file() and not p.name.startswith("."))
+
+
 def files_key(paths: Iterable[str | Path], extra: str = "") -> str:
-    """Key of source files: their bytes in the given order (names do not matter), plus `extra`."""
+    """Key of source files: their bytes in the given order (names do not matter), plus `extra`.
+
+    A folder (a per-frame sequence such as SOKE's) contributes its frame files sorted by name,
+    each with its name, since the names fix the frame order.
+    """
     h = hashlib.sha256()
     for p in paths:
-        data = Path(p).read_bytes()
-        h.update(len(data).to_bytes(8, "little"))
-        h.update(data)
+        p = Path(p)
+        if p.is_dir():
+            files = _folder_files(p)
+            h.update(b"dir" + len(files).to_bytes(8, "little"))
+            for f in files:
+                h.update(f.name.encode("utf-8", "surrogateescape") + b"\0")
+                _update_file(h, f)
+        else:
+            _update_file(h, p)
     h.update(extra.encode("utf-8"))
     return h.hexdigest()
 

@@ -60,13 +60,19 @@ class Manifest:
 
     @classmethod
     def load(cls, store: ArtifactStore, run: str) -> "Manifest":
+        """Read a run's manifest; an unreadable or malformed one is an InputError naming it
+        (gc must stop rather than treat that run's artifacts as unreferenced)."""
         m = cls(store, run)
         try:
-            m.data = json.loads(m.path.read_text())
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(m.path, None, f"corrupt manifest: {exc}") from None
-        if not isinstance(m.data, dict) or not isinstance(m.data.get("sequences"), dict):
-            raise InputError(m.path, "sequences", "corrupt manifest: no sequences mapping")
+            m.data = json.loads(m.path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+            raise InputError(m.path, None, f"corrupt run manifest: {type(exc).__name__}: "
+                                           f"{' '.join(str(exc).split())}") from None
+        seqs = m.data.get("sequences") if isinstance(m.data, dict) else None
+        if not isinstance(seqs, dict) or not isinstance(m.data.get("shared", {}), dict) or not all(
+                isinstance(s, dict) and isinstance(s.get("steps", {}), dict) for s in seqs.values()):
+            raise InputError(m.path, "sequences", "corrupt run manifest: expected an object of "
+                                                  "sequences, each with an object 'steps'")
         return m
 
     @property

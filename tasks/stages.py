@@ -47,9 +47,10 @@ def _robot_files(cfg: Any) -> list[Path]:
 
 
 def _load_source(ctx: Context, inputs: dict[str, Any]) -> Motion:
-    """The sequence with the `io` overrides (fps, up axis, hands) applied; `io` is in its key."""
+    """The sequence with the `io` overrides (fps, up axis, hands) applied and within the `io`
+    bounds; `io` is in its key."""
     io = ctx.cfg.io
-    return inputs["ref"].load(fps=io.fps, up_axis=io.up_axis, hands=io.hands)
+    return inputs["ref"].load(fps=io.fps, up_axis=io.up_axis, hands=io.hands, limits=io)
 
 
 def _source_metrics(motion: Motion) -> dict[str, Any]:
@@ -57,8 +58,8 @@ def _source_metrics(motion: Motion) -> dict[str, Any]:
 
 
 def _collide(ctx: Context, inputs: dict[str, Any]) -> Any:
-    from embody.collision import mitigate
-    return mitigate(inputs["source"], ctx.body, ctx.cfg.collision)
+    from embody.collision.windows import mitigate_windowed
+    return mitigate_windowed(inputs["source"], ctx.body, ctx.cfg.collision)
 
 
 def _collision_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
@@ -77,9 +78,10 @@ def _shape_fit_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
 
 
 def _retarget(ctx: Context, inputs: dict[str, Any]) -> Any:
-    from embody.retarget import build_targets, solve
+    from embody.retarget import build_targets
+    from embody.retarget.windows import solve_windowed
     targets = build_targets(inputs["collide"].motion, ctx.body, inputs["shape_fit"], ctx.robot, ctx.cfg.ik)
-    return solve(ctx.robot, targets, ctx.cfg.ik)
+    return solve_windowed(ctx.robot, targets, ctx.cfg.ik)
 
 
 def _ik_solution(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:

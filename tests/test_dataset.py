@@ -8,6 +8,7 @@ import pickle
 import numpy as np
 import pytest
 
+from embody.config.io import IOConfig
 from embody.errors import InputError
 from embody.io import SequenceRef, load_dataset
 
@@ -79,7 +80,9 @@ def test_csv_manifest_resolves_relative_paths(tmp_path):
     _npz(tmp_path / "data" / "two.npz", t=6)
     (tmp_path / "lists").mkdir()
     (tmp_path / "lists" / "m.csv").write_text('path,text\n../data/two.npz,"hello, world"\n../data/one.npz,\n')
-    ds = load_dataset(tmp_path / "lists" / "m.csv")
+    with pytest.raises(InputError, match="line 2: '../data/two.npz' is outside"):
+        load_dataset(tmp_path / "lists" / "m.csv")  # refused unless the config allows it
+    ds = load_dataset(tmp_path / "lists" / "m.csv", limits=IOConfig(allow_outside_paths=True))
     assert ds.ids == ["../data/two", "../data/one"]
     assert ds[0].path == tmp_path / "lists" / "../data/two.npz"
     m = ds[0].load()

@@ -22,7 +22,7 @@ def command(src: str, dst: str, preset: str | None, fps: float | None, up_axis: 
             as_json: bool) -> int:
     """Optimise the masked joints of IN against the self-collision energy; write OUT (npz)."""
     from embody.body import load_body_model
-    from embody.collision import mitigate
+    from embody.collision.windows import mitigate_windowed as mitigate
     from embody.io import save
 
     extra = (f"collision.mask={preset}",) if preset else ()

@@ -38,10 +38,10 @@ def input_sets(fps: float | None, up_axis: str | None, hands: str | None) -> tup
 
 
 def load_input(path: str, cfg: Config) -> Any:
-    """`embody.io.load` with the config's `io` overrides."""
+    """`embody.io.load` with the config's `io` overrides and bounds."""
     from embody.io import load
 
-    return load(path, fps=cfg.io.fps, up_axis=cfg.io.up_axis, hands=cfg.io.hands)
+    return load(path, fps=cfg.io.fps, up_axis=cfg.io.up_axis, hands=cfg.io.hands, limits=cfg.io)
 
 
 def json_option(f):

@@ -24,10 +24,10 @@ def _is_dataset(path: Path) -> bool:
                                                and not is_sequence_dir(path))
 
 
-def _dataset_info(path: Path, split: str | None) -> dict[str, Any]:
+def _dataset_info(path: Path, split: str | None, limits: Any = None) -> dict[str, Any]:
     from embody.io import load_dataset
 
-    ds = load_dataset(path, split)
+    ds = load_dataset(path, split, limits)
     return {"dataset": str(path), "kind": ds.kind, "sequences": len(ds), "ids": ds.ids}
 
 
@@ -75,9 +75,10 @@ def command(path: str, split: str | None, fps: float | None, up_axis: str | None
     """
     from embody.io.summary import summarize
 
+    limits = build_config(config_files, sets).io
     target = Path(path)
     if split is not None or _is_dataset(target):
-        info = _dataset_info(target, split)
+        info = _dataset_info(target, split, limits)
         if as_json:
             emit_json(info)
         else:

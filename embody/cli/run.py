@@ -97,7 +97,7 @@ def prepare(dataset: str | None, split: str | None, cfg: Config, overwrite: bool
     configure(cfg.run.store)
     from flows.dataset import check_run_reuse, resolve_dataset, run_name
     path = resolve_dataset(dataset, cfg)
-    load_dataset(path, split)
+    load_dataset(path, split, cfg.io)
     check_run_reuse(cfg.run.store, run_name(cfg, path, split), path, split, cfg.robot.name,
                     overwrite)
     return path

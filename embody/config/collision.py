@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from embody.config.base import Section
 
@@ -82,3 +82,14 @@ class CollisionConfig(Section):
     threads: int = Field(1, ge=1, le=256)
     #: Part volumes: convex pieces overfilling the body by more than this fraction get split.
     max_overfill: float = Field(0.10, gt=0, le=1)
+    #: Longer sequences are mitigated in windows of this many frames sharing `window_overlap`
+    #: frames (cross-faded), so memory is bounded by the window, not the sequence length
+    #: (benchmarks/memory.py: ~3.9 GB peak with 1,000-frame windows; sign clips average ~160).
+    window_frames: int = Field(500, ge=16, le=1_000_000)
+    window_overlap: int = Field(30, ge=2, le=10_000)
+
+    @model_validator(mode="after")
+    def _overlap_fits(self) -> "CollisionConfig":
+        if self.window_overlap * 2 > self.window_frames:
+            raise ValueError("window_overlap must be at most half of window_frames")
+        return self

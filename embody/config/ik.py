@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Literal
 
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from embody.config.base import Section
 
@@ -83,3 +83,13 @@ class IKConfig(Section):
     #: Off only to study the proxies alone.
     contact_repair: bool = True
     control_rate_hz: float = Field(50.0, gt=0, le=2000)
+    #: Longer sequences are solved in windows of this many frames sharing `window_overlap`
+    #: frames (cross-faded), so the solver's memory is bounded by the window (embody.retarget.windows).
+    window_frames: int = Field(2000, ge=16, le=1_000_000)
+    window_overlap: int = Field(50, ge=2, le=10_000)
+
+    @model_validator(mode="after")
+    def _ik_overlap_fits(self) -> "IKConfig":
+        if self.window_overlap * 2 > self.window_frames:
+            raise ValueError("window_overlap must be at most half of window_frames")
+        return self

@@ -70,9 +70,11 @@ def read(path: Path, data: dict[str, Any] | None = None,
     meta: dict[str, Any] = {}
     if meta_json is not None:
         try:
-            info = json.loads(text(data, META_KEY, "{}"))
+            info = json.loads(text(data, META_KEY, "{}", path))
         except json.JSONDecodeError as exc:
             raise InputError(path, META_KEY, f"not valid JSON: {exc.msg}") from None
+        if not isinstance(info, dict) or not isinstance(info.get("meta", {}), dict):
+            raise InputError(path, META_KEY, "expected a JSON object with an object 'meta'")
         if info.get("up_axis", "y") != "y" or info.get("hand_convention", "absolute") != "absolute":
             raise InputError(path, META_KEY, "embody files must be y-up with absolute hands")
         meta, fmt = dict(info.get("meta", {})), "embody"
@@ -89,7 +91,7 @@ def read(path: Path, data: dict[str, Any] | None = None,
         poses.reshape(t, NUM_JOINTS, 3), transl, fps=fps_setting, up_axis=up, hands=hands,
         overrides=overrides)
     return Motion(pose=pose, transl=transl, betas=betas10(data, "betas", path), fps=fps,
-                  gender=text(data, "gender", "neutral"),
+                  gender=text(data, "gender", "neutral", path),
                   source=MotionSource(str(path), fmt, hand_convention, provenance),  # type: ignore[arg-type]
                   meta=meta)
 

@@ -48,9 +48,9 @@ def _poses(data: dict[str, Any], key: str, path: Path) -> tuple[np.ndarray, str]
 
 
 def read(path: Path, data: dict[str, Any] | None = None,
-         overrides: Overrides | None = None) -> Motion:
+         overrides: Overrides | None = None, limits: Any = None) -> Motion:
     if data is None:
-        data = {"poses": read_npy(path)} if path.suffix == ".npy" else read_npz(path)
+        data = {"poses": read_npy(path, limits)} if path.suffix == ".npy" else read_npz(path, limits)
     arrays = [k for k in data if np.asarray(data[k]).ndim >= 2]
     if "poses" in data:
         key = "poses"
@@ -63,12 +63,12 @@ def read(path: Path, data: dict[str, Any] | None = None,
     tkey = "trans" if "trans" in data else "transl"
     transl = field(data, tkey, path, rows=t, width=3) if tkey in data else np.zeros((t, 3))
     if "hand_convention" in data:
-        hands = Setting(text(data, "hand_convention", ""), "data: hand_convention")
+        hands = Setting(text(data, "hand_convention", "", path), "data: hand_convention")
     elif fmt == "soke-features":
         hands = Setting("relative", "default: SOKE features are mean-relative")
     else:
         hands = Setting("absolute", "default: plain arrays assumed absolute")
-    up = (Setting(text(data, "up_axis", ""), "data: up_axis") if "up_axis" in data
+    up = (Setting(text(data, "up_axis", "", path), "data: up_axis") if "up_axis" in data
           else Setting("y", "default: plain arrays assumed y-up"))
     if hands.value not in ("absolute", "relative"):
         raise InputError(path, "hand_convention", f"expected 'absolute' or 'relative', got {hands.value!r}")
@@ -81,5 +81,5 @@ def read(path: Path, data: dict[str, Any] | None = None,
         poses.reshape(t, NUM_JOINTS, 3), transl, fps=fps, up_axis=up, hands=hands,
         overrides=overrides)
     return Motion(pose=pose, transl=transl, betas=betas10(data, "betas", path), fps=fps_value,
-                  gender=text(data, "gender", "neutral"),
+                  gender=text(data, "gender", "neutral", path),
                   source=MotionSource(str(path), fmt, hand_convention, provenance))  # type: ignore[arg-type]

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
 
+from embody.config.io import IOConfig
 from embody.errors import InputError
 from embody.io import soke
 from embody.io.loader import MOTION_SUFFIXES, load
@@ -26,9 +27,10 @@ class SequenceRef:
     source_files: tuple[Path, ...] = ()
 
     def load(self, fps: float | None = None, up_axis: str | None = None,
-             hands: str | None = None) -> Motion:
-        """The motion; `fps`/`up_axis`/`hands` override the file's (see `embody.io.load`)."""
-        motion = load(self.path, fps=fps, up_axis=up_axis, hands=hands)
+             hands: str | None = None, limits: IOConfig | None = None) -> Motion:
+        """The motion; `fps`/`up_axis`/`hands` override the file's (see `embody.io.load`),
+        within `limits` (the `io` config; defaults if None)."""
+        motion = load(self.path, fps=fps, up_axis=up_axis, hands=hands, limits=limits)
         motion.meta.setdefault("id", self.id)
         if self.text is not None:
             motion.meta["text"] = self.text
@@ -38,11 +40,16 @@ class SequenceRef:
 class Dataset:
     """An ordered, sized collection of `SequenceRef`s with unique ids."""
 
-    def __init__(self, root: Path, refs: list[SequenceRef], kind: str) -> None:
+    def __init__(self, root: Path, refs: list[SequenceRef], kind: str,
+                 where: list[str] | None = None, origin: Path | None = None) -> None:
+        """`where` names each ref's place in `origin` (a CSV line) for the duplicate-id error."""
         self._by_id: dict[str, SequenceRef] = {}
-        for ref in refs:
+        first: dict[str, int] = {}
+        for i, ref in enumerate(refs):
             if ref.id in self._by_id:
-                raise InputError(root, "id", f"duplicate sequence id {ref.id!r}")
+                at = (f" ({where[i]}; first on {where[first[ref.id]]})" if where else "")
+                raise InputError(origin or root, "id", f"duplicate sequence id {ref.id!r}{at}")
+            first[ref.id] = i
             self._by_id[ref.id] = ref
         self.root = root
         self.kind = kind
@@ -81,7 +88,16 @@ def _folder(root: Path) -> Dataset:
     return Dataset(root, refs, "folder")
 
 
-def _soke(root: Path, split: str | None) -> Dataset:
+def _inside(base: Path, target: Path) -> bool:
+    """Whether `target` resolves (symlinks and `..` followed) inside `base`."""
+    try:
+        target.resolve().relative_to(base.resolve())
+    except ValueError:
+        return False
+    return True
+
+
+def _soke(root: Path, split: str | None, limits: IOConfig) -> Dataset:
     poses = root / "poses"
     if split is None:
         names = sorted(p.name for p in poses.iterdir() if p.is_dir())
@@ -90,7 +106,15 @@ def _soke(root: Path, split: str | None) -> Dataset:
         entries = soke.read_split(root, split)
     refs = []
     for entry in entries:
-        folder = poses / str(entry["name"])
+        name = str(entry["name"])
+        folder = poses / name
+        if not limits.allow_outside_paths and (not name or Path(name).is_absolute()
+                                               or ".." in Path(name).parts
+                                               or not _inside(poses, folder)):
+            raise InputError(root / f"csl_clean.{split}", "name",
+                             f"{name!r} points outside poses/ (set io.allow_outside_paths=true "
+                             "to allow)")
+        folder = folder.absolute()
         text = entry.get("text")
         # frame files are listed on load: listing 20k folders up front costs minutes
         refs.append(SequenceRef(str(entry["name"]), folder, None if text is None else str(text),
@@ -98,7 +122,7 @@ def _soke(root: Path, split: str | None) -> Dataset:
     return Dataset(root, refs, f"soke-{split}" if split else "soke")
 
 
-def _manifest(path: Path) -> Dataset:
+def _manifest(path: Path, limits: IOConfig) -> Dataset:
     try:
         with path.open(newline="", encoding="utf-8") as fh:
             rows = list(csv.DictReader(fh))
@@ -106,20 +130,31 @@ def _manifest(path: Path) -> Dataset:
         raise InputError(path, None, f"cannot read CSV manifest: {exc}") from None
     if not rows or "path" not in rows[0]:
         raise InputError(path, "path", "manifest needs a header 'path,text' and at least one row")
-    refs = []
+    refs, where = [], []
     for i, row in enumerate(rows, start=2):
         rel = (row.get("path") or "").strip()
         if not rel:
             raise InputError(path, "path", f"empty path on line {i}")
         target = Path(rel) if Path(rel).is_absolute() else path.parent / rel
+        if not limits.allow_outside_paths and not _inside(path.parent, target):
+            raise InputError(path, "path", f"line {i}: {rel!r} is outside the manifest's folder "
+                                           "(set io.allow_outside_paths=true to allow)")
+        target = target.absolute()
         text = row.get("text")
         refs.append(SequenceRef(Path(rel).with_suffix("").as_posix(), target,
                                 text if text else None, (target,)))
-    return Dataset(path.parent, refs, "manifest")
+        where.append(f"line {i}")
+    return Dataset(path.parent, refs, "manifest", where, path)
 
 
-def load_dataset(path: str | Path, split: str | None = None) -> Dataset:
-    """A lazy dataset from a folder, a SOKE root (+ `split`), or a `path,text` CSV manifest."""
+def load_dataset(path: str | Path, split: str | None = None,
+                 limits: IOConfig | None = None) -> Dataset:
+    """A lazy dataset from a folder, a SOKE root (+ `split`), or a `path,text` CSV manifest.
+
+    `limits` (the `io` config) decides whether split names and manifest paths may point
+    outside the dataset's folder; loads use it through `SequenceRef.load(limits)`.
+    """
+    limits = limits or IOConfig()
     path = Path(path)
     if not path.exists():
         raise InputError(path, None, "no such file or directory")
@@ -128,10 +163,10 @@ def load_dataset(path: str | Path, split: str | None = None) -> Dataset:
             raise InputError(path, None, "a dataset is a folder or a .csv manifest")
         if split is not None:
             raise InputError(path, "split", "splits apply to SOKE roots only")
-        return _manifest(path)
+        return _manifest(path, limits)
     poses = path / "poses"
     if poses.is_dir() and (split is not None or any(p.is_dir() for p in poses.iterdir())):
-        return _soke(path, split)
+        return _soke(path, split, limits)
     if split is not None:
         raise InputError(path, "split", f"no csl_clean.{split} and poses/ here (not a SOKE root)")
     dataset = _folder(path)

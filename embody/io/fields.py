@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import codecs
+import collections
 import gzip
+import importlib
 import io
 import pickle
 import zipfile
@@ -15,17 +18,48 @@ import numpy as np
 from embody.errors import InputError
 
 
+def _numpy_attr(name: str) -> Any:
+    """`name` from numpy's core modules, whichever layout this numpy has (1.x `numpy.core`,
+    2.x `numpy._core`), so pickles written by either load under either."""
+    for module in ("numpy._core.multiarray", "numpy._core.numeric", "numpy.core.multiarray",
+                   "numpy.core.numeric"):
+        try:
+            obj = getattr(importlib.import_module(module), name, None)
+        except ImportError:
+            continue
+        if obj is not None:
+            return obj
+    raise pickle.UnpicklingError(f"this numpy has no {name}")
+
+
 class _NumpyUnpickler(pickle.Unpickler):
     """Unpickles plain containers and numpy arrays only: field pickles need nothing else,
-    and refusing other classes keeps a hostile pickle from running code."""
+    and refusing other classes keeps a hostile pickle from running code.
 
-    _ALLOWED_PREFIXES = ("numpy.", "numpy")
-    _ALLOWED = {("collections", "OrderedDict"), ("builtins", "set"), ("builtins", "frozenset"),
-                ("builtins", "complex"), ("builtins", "slice"), ("builtins", "range")}
+    Only exact (module, name) pairs are resolved, from a fixed table: a module prefix would let
+    a dotted name (`numpy.lib._datasource` + `os.system`) reach any attribute of any module.
+    """
+
+    _CORE_NAMES = {"numpy.core.multiarray": ("_reconstruct", "scalar"),
+                   "numpy._core.multiarray": ("_reconstruct", "scalar"),
+                   "numpy.core.numeric": ("_frombuffer",),
+                   "numpy._core.numeric": ("_frombuffer",)}
+    _ALLOWED: dict[tuple[str, str], Any] = {
+        ("numpy", "ndarray"): np.ndarray, ("numpy", "dtype"): np.dtype,
+        ("collections", "OrderedDict"): collections.OrderedDict,
+        ("builtins", "set"): set, ("builtins", "frozenset"): frozenset,
+        ("builtins", "complex"): complex, ("builtins", "slice"): slice,
+        ("builtins", "range"): range,
+        # protocol 0-2 pickles store bytes as _codecs.encode(text, "latin1")
+        ("_codecs", "encode"): codecs.encode,
+    }
 
     def find_class(self, module: str, name: str) -> Any:
-        if module == "numpy" or module.startswith("numpy.") or (module, name) in self._ALLOWED:
-            return super().find_class(module, name)
+        if "." not in name:
+            if (module, name) in self._ALLOWED:
+                return self._ALLOWED[(module, name)]
+            if name in self._CORE_NAMES.get(module, ()):
+                return _numpy_attr(name)
         raise pickle.UnpicklingError(f"refusing to unpickle {module}.{name}")
 
 
@@ -34,12 +68,24 @@ def _brief(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
+#: Largest decompressed gzip pickle (split index files): a gzip bomb stops here.
+MAX_GZIP_BYTES = 1 << 30
+
+
+def _gunzip(raw: bytes) -> bytes:
+    with gzip.GzipFile(fileobj=io.BytesIO(raw)) as fh:
+        out = fh.read(MAX_GZIP_BYTES + 1)
+    if len(out) > MAX_GZIP_BYTES:
+        raise ValueError(f"decompresses to more than {MAX_GZIP_BYTES} bytes")
+    return out
+
+
 def read_pickle(path: Path, *, gz: bool = False) -> Any:
     """Load a (optionally gzip) pickle of dicts/lists/arrays; any failure is an InputError."""
     try:
         raw = path.read_bytes()
         if gz or raw[:2] == b"\x1f\x8b":
-            raw = gzip.decompress(raw)
+            raw = _gunzip(raw)
         return _NumpyUnpickler(io.BytesIO(raw), encoding="latin1").load()
     except OSError as exc:
         raise InputError(path, None, f"cannot read file: {exc.strerror or exc}") from None
@@ -47,24 +93,72 @@ def read_pickle(path: Path, *, gz: bool = False) -> Any:
         raise InputError(path, None, f"unreadable pickle: {type(exc).__name__}: {_brief(exc)}") from None
 
 
-def read_npz(path: Path) -> dict[str, np.ndarray]:
-    """All arrays of an npz (pickled objects refused); truncation is an InputError."""
+def _npy_header(fh: Any) -> tuple[tuple[int, ...], np.dtype]:
+    """(shape, dtype) from an .npy stream's header; reads only the header bytes."""
+    version = np.lib.format.read_magic(fh)
+    if version == (1, 0):
+        shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+    elif version in ((2, 0), (3, 0)):  # 3.0 differs only in allowing utf-8 field names
+        shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+    else:
+        raise ValueError(f"unsupported .npy format version {version}")
+    return tuple(int(n) for n in shape), dtype
+
+
+def npz_shapes(path: Path) -> dict[str, tuple[tuple[int, ...], np.dtype]]:
+    """Each npz member's (shape, dtype) from its header, decompressing only the header."""
+    out = {}
+    with zipfile.ZipFile(path) as zf:
+        members = zf.infolist()
+        if len(members) > 1000:
+            raise ValueError(f"{len(members)} members")
+        for info in members:
+            if not info.filename.endswith(".npy"):  # numpy hands these back as raw bytes
+                out[info.filename] = ((info.file_size,), np.dtype(np.uint8))
+                continue
+            with zf.open(info) as fh:
+                out[info.filename[:-4]] = _npy_header(fh)
+    return out
+
+
+def read_npz(path: Path, limits: Any = None) -> dict[str, np.ndarray]:
+    """All arrays of an npz (pickled objects refused); truncation is an InputError.
+
+    Array sizes are checked against `limits` (`io` config) from the headers first, so a
+    small file of zeros cannot decompress into gigabytes.
+    """
+    from embody.io.limits import check_array_header
     try:
+        for key, (shape, _) in npz_shapes(path).items():
+            check_array_header(path, key, shape, limits)
         with np.load(path, allow_pickle=False) as data:
             return {k: data[k] for k in data.files}
     except OSError as exc:
         raise InputError(path, None, f"cannot read file: {exc.strerror or exc}") from None
-    except (zipfile.BadZipFile, ValueError, EOFError, KeyError, zlib.error) as exc:
+    except (zipfile.BadZipFile, ValueError, EOFError, KeyError, zlib.error, SyntaxError,
+            TypeError, NotImplementedError) as exc:
         raise InputError(path, None, f"truncated or corrupt npz: {_brief(exc)}") from None
 
 
-def read_npy(path: Path) -> np.ndarray:
+def read_npy(path: Path, limits: Any = None) -> np.ndarray:
+    from embody.io.limits import check_array_header
     try:
+        with path.open("rb") as fh:
+            shape, _ = _npy_header(fh)
+        check_array_header(path, "poses", shape, limits)
         return np.load(path, allow_pickle=False)
     except OSError as exc:
         raise InputError(path, None, f"cannot read file: {exc.strerror or exc}") from None
-    except (ValueError, EOFError) as exc:
+    except (ValueError, EOFError, SyntaxError, TypeError, NotImplementedError) as exc:
         raise InputError(path, None, f"truncated or corrupt npy: {_brief(exc)}") from None
+
+
+def _refuse_kind(data: dict[str, Any], key: str, path: Path) -> None:
+    """Bool and complex values convert to float silently (True → 1.0, imaginary part dropped)."""
+    kind = np.asarray(data[key]).dtype.kind
+    if kind in "bc":
+        name = "bool" if kind == "b" else "complex"
+        raise InputError(path, key, f"{name} values are refused (expected real numbers)")
 
 
 def field(data: dict[str, Any], key: str, path: Path, *, width: int | None = None,
@@ -72,6 +166,7 @@ def field(data: dict[str, Any], key: str, path: Path, *, width: int | None = Non
     """`data[key]` as a finite float array; `width` checks the last axis, `rows` the first."""
     if key not in data:
         raise InputError(path, key, "missing")
+    _refuse_kind(data, key, path)
     try:
         arr = np.asarray(data[key], dtype=np.float64)
     except (TypeError, ValueError):
@@ -89,6 +184,7 @@ def scalar(data: dict[str, Any], keys: tuple[str, ...], path: Path, default: flo
     """The first present of `keys` as a positive finite float (frame rates), else `default`."""
     for key in keys:
         if key in data:
+            _refuse_kind(data, key, path)
             try:
                 value = float(np.asarray(data[key]).reshape(-1)[0])
             except (TypeError, ValueError, IndexError):
@@ -112,11 +208,21 @@ def betas10(data: dict[str, Any], key: str, path: Path) -> np.ndarray:
     return arr[:10].astype(np.float32)
 
 
-def text(data: dict[str, Any], key: str, default: str) -> str:
+def text(data: dict[str, Any], key: str, default: str, path: Path | None = None) -> str:
+    """A string field (numpy 0-d string arrays included); non-text values are an InputError."""
     if key not in data:
         return default
     arr = np.asarray(data[key]).reshape(-1)
     if not arr.size:
         return default
+    if arr.dtype.kind not in "USO":
+        raise InputError(path or "<data>", key, f"expected text, got {arr.dtype} values")
     item = arr[0].item() if hasattr(arr[0], "item") else arr[0]
-    return item.decode() if isinstance(item, bytes) else str(item)
+    if isinstance(item, bytes):
+        try:
+            return item.decode("utf-8")
+        except UnicodeDecodeError:
+            raise InputError(path or "<data>", key, "not UTF-8 text") from None
+    if not isinstance(item, str):
+        raise InputError(path or "<data>", key, f"expected text, got {type(item).__name__}")
+    return item

@@ -4,10 +4,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from embody.config.io import IOConfig
 from embody.errors import InputError
 from embody.io import amass, arrays, signavatars, soke
 from embody.io.conventions import Overrides
 from embody.io.fields import read_npz, read_pickle
+from embody.io.limits import check_frame_count, check_motion
 from embody.motion import Motion
 
 #: Suffixes a dataset folder treats as one motion file each.
@@ -29,8 +31,9 @@ def _kind(path: Path) -> str:
     raise InputError(path, None, f"unknown motion format (suffix {path.suffix or 'none'!r})")
 
 
-def _load_dir(path: Path, overrides: Overrides) -> Motion:
+def _load_dir(path: Path, overrides: Overrides, limits: IOConfig | None) -> Motion:
     if soke.is_sequence_dir(path):
+        check_frame_count(path, len(soke.frame_files(path)), limits)  # before reading any
         return soke.read(path, overrides)
     if not any(path.iterdir()):
         raise InputError(path, None, "empty directory")
@@ -41,26 +44,34 @@ def _load_dir(path: Path, overrides: Overrides) -> Motion:
 
 
 def load(path: str | Path, fps: float | None = None, up_axis: str | None = None,
-         hands: str | None = None) -> Motion:
+         hands: str | None = None, limits: IOConfig | None = None) -> Motion:
     """Read any supported motion file or per-frame sequence folder as a y-up, absolute-hand Motion.
 
     Frame rate, up axis and hand convention come from the file where it records them, else from
     the detected layout or the dataset's documented default (`embody.io.conventions`); `fps`,
     `up_axis` ("y" | "z" | "camera") and `hands` ("absolute" | "relative") override all of them.
-    `motion.source.provenance` says where each came from.
+    `motion.source.provenance` says where each came from. `limits` (the `io` config) bounds
+    frames, fps, pose and translation; sizes are checked before decompression where the format
+    allows.
     """
     path = Path(path)
     overrides = Overrides(fps=fps, up_axis=up_axis, hands=hands)
     overrides.check(path)
+    motion = _load(path, overrides, limits)
+    check_motion(motion, limits)
+    return motion
+
+
+def _load(path: Path, overrides: Overrides, limits: IOConfig | None) -> Motion:
     if path.is_dir():
-        return _load_dir(path, overrides)
+        return _load_dir(path, overrides, limits)
     if not path.exists():
         raise InputError(path, None, "no such file or directory")
     kind = _kind(path)
     if kind == ".npy":
-        return arrays.read(path, overrides=overrides)
+        return arrays.read(path, overrides=overrides, limits=limits)
     if kind == ".npz":
-        data = read_npz(path)
+        data = read_npz(path, limits)
         if amass.is_amass(data):
             return amass.read(path, data, overrides)
         if "smplx_root_pose" in data:

@@ -6,6 +6,7 @@ import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from embody.csvsafe import csv_safe
 from embody.report import assemble, figures
 from embody.report.data import RunData
 from embody.report.html import render_index
@@ -107,7 +108,7 @@ def write_report(data: RunData, out_dir: str | Path) -> ReportPaths:
     written = {name: t.write(out_dir) for name, t in tables.items()}
 
     sequences = out_dir / "sequences.csv"
-    data.per_sequence().to_csv(sequences, index=False, lineterminator="\n")
+    csv_safe(data.per_sequence()).to_csv(sequences, index=False, lineterminator="\n")
     summary = assemble.summary(data, tables)
     summary_path = out_dir / "summary.json"
     summary_path.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")

@@ -20,6 +20,7 @@ from typing import Any, Iterable
 import numpy as np
 import pandas as pd
 
+from embody.csvsafe import csv_safe
 from embody.errors import InputError
 
 from embody.export.formats import (CONSUMERS, FORMATS, ExportFormat, Layout, read_joint_positions,
@@ -190,8 +191,8 @@ def export_library(trajectories: Iterable[Trajectory], out_dir: str | Path,
     excluded.sort(key=lambda row: row["id"])
     excl = pd.DataFrame(excluded, columns=["id", "robot", "text", "frames", "dt", "duration_s",
                                            "status", "reason"]).astype({"frames": "Int64"})
-    library.to_csv(out_dir / "library.csv", index=False, lineterminator="\n")
-    excl.to_csv(out_dir / "excluded.csv", index=False, lineterminator="\n")
+    csv_safe(library).to_csv(out_dir / "library.csv", index=False, lineterminator="\n")
+    csv_safe(excl).to_csv(out_dir / "excluded.csv", index=False, lineterminator="\n")
     any_traj = next(iter(robots.values()), robot)
     meta = {"version": LIBRARY_VERSION, "format": fmt, "consumer": CONSUMERS[fmt],
             "robot": getattr(any_traj, "name", None) if any_traj is not None else None,
