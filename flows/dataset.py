@@ -224,7 +224,8 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     t0 = time.perf_counter()
     store = ArtifactStore(cfg.run.store)
     data = load_dataset(dataset, split)
-    refs = list(data)[: cfg.run.limit] if cfg.run.limit else list(data)
+    refs = list(data)[cfg.run.offset:]
+    refs = refs[: cfg.run.limit] if cfg.run.limit else refs
     run = cfg.run.name or default_run_name(Path(dataset), split)
     pipeline = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
     ctx = Context(cfg=cfg, store_root=str(store.root), run=run)
@@ -239,7 +240,7 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     manifest.save(finished=True)
     table = write_tables(store, run)
     t_report = time.perf_counter()
-    report, report_error = build_report(store, run)
+    report, report_error = build_report(store, run) if cfg.run.report else (None, None)
     report_s = time.perf_counter() - t_report
     seqs = manifest.sequences
     failures = [{"id": i, "step": s["failed_step"], "error": s["error"]}

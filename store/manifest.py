@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from store.artifacts import ArtifactStore
+from store.writers import RunWriter
 
 __all__ = ["Manifest", "load_manifests", "write_json_atomic"]
 
@@ -26,12 +27,13 @@ def write_json_atomic(path: Path, data: Any) -> None:
 
 
 class Manifest:
-    """The manifest of one run; only the flow's driver process writes it."""
+    """The manifest of one run, as one driver process sees it (`store.writers` merges drivers)."""
 
     def __init__(self, store: ArtifactStore, run: str) -> None:
         self.store = store
         self.run = run
         self.path = store.runs_dir / run / "manifest.json"
+        self.writer = RunWriter(self.path)  # concurrent writers of one run merge, never overwrite
         self.data: dict[str, Any] = {"run": run, "created": time.time(), "shared": {},
                                      "sequences": {}}
 
@@ -74,7 +76,7 @@ class Manifest:
     def save(self, finished: bool = False) -> None:
         if finished:
             self.data["finished"] = time.time()
-        write_json_atomic(self.path, self.data)
+        self.writer.save(self.data, write_json_atomic)
 
     def keys(self) -> set[tuple[str, str]]:
         """Every (step, key) this run references."""
