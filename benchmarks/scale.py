@@ -129,16 +129,21 @@ class Bench:
             peak_driver = peak_worker = 0
             killed = False
             metrics = store / "counters" / "metrics.jsonl"
-            while proc.poll() is None:
-                d, w = _tree_rss(ps)
-                peak_driver, peak_worker = max(peak_driver, d), max(peak_worker, w)
-                if kill_at is not None and metrics.is_file() and \
-                        sum(1 for _ in metrics.open()) >= kill_at:
+            try:
+                while proc.poll() is None:
+                    d, w = _tree_rss(ps)
+                    peak_driver, peak_worker = max(peak_driver, d), max(peak_worker, w)
+                    if kill_at is not None and metrics.is_file() and \
+                            sum(1 for _ in metrics.open()) >= kill_at:
+                        os.killpg(proc.pid, signal.SIGKILL)
+                        killed = True
+                        break
+                    time.sleep(0.2)
+                out = proc.communicate()[0]
+            finally:  # the benchmark interrupted: leave no run behind
+                if proc.poll() is None:
                     os.killpg(proc.pid, signal.SIGKILL)
-                    killed = True
-                    break
-                time.sleep(0.2)
-            out = proc.communicate()[0]
+                    proc.wait()
         wall = time.perf_counter() - t0
         if killed:  # the group's children (workers) die with it; wait until they are gone
             for _ in range(100):
