@@ -87,6 +87,15 @@ def _tree_rss(proc: Any) -> tuple[int, int]:
     return driver, worst
 
 
+def step_seconds(store: Path, n: int) -> dict[str, float]:
+    """Each step's recorded compute seconds per sequence (the shared shape fit divided by n)."""
+    from store import ArtifactStore
+    out: dict[str, float] = {}
+    for row in ArtifactStore(store).computations():
+        out[row["step"]] = out.get(row["step"], 0.0) + float(row.get("compute_s") or 0.0)
+    return {k: round(v / n, 3) for k, v in out.items()}
+
+
 def count_task_runs(api: str) -> int:
     import httpx
     r = httpx.post(api + "/task_runs/count", json={}, timeout=60)
@@ -120,7 +129,7 @@ class Bench:
         log_before = self.server_log.stat().st_size if self.server_log.is_file() else 0
         tasks_before = count_task_runs(self.api)
         err_path = self.work / f"{label}.stderr"
-        t0 = time.perf_counter()
+        t0, started = time.perf_counter(), time.time()
         with open(err_path, "w") as err:
             proc = subprocess.Popen(self.command(store, runner, workers), env=self.env,
                                     cwd=self.work, stdout=subprocess.PIPE, stderr=err, text=True,
@@ -163,8 +172,13 @@ class Bench:
                          errors="replace").splitlines())
         self.errors += errors
         tasks = count_task_runs(self.api) - tasks_before
+        done = sorted(r["time"] for r in ArtifactStore(store).computations("metrics")
+                      if r["time"] >= started)
+        # Throughput between the first and the last finished sequence: without start-up.
+        steady = 60 * (len(done) - 1) / (done[-1] - done[0]) if len(done) > 2 else None
         n = self.args.n
         res = {"label": label, "wall_s": round(wall, 2), "seq_per_min": round(60 * n / wall, 2),
+               "steady_seq_per_min": round(steady, 2) if steady else None,
                "peak_driver_rss_mb": round(peak_driver / 2**20, 1),
                "peak_worker_rss_mb": round(peak_worker / 2**20, 1), "task_runs": tasks,
                "api_errors": errors, "exit": proc.returncode, "killed": killed,
@@ -212,6 +226,10 @@ def main() -> None:
         b = Bench(args, work, api, server.log_path)
         w = args.workers
         cold = b.run("cold_processes", work / "store-a", "processes", w)
+        steps = step_seconds(work / "store-a", args.n)
+        print("compute seconds per sequence (cold, summed over workers): "
+              + " ".join(f"{k}={v}" for k, v in steps.items())
+              + f" total={round(sum(steps.values()), 2)}", flush=True)
         warm = b.run("warm_processes", work / "store-a", "processes", w)
         dask = b.run("cold_dask", work / "store-b", "dask", w) if "dask" not in skip else None
         one = b.run("cold_1worker", work / "store-c", "processes", 1) if "one" not in skip else None
@@ -248,7 +266,8 @@ def main() -> None:
           f"warm_s={warm['wall_s']} resumed_recomputed={recomputed} "
           f"unfinished_at_kill={unfinished} api_errors={b.errors} "
           f"seq_per_min_dask={dask['seq_per_min'] if dask else 'nan'} "
-          f"task_runs={cold['task_runs']} render=off frames={args.frames}")
+          f"task_runs={cold['task_runs']} compute_s_per_seq={round(sum(steps.values()), 2)} "
+          f"render=off frames={args.frames}{' cheap=1' if args.cheap else ''}")
 
 
 if __name__ == "__main__":
