@@ -172,10 +172,12 @@ class Bench:
                          errors="replace").splitlines())
         self.errors += errors
         tasks = count_task_runs(self.api) - tasks_before
-        done = sorted(r["time"] for r in ArtifactStore(store).computations("metrics")
-                      if r["time"] >= started)
-        # Throughput between the first and the last finished sequence: without start-up.
-        steady = 60 * (len(done) - 1) / (done[-1] - done[0]) if len(done) > 2 else None
+        rows = [r for r in ArtifactStore(store).computations() if r["time"] >= started]
+        done = [r["time"] for r in rows if r["step"] == "metrics"]
+        # Sequences per minute from the first computed artifact to the last finished sequence:
+        # the rate without process start-up (imports, worker spawn), which N does not change.
+        steady = (60 * len(done) / (max(done) - min(r["time"] for r in rows))
+                  if len(done) > 2 else None)
         n = self.args.n
         res = {"label": label, "wall_s": round(wall, 2), "seq_per_min": round(60 * n / wall, 2),
                "steady_seq_per_min": round(steady, 2) if steady else None,
