@@ -268,6 +268,8 @@ def main() -> None:
           f"warm_s={warm['wall_s']} resumed_recomputed={recomputed} "
           f"unfinished_at_kill={unfinished} api_errors={b.errors} "
           f"seq_per_min_dask={dask['seq_per_min'] if dask else 'nan'} "
+          f"steady_seq_per_min={cold['steady_seq_per_min']} "
+          f"steady_seq_per_min_1worker={one['steady_seq_per_min'] if one else 'nan'} "
           f"task_runs={cold['task_runs']} compute_s_per_seq={round(sum(steps.values()), 2)} "
           f"render=off frames={args.frames}{' cheap=1' if args.cheap else ''}")
 
