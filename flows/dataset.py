@@ -287,7 +287,8 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     t0 = time.perf_counter()
     store = ArtifactStore(cfg.run.store)
     data = load_dataset(dataset, split, cfg.io)
-    refs = list(data)[: cfg.run.limit] if cfg.run.limit else list(data)
+    refs = list(data)[cfg.run.offset:]
+    refs = refs[: cfg.run.limit] if cfg.run.limit else refs
     run = run_name(cfg, dataset, split)
     pipeline = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
     ctx = Context(cfg=cfg, store_root=str(store.root), run=run)
@@ -305,12 +306,13 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     try:  # a full disk here still ends with the summary and the failure table (exit 1)
         manifest.save(finished=True)
         errors = []
-        table = write_tables(store, run, manifest)
+        table = write_tables(store, run)  # from disk: concurrent writers' sequences merged
     except OSError as exc:
         reason = "no space left on device" if exc.errno == errno.ENOSPC else str(exc)
         errors.append(f"run bookkeeping not written ({reason})")
     t_report = time.perf_counter()
-    report, report_error = build_report(store, run) if not errors else (None, None)
+    report, report_error = (build_report(store, run) if cfg.run.report and not errors
+                            else (None, None))
     report_s = time.perf_counter() - t_report
     seqs = manifest.sequences
     failures = [{"id": i, "step": s["failed_step"], "error": s["error"]}

@@ -16,6 +16,7 @@ from typing import Any, Iterable
 
 from embody.errors import ConfigError, InputError
 from store.artifacts import ArtifactStore
+from store.writers import RunWriter
 
 __all__ = ["Manifest", "check_run_name", "load_manifests", "write_json_atomic"]
 
@@ -49,12 +50,13 @@ def write_json_atomic(path: Path, data: Any) -> None:
 
 
 class Manifest:
-    """The manifest of one run; only the flow's driver process writes it."""
+    """The manifest of one run, as one driver process sees it (`store.writers` merges drivers)."""
 
     def __init__(self, store: ArtifactStore, run: str) -> None:
         self.store = store
         self.run = check_run_name(run)
         self.path = store.runs_dir / run / "manifest.json"
+        self.writer = RunWriter(self.path)  # concurrent writers of one run merge, never overwrite
         self.data: dict[str, Any] = {"run": run, "created": time.time(), "shared": {},
                                      "sequences": {}}
 
@@ -111,7 +113,7 @@ class Manifest:
     def save(self, finished: bool = False) -> None:
         if finished:
             self.data["finished"] = time.time()
-        write_json_atomic(self.path, self.data)
+        self.writer.save(self.data, write_json_atomic)
 
     @property
     def finished(self) -> bool:

@@ -20,10 +20,15 @@ class RunConfig(Section):
     #: Sequences per task submission: 20k sequences become 20k/batch_size task runs per step.
     batch_size: int = Field(8, ge=1, le=10_000)
     limit: int | None = Field(None, ge=1)
+    #: Skip the first N sequences (before `limit`): with `limit`, a window of the dataset, so
+    #: several drivers can split one dataset under one run name (their manifests merge).
+    offset: int = Field(0, ge=0)
     #: Run the critic refinement step after IK (`embody run --critic none` skips it).
     critic: bool = True
     #: Render each sequence's comparison sheet (and `render.preview_format` preview) into the store.
     render: bool = True
+    #: Build the report (`embody.report`) at the end of the run; `embody report` builds it later.
+    report: bool = True
     seed: int = 0
     synth_n: int = Field(24, ge=1)
 
