@@ -141,7 +141,7 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
 
 
 SOURCE = Step("source", "1", (), _load_source, Motion.from_arrays, metrics=_source_metrics)
-COLLIDE = Step("collide", "1", ("body", "collision"), _collide, _collision_result, (SOURCE,))
+COLLIDE = Step("collide", "2", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
 RETARGET = Step("retarget", "1", ("body", "robot", "ik"), _retarget, _ik_solution,
