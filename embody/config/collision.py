@@ -35,6 +35,10 @@ class CollisionConfig(Section):
     30       2 mm      40     97.71      87.0     0.012       +4.2e-3
     ======== ========= ====== ========== ======== =========== =========
 
+    Since issue 13 the optimiser is judged by the mesh penetration depth (`collision.depth`)
+    and runs as a constraint: per-frame λ continuation, no stop while a frame penetrates, and
+    only the frames within `blend_s` of a penetration move (the table above predates that).
+
     Adam normalises each parameter's step, so with a weak closeness term joints barely touched
     by a collision still drift by ~lr per step; a strong pull returns them once the collision
     is resolved (the best zero-energy pose is kept), and the clearance keeps that pull from
