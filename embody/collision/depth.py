@@ -93,6 +93,8 @@ class DepthMesh:
         face_comp = label[faces[:, 0]]
         for c in range(label.max() + 1):
             fc = faces[face_comp == c]
+            if len(fc) == 0:  # vertices in no face
+                continue
             verts, local = np.unique(fc, return_inverse=True)
             local = local.reshape(-1, 3)
             counts = np.bincount(vertex_group[verts])
@@ -241,10 +243,12 @@ class _Surface:
         # a triangle can be closer only if its centroid is within upper + its own radius
         fine = (np.linalg.norm(self.centroid[cand] - p[owner], axis=1)
                 <= upper[owner] + self.radius[cand] + 1e-12)
-        cand, owner = cand[fine], owner[fine]
+        # the k nearest always stay (a degenerate triangle's NaN must not empty a point's list)
+        cand = np.concatenate([cand[fine], near.reshape(-1)])
+        owner = np.concatenate([owner[fine], np.repeat(np.arange(len(p)), k)])
         tri = self.tri[cand]
         q, feat_all = _closest_on_triangles(p[owner], tri[:, 0], tri[:, 1], tri[:, 2])
-        d = np.linalg.norm(q - p[owner], axis=1)
+        d = np.nan_to_num(np.linalg.norm(q - p[owner], axis=1), nan=np.inf)
         order = np.lexsort((d, owner))
         first = order[np.searchsorted(owner[order], np.arange(len(p)))]
         dist, point, feat = d[first], q[first], feat_all[first]
