@@ -62,3 +62,24 @@ def test_table2_by_hand():
     assert t.loc["+ Closeness", "Succ. (%)"] == pytest.approx(100.0)
     assert t.loc["+ Closeness", "Red. (%)"] == pytest.approx(75.0)
     assert t.loc["+ Closeness", "Time (s)"] == pytest.approx(1.5)
+
+
+def test_table1_depth_rows_before_and_after():
+    from embody.collision.depth import depth_metrics
+    from embody.report.assemble import table1_slot
+
+    df = toy()
+    per_seq = [depth_metrics(np.array(b), np.array(a)) for b, a in (
+        ([0.0, 0.006, 0.003], [0.0, 0.001, 0.0]), ([0.004, 0.0, 0.0], [0.0, 0.0, 0.0]),
+        ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]), ([0.0, 0.0, 0.0], [0.0, 0.0, 0.0]))]
+    df = pd.concat([df, pd.DataFrame(per_seq)], axis=1)
+    t = table1(df)["value"]
+    assert t["Frames deeper than 2 mm (before)"] == 3 and t["Frames deeper than 2 mm (after)"] == 0
+    assert t["Frames deeper than 5 mm (before)"] == 1 and t["Frames deeper than 5 mm (after)"] == 0
+    assert t["Max depth mm (before)"] == pytest.approx(6.0)
+    assert t["Max depth mm (after)"] == pytest.approx(1.0)
+    # medians over the penetrating sequences of their per-sequence medians: 4.5 and 4
+    assert t["Median depth mm of penetrating frames (before)"] == pytest.approx(4.25)
+    assert t["Median depth mm of penetrating frames (after)"] == pytest.approx(1.0)
+    assert table1_slot("Max depth mm (after)") == ("Max depth mm", "After")
+    assert table1_slot("Frames deeper than 5 mm (before)") == ("Frames deeper than 5 mm", "Before")

@@ -290,6 +290,18 @@ def test_export_refuses_tampered_store(run, tmp_path) -> None:
         q[robot.joint_index(name)] = v  # the hands inside each other
     arr = group["q_control"]
     arr[:] = np.tile(q, (arr.shape[0], 1))
+    # Re-record its digests and checksum too, as a buggy writer would have: the store's own
+    # integrity check then passes, so only the export's re-validation can catch it.
+    from store.artifacts import array_digest, arrays_checksum
+    attrs = dict(group.attrs)
+    root = st.path("metrics", manifest.sequences[sid]["steps"]["metrics"])
+    arrays = {name: np.asarray(a[...]) for name, a in group.arrays()}
+    attrs["embody"] = {**attrs["embody"], "checksum": arrays_checksum(arrays),
+                       "digests": {n: array_digest(a) for n, a in arrays.items()},
+                       "files": {f.relative_to(root).as_posix(): f.stat().st_size
+                                 for f in sorted(root.rglob("*"))
+                                 if f.is_file() and f.name != "zarr.json"}}
+    group.attrs.update(attrs)
     out = tmp_path / "lib"
     assert main(["export", RUN, str(out), "--robot", ROBOT, "--store", str(store)]) == 1
     excluded = pd.read_csv(out / "excluded.csv").set_index("id")

@@ -70,7 +70,36 @@ def table1(df: pd.DataFrame) -> pd.DataFrame:
         ("ΔAccel MSE (median)", c["daccel_mse"].median()),
         ("Runtime (mean, s)", df["runtime_s"].mean()),
     ]
+    rows += depth_rows(df)
     return pd.DataFrame(rows, columns=["metric", "value"]).set_index("metric")
+
+
+#: Mesh penetration depth columns (`embody.collision.depth.depth_metrics`) → Table I rows.
+DEPTH_ROWS = (("frames_over_2mm", "Frames deeper than 2 mm ({})", "sum"),
+              ("frames_over_5mm", "Frames deeper than 5 mm ({})", "sum"),
+              ("max_depth_mm", "Max depth mm ({})", "max"),
+              ("median_depth_mm", "Median depth mm of penetrating frames ({})", "median"))
+
+
+def depth_rows(df: pd.DataFrame) -> list[tuple[str, object]]:
+    """Depth rows before/after over all sequences: frame counts summed, the max of maxima, the
+    median over sequences that penetrate of their per-sequence medians."""
+    rows: list[tuple[str, object]] = []
+    for key, label, how in DEPTH_ROWS:
+        for tag in ("before", "after"):
+            col = f"{key}_{tag}"
+            if col not in df:
+                continue
+            v = df[col].astype(float)
+            if how == "sum":
+                value: object = int(v.sum())
+            elif how == "max":
+                value = float(v.max())
+            else:
+                pos = v[v > 0]
+                value = float(pos.median()) if len(pos) else 0.0
+            rows.append((label.format(tag), value))
+    return rows
 
 
 def table2(settings: Mapping[str, pd.DataFrame]) -> pd.DataFrame:

@@ -1,12 +1,19 @@
 """Masked test-time optimisation (Eq. 2–3): push penetrating parts apart, stay close and smooth.
 
-x_eff = x0 + M ⊙ (x − x0); minimise with Adam
-    λ_col L_col(x_eff) + λ_close ‖x_eff − x0‖² + λ_smooth ‖Δ²x_eff‖²
-(the last two as means over frames, like L_col). Only the masked joints are parameters, so
-unmasked joints are x0 bit for bit. The optimised L_col also counts points within `clearance`
-outside a part, so a strong closeness pull settles with the surfaces apart rather than at
-residual depth. The broad phase is refreshed every few steps with a margin; the energies
-reported before and after are always exact, at `tolerance`.
+x_eff = x0 + w(t) M ⊙ u; minimise with Adam
+    Σ_t λ_t L_col,t(x_eff) + λ_close ‖x_eff − x0‖² + λ_smooth ‖Δ²x_eff‖²
+(means over frames). Only the masked joints are parameters, so unmasked joints are x0 bit for
+bit; w(t) (`blend_weights`) is 1 on frames that penetrate and fades to 0 within `blend_s`, so
+frames far from any penetration are x0 bit for bit and the correction blends in smoothly.
+λ_t grows (λ continuation) while frame t still penetrates, so the collision term acts as a
+constraint; the optimiser does not stop while any frame penetrates beyond `tolerance`.
+Penetration is tested on every vertex (`contact_stride`), the broad phase skipping the points
+far from contact. The optimised L_col also counts points within `clearance` outside a part, so
+the closeness pull settles with the surfaces apart rather than at residual depth.
+
+The paper's energy columns (before/after) use the `vertex_stride` subsample, for comparison;
+the independent judge is `depth` (mesh penetration depth, every vertex and triangle), whose
+before/after counts go into the metrics.
 """
 
 from __future__ import annotations
@@ -21,6 +28,7 @@ import numpy as np
 import torch
 
 from embody.body.base import BodyModel
+from embody.collision.depth import depth_metrics, motion_depths
 from embody.collision.energy import CollisionModel, collision_model, contacts, frame_energies
 from embody.collision.masks import mask_joints
 from embody.collision.metrics import sequence_metrics
@@ -106,65 +114,126 @@ def mitigate(motion: Motion, body: BodyModel,
         return _mitigate(motion, body, cfg)
 
 
+def blend_weights(penetrating: np.ndarray, window: int) -> np.ndarray:
+    """(T,) weight of the correction per frame: 1 on penetrating frames, falling smoothly
+    (C¹ cosine) to exactly 0 at `window` frames from the nearest one and beyond."""
+    t = len(penetrating)
+    hits = np.flatnonzero(penetrating)
+    if len(hits) == 0:
+        return np.zeros(t)
+    dist = np.abs(np.arange(t)[:, None] - hits[None, :]).min(1).astype(np.float64)
+    if window <= 0:
+        return (dist == 0).astype(np.float64)
+    return np.where(dist < window, 0.5 * (1.0 + np.cos(np.pi * dist / window)), 0.0)
+
+
 def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> CollisionResult:
     start = time.perf_counter()
     idx = mask_joints(cfg.mask, cfg.joints)
-    model = model_for(body, motion, cfg)
+    fine = collision_model(body, motion.betas, vertex_stride=cfg.contact_stride,
+                           allow_pairs=cfg.allow_pairs, max_overfill=cfg.max_overfill)
     before = frame_collision_energies(motion, body, cfg)
     x0_np = motion.pose
     best_pose, steps = x0_np, 0
-    if cfg.enabled and before.mean() > 0 and cfg.steps > 0:
-        best_pose, steps = _optimise(body, model, motion, idx, cfg)
+    same = cfg.contact_stride == cfg.vertex_stride
+    fine_before = before if same else _exact(body, fine, x0_np, motion.betas, cfg.tolerance)
+    if cfg.enabled and fine_before.any() and cfg.steps > 0:
+        window = int(round(cfg.blend_s * motion.fps))
+        weight = blend_weights(fine_before > 0, window)
+        best_pose, steps = _optimise(body, fine, motion, idx, weight, cfg)
     fixed = motion.with_pose(best_pose)
     after = before if steps == 0 else frame_collision_energies(fixed, body, cfg)
-    if after.mean() > before.mean():  # never hand back something worse than the input
+    fine_after = after if same else _exact(body, fine, best_pose, motion.betas, cfg.tolerance)
+    if steps and fine_after.sum() > fine_before.sum():  # never worse than the input
         fixed, after = motion.with_pose(x0_np), before
     runtime = time.perf_counter() - start
     metrics = sequence_metrics(x0_np, fixed.pose, float(before.mean()), float(after.mean()),
                                runtime, steps)
     metrics["mask"] = cfg.mask
+    if cfg.depth_metrics:  # the judge's time is kept apart from the optimiser's runtime
+        t_depth = time.perf_counter()
+        metrics.update(depth_metrics(*_depths(body, motion, fixed.pose, cfg)))
+        metrics["depth_s"] = time.perf_counter() - t_depth
     return CollisionResult(fixed, metrics, before, after, idx)
 
 
+def _depths(body: BodyModel, motion: Motion, pose: np.ndarray,
+            cfg: CollisionConfig) -> tuple[np.ndarray, np.ndarray]:
+    """Mesh penetration depth (m) per frame before and after; unchanged frames are measured
+    once."""
+    d0 = motion_depths(body, motion.pose, motion.betas, cfg.allow_pairs)
+    changed = np.flatnonzero((pose != motion.pose).reshape(len(pose), -1).any(1))
+    d1 = d0.copy()
+    if len(changed):
+        d1[changed] = motion_depths(body, pose[changed], motion.betas, cfg.allow_pairs)
+    return d0, d1
+
+
+def _exact(body: BodyModel, model: CollisionModel, pose: np.ndarray, betas: np.ndarray,
+           tolerance: float) -> np.ndarray:
+    with torch.no_grad():
+        return frame_energies(model, body.joint_transforms(
+            torch.as_tensor(pose, dtype=torch.float32),
+            torch.as_tensor(betas, dtype=torch.float32)), tolerance).double().numpy()
+
+
 def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.ndarray,
-              cfg: CollisionConfig) -> tuple[np.ndarray, int]:
-    """Adam over the masked joints; returns the best pose seen (lowest energy, then objective)."""
-    x0 = torch.as_tensor(motion.pose, dtype=torch.float32)
+              weight: np.ndarray, cfg: CollisionConfig) -> tuple[np.ndarray, int]:
+    """Adam over the masked joints of the frames near a penetration, with a per-frame λ_col
+    that grows while the frame still penetrates (λ continuation: the collision term acts as a
+    constraint, not a fixed trade against closeness).
+
+    x_eff(t) = x0(t) + w(t) u(t) on the masked joints, w the blend weights: frames with w = 0
+    are x0 bit for bit and the correction fades in and out smoothly. Runs until every frame is
+    clear at `tolerance` (all points of the contact-stride model) and the closeness pull has
+    settled for `early_stop_stall` steps, or `steps` run out; returns the clear pose with the
+    lowest objective (or, if none, the least penetrating one).
+    """
+    active = np.flatnonzero(weight > 0)
+    lo, hi = int(active[0]), int(active[-1]) + 1
+    x0_full = torch.as_tensor(motion.pose, dtype=torch.float32)
+    x0 = x0_full[lo:hi]
+    w = torch.as_tensor(weight[lo:hi], dtype=torch.float32)[:, None, None]
+    live = torch.as_tensor(weight[lo:hi] > 0)
     betas = torch.as_tensor(motion.betas, dtype=torch.float32)
     t = x0.shape[0]
     jidx = torch.as_tensor(idx)
-    params = x0[:, jidx].clone().requires_grad_(True)
-    opt = torch.optim.Adam([params], lr=cfg.lr)
-    best = (float("inf"), float("inf"))
-    best_pose = x0.numpy().copy()
-    prev_obj, calm, step, near, last_gain, e_first = None, 0, 0, None, 0, 0.0
+    u = torch.zeros(t, len(idx), 3, requires_grad=True)
+    opt = torch.optim.Adam([u], lr=cfg.lr)
+    lam = torch.full((t,), float(cfg.lambda_col))
+    best_key = (float("inf"), float("inf"))
+    best = torch.zeros_like(x0)
+    clear_since, near, step = None, None, 0
     for step in range(1, cfg.steps + 1):
-        x = x0.index_copy(1, jidx, params)
+        delta = torch.zeros_like(x0).index_copy(1, jidx, u) * w
+        x = x0 + delta
         transforms = body.joint_transforms(x, betas)
-        if (step - 1) % cfg.refresh_every == 0:
-            near = contacts(model, transforms.detach(), cfg.refresh_margin + cfg.clearance)
-        e = frame_energies(model, transforms, cfg.tolerance - cfg.clearance, near).mean()
-        close = ((x - x0) ** 2).sum() / t
+        check = (step - 1) % cfg.refresh_every == 0
+        if check:
+            td = transforms.detach()
+            near = contacts(model, td, cfg.refresh_margin + cfg.clearance)
+            exact = frame_energies(model, td, cfg.tolerance, near) * live  # near ⊇ exact rows
+            e_sum = float(exact.sum())
+            pen = exact > 0
+            lam = torch.where(pen, torch.clamp(lam * cfg.lambda_growth, max=cfg.lambda_max), lam)
+        e = frame_energies(model, transforms, cfg.tolerance - cfg.clearance, near) * live
+        close = (delta ** 2).sum() / t
         smooth = (_second_diff(x) ** 2).sum() / t
-        obj = cfg.lambda_col * e + cfg.lambda_close * close + cfg.lambda_smooth * smooth
-        e_val, o_val = float(e.detach()), float(obj.detach())
-        if step == 1:
-            e_first = e_val  # progress is measured relative to the starting energy
-        if (e_val, o_val) < best:
-            if step == 1 or e_val < best[0] - cfg.early_stop_rtol * e_first:
-                last_gain = step
-            best, best_pose = (e_val, o_val), x.detach().numpy().copy()
-        if cfg.early_stop and step - last_gain >= cfg.early_stop_stall:
-            break  # the energy stopped falling: a residual the mask cannot resolve
-        if cfg.early_stop and e_val == 0.0:
-            calm = calm + 1 if prev_obj is not None and \
-                abs(prev_obj - o_val) <= cfg.early_stop_rtol * max(abs(o_val), 1e-12) else 0
-            if calm >= cfg.early_stop_patience:
-                break
-        else:
-            calm = 0
-        prev_obj = o_val
+        obj = (lam * e).sum() / t + cfg.lambda_close * close + cfg.lambda_smooth * smooth
+        if check:
+            key = (e_sum, float(obj.detach()))
+            if key < best_key:
+                best_key, best = key, delta.detach().clone()
+            if e_sum == 0.0:
+                clear_since = step if clear_since is None else clear_since
+                if cfg.early_stop and step - clear_since >= cfg.early_stop_stall:
+                    break
+            else:
+                clear_since = None
         opt.zero_grad(set_to_none=True)
         obj.backward()
         opt.step()
-    return best_pose, step
+    out = motion.pose.copy()
+    # x0 + 0.0 is x0: unmasked joints and zero-weight frames stay the input, bit for bit
+    out[lo:hi] += best.double().numpy()
+    return out, step

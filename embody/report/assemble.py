@@ -92,6 +92,9 @@ def number(cell: Any) -> float:
 def table1_slot(label: str) -> tuple[str, str]:
     """Where a row of `collision.metrics.table1` goes: (paper row name, "Before"|"After")."""
     low = label.lower()
+    if "depth" in low or "deeper" in low:  # mesh penetration depth rows: "<row> (before|after)"
+        row, _, tag = label.rpartition(" (")
+        return row, "Before" if tag.startswith("before") else "After"
     stat = "median" if "median" in low else "mean"
     if "l_col" in low or "energy" in low:
         return f"Collision energy ({stat})", "Before" if "before" in low else "After"

@@ -1,0 +1,432 @@
+"""Penetration depth of the skinned mesh: an evaluation measure independent of the optimiser.
+
+The optimiser minimises an energy over convex pieces and a vertex subsample; this module judges
+its result on the full skinned mesh (every vertex, every triangle) and shares nothing with it
+but the collision groups and the checked-pair matrix (`exclusions`).
+
+Per frame, the depth is the largest distance by which a vertex of one group lies inside the
+surface of another group it is checked against. How:
+
+1. *Solids.* The mesh is split into connected components. mannequin-x's wooden mesh is 29
+   separate wooden segments, every one watertight (split by dominant skinning weight instead,
+   only 10 of its 19 part submeshes are: a part boundary cuts segments open), so a component
+   is a closed surface and inside/outside is exact. A component is a *solid* when it is
+   watertight and spans at most `MAX_SOLID_GROUPS` groups (a whole-body skin such as SMPL-X is
+   one component that self-intersects where an arm enters the chest; it is split into open
+   per-group *patches* instead, see below).
+2. *Broad phase.* Per frame, component boxes; only pairs of components that hold a checked
+   pair of groups and whose boxes overlap go on.
+3. *Crossing triangles.* python-fcl BVHs of the two components' triangles inside the boxes'
+   overlap: without a crossing pair of triangles the two surfaces do not interpenetrate and the
+   pair scores 0 (a component wholly inside another, never crossing, is not counted; it cannot
+   arise in continuous motion without crossing first). This also keeps any sign error below
+   from turning clear frames into false depth.
+4. *Signed depth.* For each vertex of one component inside the overlap box, the closest point
+   on the other solid (exact: nearest triangle centroids, widened until no farther triangle can
+   be closer), signed by the angle-weighted pseudo-normal of the closest feature (face, edge or
+   vertex; Bærentzen & Aanæs 2005), which is exact for a closed manifold. An inside vertex
+   counts when its group and the closest triangle's group are a checked pair; the depth is its
+   distance to the surface.
+
+Patches (non-solid components): a vertex is tested against the triangles of each group it is
+checked against within its own component, signed by the pseudo-normal of the whole component.
+Where the closest point lies on the patch's border (the seam to an unchecked group) the sign is
+not trusted and the vertex is not counted: near seams this may undercount, never overcount.
+"""
+
+from __future__ import annotations
+
+import weakref
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import fcl
+import numpy as np
+import torch
+from scipy.spatial import cKDTree
+
+from embody.body.base import BodyModel
+from embody.collision.exclusions import checked_pairs, part_groups
+
+#: A watertight component spanning more groups than this is a skin, not a rigid segment.
+MAX_SOLID_GROUPS = 3
+#: Frames skinned per batch.
+_BATCH = 64
+
+
+@dataclass(frozen=True)
+class _Component:
+    vertices: np.ndarray        # (n,) global vertex ids
+    faces: np.ndarray           # (m,3) local vertex ids
+    face_group: np.ndarray      # (m,)
+    edge_of_face: np.ndarray    # (m,3) edge id of face edges (v0v1, v1v2, v2v0)
+    edge_faces: np.ndarray      # (E,2) faces of each edge, -1 for a border edge
+    solid: bool
+    nbr_ptr: np.ndarray         # (n+1,) CSR vertex adjacency (local ids)
+    nbr_idx: np.ndarray
+
+    def neighbours(self, idx: np.ndarray) -> np.ndarray:
+        if len(idx) == 0:
+            return idx
+        parts = [self.nbr_idx[self.nbr_ptr[i]:self.nbr_ptr[i + 1]] for i in idx]
+        return np.unique(np.concatenate(parts))
+
+
+@dataclass(frozen=True)
+class DepthMesh:
+    """A triangle mesh split into components, with vertex groups and the checked group pairs."""
+
+    faces: np.ndarray           # (F,3)
+    vertex_group: np.ndarray    # (V,)
+    checked: np.ndarray         # (G,G) bool
+    components: tuple[_Component, ...]
+    vertex_component: np.ndarray  # (V,)
+
+    @classmethod
+    def build(cls, faces: np.ndarray, vertex_group: np.ndarray, checked: np.ndarray,
+              max_solid_groups: int = MAX_SOLID_GROUPS) -> "DepthMesh":
+        faces = np.asarray(faces, dtype=np.int64)
+        vertex_group = np.asarray(vertex_group, dtype=np.int64)
+        n_v = len(vertex_group)
+        label = _components(faces, n_v)
+        comps = []
+        face_comp = label[faces[:, 0]]
+        for c in range(label.max() + 1):
+            fc = faces[face_comp == c]
+            if len(fc) == 0:  # vertices in no face
+                continue
+            verts, local = np.unique(fc, return_inverse=True)
+            local = local.reshape(-1, 3)
+            counts = np.bincount(vertex_group[verts])
+            fg = _face_groups(vertex_group[verts][local])
+            eof, ef, watertight = _edges(local)
+            e = np.concatenate([local[:, [0, 1]], local[:, [1, 2]], local[:, [2, 0]]])
+            e = np.unique(np.concatenate([e, e[:, ::-1]]), axis=0)
+            ptr = np.searchsorted(e[:, 0], np.arange(len(verts) + 1))
+            comps.append(_Component(verts, local, fg, eof, ef,
+                                    watertight and int((counts > 0).sum()) <= max_solid_groups,
+                                    ptr, e[:, 1].copy()))
+        return cls(faces, vertex_group, np.asarray(checked, dtype=bool), tuple(comps), label)
+
+
+def _components(faces: np.ndarray, n_v: int) -> np.ndarray:
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]]])
+    g = coo_matrix((np.ones(len(e)), (e[:, 0], e[:, 1])), shape=(n_v, n_v))
+    return connected_components(g, directed=False)[1]
+
+
+def _face_groups(groups: np.ndarray) -> np.ndarray:
+    """Majority group of each face's three vertices (the first vertex's on a three-way tie)."""
+    a, b, c = groups.T
+    return np.where((b == c) & (a != b), b, a)
+
+
+def _edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
+    e = np.stack([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]], 1)   # (m,3,2)
+    key = np.sort(e, -1).reshape(-1, 2)
+    uniq, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    inv = inv.reshape(-1)
+    edge_faces = np.full((len(uniq), 2), -1, dtype=np.int64)
+    face_of = np.repeat(np.arange(len(faces)), 3)
+    order = np.argsort(inv, kind="stable")
+    first = np.ones(len(order), dtype=bool)
+    first[1:] = inv[order][1:] != inv[order][:-1]
+    edge_faces[inv[order][first], 0] = face_of[order][first]
+    second = ~first
+    edge_faces[inv[order][second], 1] = face_of[order][second]
+    watertight = bool((counts == 2).all())
+    return inv.reshape(-1, 3), edge_faces, watertight
+
+
+_meshes: weakref.WeakKeyDictionary[BodyModel, dict[tuple, DepthMesh]] = \
+    weakref.WeakKeyDictionary()
+
+
+def depth_mesh(body: BodyModel, allow_pairs: Iterable[Sequence[str]] = ()) -> DepthMesh:
+    """The body's skinned mesh with collision groups by dominant skinning weight (cached)."""
+    allow = tuple(tuple(p) for p in allow_pairs)
+    cache = _meshes.setdefault(body, {})
+    if allow not in cache:
+        groups, part_group = part_groups(body.part_names)
+        checked = checked_pairs(groups, body.joint_names, body.parents, allow)
+        cache[allow] = DepthMesh.build(np.asarray(body.faces),
+                                       part_group[np.asarray(body.vertex_parts)], checked)
+    return cache[allow]
+
+
+# -- geometry ------------------------------------------------------------------------------------
+def _closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray,
+                          c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closest points (N,3) on triangles abc to points p (all (N,3)) and the feature hit:
+    0,1,2 vertex a,b,c; 3,4,5 edge ab, bc, ca; 6 face (Ericson, Real-Time Collision Detection)."""
+    ab, ac, ap = b - a, c - a, p - a
+    d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
+    bp = p - b
+    d3, d4 = (ab * bp).sum(-1), (ac * bp).sum(-1)
+    cp = p - c
+    d5, d6 = (ab * cp).sum(-1), (ac * cp).sum(-1)
+    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
+    denom = va + vb + vc
+    safe = np.where(np.abs(denom) > 1e-300, denom, 1.0)
+    v, w = vb / safe, vc / safe
+    out = a + ab * v[:, None] + ac * w[:, None]
+    feat = np.full(len(p), 6)
+
+    def put(mask: np.ndarray, pts: np.ndarray, code: int) -> None:
+        nonlocal out
+        out = np.where(mask[:, None], pts, out)
+        feat[mask] = code
+
+    # in reverse order of precedence, so the first matching region wins
+    e_bc = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
+    t_bc = (d4 - d3) / np.where(e_bc, (d4 - d3) + (d5 - d6), 1.0)
+    put(e_bc, b + (c - b) * t_bc[:, None], 4)
+    e_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+    t_ac = d2 / np.where(e_ac, d2 - d6, 1.0)
+    put(e_ac, a + ac * t_ac[:, None], 5)
+    put((d6 >= 0) & (d5 <= d6), c, 2)
+    e_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+    t_ab = d1 / np.where(e_ab, d1 - d3, 1.0)
+    put(e_ab, a + ab * t_ab[:, None], 3)
+    put((d3 >= 0) & (d4 <= d3), b, 1)
+    put((d1 <= 0) & (d2 <= 0), a, 0)
+    return out, feat
+
+
+def _normals(v: np.ndarray, comp: _Component) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(face normals (m,3), edge pseudo-normals (E,3), angle-weighted vertex normals (n,3))."""
+    tri = v[comp.faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    ef = comp.edge_faces
+    en = n[ef[:, 0]] + np.where(ef[:, 1:] >= 0, n[np.maximum(ef[:, 1], 0)], 0.0)
+    vn = np.zeros((len(v), 3))
+    for k in range(3):
+        e1 = tri[:, (k + 1) % 3] - tri[:, k]
+        e2 = tri[:, (k + 2) % 3] - tri[:, k]
+        cos = (e1 * e2).sum(1) / np.maximum(np.linalg.norm(e1, axis=1)
+                                             * np.linalg.norm(e2, axis=1), 1e-300)
+        np.add.at(vn, comp.faces[:, k], np.arccos(np.clip(cos, -1, 1))[:, None] * n)
+    return n, en, vn
+
+
+class _Surface:
+    """One component (or one group's faces of it) posed in one frame, for closest-point queries."""
+
+    def __init__(self, v: np.ndarray, comp: _Component, face_ids: np.ndarray,
+                 normals: tuple[np.ndarray, np.ndarray, np.ndarray]):
+        self.v, self.comp, self.face_ids = v, comp, face_ids
+        self.tri = v[comp.faces[face_ids]]                                     # (m,3,3)
+        self.centroid = self.tri.mean(1)
+        self.radius = np.linalg.norm(self.tri - self.centroid[:, None], axis=2).max(1)
+        self.reach = float(self.radius.max())
+        self.tree = cKDTree(self.centroid)
+        self.normals = normals
+
+    def query(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(distance, signed side (<0 inside), face id (component-local), on-border) per point.
+
+        Exact closest triangle: the one with the nearest centroid bounds the distance; every
+        triangle that could be closer has its centroid within that bound plus `reach`."""
+        k = min(4, len(self.face_ids))
+        _, near = self.tree.query(p, k=k)
+        near = np.asarray(near).reshape(len(p), k)
+        tri = self.tri[near.reshape(-1)]
+        q0, _ = _closest_on_triangles(np.repeat(p, k, 0), tri[:, 0], tri[:, 1], tri[:, 2])
+        upper = np.linalg.norm(q0 - np.repeat(p, k, 0), axis=1).reshape(len(p), k).min(1)
+        lists = self.tree.query_ball_point(p, upper + self.reach)
+        sizes = np.fromiter(map(len, lists), dtype=np.int64, count=len(p))
+        cand = np.concatenate([np.asarray(x, dtype=np.int64) for x in lists])
+        owner = np.repeat(np.arange(len(p)), sizes)
+        # a triangle can be closer only if its centroid is within upper + its own radius
+        fine = (np.linalg.norm(self.centroid[cand] - p[owner], axis=1)
+                <= upper[owner] + self.radius[cand] + 1e-12)
+        # the k nearest always stay (a degenerate triangle's NaN must not empty a point's list)
+        cand = np.concatenate([cand[fine], near.reshape(-1)])
+        owner = np.concatenate([owner[fine], np.repeat(np.arange(len(p)), k)])
+        tri = self.tri[cand]
+        q, feat_all = _closest_on_triangles(p[owner], tri[:, 0], tri[:, 1], tri[:, 2])
+        d = np.nan_to_num(np.linalg.norm(q - p[owner], axis=1), nan=np.inf)
+        order = np.lexsort((d, owner))
+        first = order[np.searchsorted(owner[order], np.arange(len(p)))]
+        dist, point, feat = d[first], q[first], feat_all[first]
+        face = self.face_ids[cand[first]]
+        fn, en, vn = self.normals
+        gf = self.comp.faces[face]
+        eof = self.comp.edge_of_face[face]
+        normal = fn[face]
+        for code in range(3):
+            m = feat == code
+            normal[m] = vn[gf[m, code]]
+        border = np.zeros(len(p), dtype=bool)
+        for code in range(3):
+            m = feat == 3 + code
+            e = eof[m, code]
+            normal[m] = en[e]
+            border[m] = ~np.isin(self.comp.edge_faces[e], self.face_ids).all(1)
+        side = ((p - point) * normal).sum(1)
+        return dist, side, face, border
+
+
+def _crossing(va: np.ndarray, fa: np.ndarray, vb: np.ndarray,
+              fb: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Crossing triangle pairs of (va, fa) and (vb, fb) as indices into fa and fb (python-fcl
+    BVHs, triangle-triangle tests)."""
+    none = np.zeros(0, dtype=np.int64)
+    if len(fa) == 0 or len(fb) == 0:
+        return none, none
+    objs = []
+    for v, f in ((va, fa), (vb, fb)):
+        used, local = np.unique(f, return_inverse=True)
+        m = fcl.BVHModel()
+        m.beginModel(len(used), len(f))
+        m.addSubModel(v[used], local.reshape(-1, 3))
+        m.endModel()
+        objs.append(fcl.CollisionObject(m, fcl.Transform()))
+    result = fcl.CollisionResult()
+    request = fcl.CollisionRequest(num_max_contacts=len(fa) * len(fb), enable_contact=True)
+    if fcl.collide(objs[0], objs[1], request, result) == 0:
+        return none, none
+    ia = np.fromiter((c.b1 for c in result.contacts), dtype=np.int64)
+    ib = np.fromiter((c.b2 for c in result.contacts), dtype=np.int64)
+    return ia, ib
+
+
+def _in_box(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    return ((x >= lo) & (x <= hi)).all(-1)
+
+
+def _faces_in_box(tri: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    return ((tri.max(1) >= lo) & (tri.min(1) <= hi)).all(-1)
+
+
+def _checked_comp_pairs(mesh: DepthMesh) -> list[tuple[int, int]]:
+    groups = [np.unique(mesh.vertex_group[c.vertices]) for c in mesh.components]
+    pairs = []
+    for i in range(len(groups)):
+        for j in range(i + 1, len(groups)):
+            if mesh.checked[np.ix_(groups[i], groups[j])].any():
+                pairs.append((i, j))
+    return pairs
+
+
+def _flood(mesh: DepthMesh, v: np.ndarray, comp: _Component, seeds: np.ndarray,
+           surf: _Surface, trust_border: bool, allowed: np.ndarray | None = None) -> float:
+    """Deepest vertex of `comp` inside `surf` whose group is checked against the closest
+    triangle's group. Every inside region of a surface is bounded by triangles that cross the
+    other surface, so a flood over inside vertices from those triangles' vertices finds all of
+    them while testing only the inside vertices and their one-ring."""
+    seen = np.zeros(len(comp.vertices), dtype=bool)
+    if allowed is not None:
+        seen |= ~allowed
+    frontier = seeds[~seen[seeds]]
+    best = 0.0
+    groups = mesh.vertex_group[comp.vertices]
+    while len(frontier):
+        seen[frontier] = True
+        dist, side, face, border = surf.query(v[comp.vertices[frontier]])
+        inside = side < 0
+        if not trust_border:
+            inside &= ~border
+        ok = inside & mesh.checked[groups[frontier], surf.comp.face_group[face]]
+        if ok.any():
+            best = max(best, float(dist[ok].max()))
+        nb = comp.neighbours(frontier[inside])
+        frontier = nb[~seen[nb]]
+    return best
+
+
+def frame_depth(mesh: DepthMesh, v: np.ndarray,
+                pairs: list[tuple[int, int]] | None = None) -> float:
+    """Max penetration depth (m) of one posed mesh (V,3)."""
+    pairs = _checked_comp_pairs(mesh) if pairs is None else pairs
+    comps = mesh.components
+    box = np.stack([np.stack([v[c.vertices].min(0), v[c.vertices].max(0)]) for c in comps])
+    cache: dict[int, tuple] = {}
+
+    def normals(i: int) -> tuple:
+        if i not in cache:
+            cache[i] = _normals(v[comps[i].vertices], comps[i])
+        return cache[i]
+
+    best = 0.0
+    for i, j in pairs:
+        lo, hi = np.maximum(box[i, 0], box[j, 0]), np.minimum(box[i, 1], box[j, 1])
+        if (lo > hi).any():
+            continue
+        ci, cj = comps[i], comps[j]
+        vi, vj = v[ci.vertices], v[cj.vertices]
+        si = np.flatnonzero(_faces_in_box(vi[ci.faces], lo, hi))
+        sj = np.flatnonzero(_faces_in_box(vj[cj.faces], lo, hi))
+        # only faces of a group checked against some face of the other side can matter
+        si = si[mesh.checked[ci.face_group[si]][:, np.unique(cj.face_group[sj])].any(1)]
+        sj = sj[mesh.checked[cj.face_group[sj]][:, np.unique(ci.face_group[si])].any(1)]
+        xi, xj = _crossing(vi, ci.faces[si], vj, cj.faces[sj])
+        xi, xj = si[xi], sj[xj]
+        keep = mesh.checked[ci.face_group[xi], cj.face_group[xj]]
+        if not keep.any():  # crossing only where contact is expected (e.g. at a joint)
+            continue
+        xi, xj = xi[keep], xj[keep]
+        for a, seeds, b in ((ci, np.unique(ci.faces[xi]), j), (cj, np.unique(cj.faces[xj]), i)):
+            c = comps[b]
+            if not c.solid:
+                continue
+            surf = _Surface(v[c.vertices], c, np.arange(len(c.faces)), normals(b))
+            allowed = mesh.checked[mesh.vertex_group[a.vertices]][:, np.unique(c.face_group)]
+            best = max(best, _flood(mesh, v, a, seeds, surf, trust_border=True,
+                                    allowed=allowed.any(1)))
+    for i, c in enumerate(comps):  # skins: group against group inside one component
+        if c.solid:
+            continue
+        vc = v[c.vertices]
+        vgroup = mesh.vertex_group[c.vertices]
+        for g in np.unique(c.face_group):
+            faces_g = np.flatnonzero(c.face_group == g)
+            allowed = mesh.checked[vgroup, g]
+            f_other = np.flatnonzero(mesh.checked[c.face_group, g])
+            if not allowed.any() or len(f_other) == 0:
+                continue
+            xg, xo = _crossing(vc, c.faces[faces_g], vc, c.faces[f_other])
+            if len(xg) == 0:
+                continue
+            xo = np.unique(xo)
+            surf = _Surface(vc, c, faces_g, normals(i))
+            best = max(best, _flood(mesh, v, c, np.unique(c.faces[f_other[xo]]), surf,
+                                    trust_border=False, allowed=allowed))
+    return best
+
+
+def frame_depths(mesh: DepthMesh, vertices: np.ndarray) -> np.ndarray:
+    """Max penetration depth (m) per frame of posed meshes (T,V,3)."""
+    pairs = _checked_comp_pairs(mesh)
+    return np.array([frame_depth(mesh, np.asarray(v, dtype=np.float64), pairs)
+                     for v in vertices])
+
+
+def motion_depths(body: BodyModel, pose: np.ndarray, betas: np.ndarray,
+                  allow_pairs: Iterable[Sequence[str]] = ()) -> np.ndarray:
+    """Per-frame max penetration depth (m) of the body's skinned mesh over a pose (T,55,3)."""
+    mesh = depth_mesh(body, allow_pairs)
+    b = torch.as_tensor(np.asarray(betas), dtype=torch.float64)
+    out = []
+    with torch.no_grad():
+        for s in range(0, len(pose), _BATCH):
+            x = torch.as_tensor(np.asarray(pose[s:s + _BATCH]), dtype=torch.float64)
+            out.append(frame_depths(mesh, body.vertices(x, b).numpy()))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def depth_metrics(before: np.ndarray, after: np.ndarray) -> dict[str, float | int]:
+    """Before/after: frames deeper than 2 mm and 5 mm, max depth (mm), median depth (mm) of the
+    frames that penetrate at all (> 0; NaN-free: 0 when none)."""
+    out: dict[str, float | int] = {}
+    for tag, d in (("before", before), ("after", after)):
+        mm = np.asarray(d, dtype=np.float64) * 1e3
+        pen = mm[mm > 0]
+        out[f"frames_over_2mm_{tag}"] = int((mm > 2.0).sum())
+        out[f"frames_over_5mm_{tag}"] = int((mm > 5.0).sum())
+        out[f"max_depth_mm_{tag}"] = float(mm.max()) if len(mm) else 0.0
+        out[f"median_depth_mm_{tag}"] = float(np.median(pen)) if len(pen) else 0.0
+    return out

@@ -1,0 +1,95 @@
+"""Mesh penetration depth (the independent judge) on built cases, and the optimiser judged by it."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from embody.body import MannequinBody
+from embody.collision import mitigate
+from embody.collision.depth import DepthMesh, depth_metrics, frame_depth, motion_depths
+from embody.collision.optimize import blend_weights
+from embody.config.collision import CollisionConfig
+from embody.motion import JOINT_NAMES, Motion
+
+J = JOINT_NAMES.index
+BOTH = np.array([[False, True], [True, False]])
+
+
+def sphere_and_box(dip: float, checked: np.ndarray = BOTH) -> tuple[DepthMesh, np.ndarray]:
+    """A 5 cm sphere (vertex at its south pole) dipping `dip` into the top of a 20 cm box."""
+    s = trimesh.creation.uv_sphere(radius=0.05, count=[16, 16])
+    box = trimesh.creation.box(extents=[0.2, 0.2, 0.2])
+    sv = s.vertices + [0.0, 0.0, 0.1 + 0.05 - dip]
+    v = np.concatenate([sv, box.vertices])
+    f = np.concatenate([s.faces, box.faces + len(sv)])
+    groups = np.r_[np.zeros(len(sv), int), np.ones(len(box.vertices), int)]
+    return DepthMesh.build(f, groups, checked), v
+
+
+@pytest.mark.parametrize("dip", [0.0005, 0.004, 0.02])
+def test_sphere_in_box_depth_is_the_dip(dip):
+    mesh, v = sphere_and_box(dip)
+    assert all(c.solid for c in mesh.components)
+    assert frame_depth(mesh, v) == pytest.approx(dip, abs=1e-9)
+
+
+def test_clear_touching_and_unchecked_score_zero():
+    mesh, v = sphere_and_box(-0.003)  # 3 mm above the box
+    assert frame_depth(mesh, v) == 0.0
+    mesh, v = sphere_and_box(0.02, checked=np.zeros((2, 2), dtype=bool))
+    assert frame_depth(mesh, v) == 0.0
+
+
+def test_depth_metrics_counts_and_medians():
+    m = depth_metrics(np.array([0.0, 0.001, 0.003, 0.006]), np.zeros(4))
+    assert m["frames_over_2mm_before"] == 2 and m["frames_over_5mm_before"] == 1
+    assert m["max_depth_mm_before"] == pytest.approx(6.0)
+    assert m["median_depth_mm_before"] == pytest.approx(3.0)
+    assert m["max_depth_mm_after"] == 0.0 and m["median_depth_mm_after"] == 0.0
+
+
+@pytest.fixture(scope="module")
+def body() -> MannequinBody:
+    return MannequinBody()
+
+
+def test_rest_and_t_pose_have_no_depth(body):
+    """The wooden mesh is 29 watertight segments; touching segments at joints are excluded
+    pairs, so the rest (T-) pose and arms-down scores exactly 0."""
+    down = np.zeros((1, 55, 3))
+    down[0, J("left_shoulder"), 2] = -1.2
+    down[0, J("right_shoulder"), 2] = 1.2
+    pose = np.concatenate([np.zeros((1, 55, 3)), body.tpose(1).numpy(), down])
+    np.testing.assert_array_equal(motion_depths(body, pose, np.zeros(10)), 0.0)
+
+
+def planted(frames: int, hit: slice) -> Motion:
+    """T-pose, with the left forearm planted in the chest on the `hit` frames."""
+    pose = np.zeros((frames, 55, 3))
+    pose[hit, J("left_shoulder")] = [0.0, -0.8, -0.3]
+    pose[hit, J("left_elbow"), 1] = -2.2
+    return Motion(pose=pose, transl=np.zeros((frames, 3)), betas=np.zeros(10), fps=30.0)
+
+
+def test_planted_forearm_in_chest_comes_out_under_3mm(body):
+    motion = planted(44, slice(20, 24))
+    r = mitigate(motion, body, CollisionConfig())
+    m = r.metrics
+    assert m["max_depth_mm_before"] > 15.0 and m["frames_over_5mm_before"] == 4
+    assert m["max_depth_mm_after"] < 3.0 and m["frames_over_5mm_after"] == 0
+    after = motion_depths(body, r.motion.pose, motion.betas)
+    assert after.max() * 1e3 == pytest.approx(m["max_depth_mm_after"])
+    # frames more than the blend window (0.5 s = 15 frames) away are the input, bit for bit
+    far = np.r_[0:5, 39:44]
+    assert r.motion.pose[far].tobytes() == motion.pose[far].astype(r.motion.pose.dtype).tobytes()
+    assert not np.array_equal(r.motion.pose[20:24], motion.pose[20:24])
+
+
+def test_blend_weights_fade_smoothly_to_zero():
+    w = blend_weights(np.r_[np.zeros(20, bool), np.ones(2, bool), np.zeros(20, bool)], 10)
+    assert w[20] == w[21] == 1.0
+    assert (w[:11] == 0).all() and (w[31:] == 0).all()
+    assert np.all(np.diff(w[10:21]) > 0) and np.all(np.diff(w[21:32]) < 0)
+    assert np.abs(np.diff(w, 2)).max() < 0.05  # no kinks: the ramp is a cosine
