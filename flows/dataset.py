@@ -19,6 +19,8 @@ from prefect import flow
 
 from embody.config import Config
 from flows.progress import Progress
+from flows.verdicts import verdict_summary
+from embody.verdicts import sequence_verdicts
 from flows.runners import make_task_runner
 from store import ArtifactStore, Manifest
 from tasks.execute import cached, new_record
@@ -193,13 +195,13 @@ def write_tables(store: ArtifactStore, run: str) -> Path:
     rows = []
     for sid, seq in manifest.sequences.items():
         row = {"id": sid, "status": seq["status"], "failed_step": seq["failed_step"],
-               "error": seq["error"]}
+               "error": seq["error"], **sequence_verdicts(seq)}
         for step, metrics in seq["metrics"].items():
             row.update({f"{step}.{k}": v for k, v in metrics.items()
                         if isinstance(v, (int, float, str, bool)) or v is None})
         rows.append(row)
     path = manifest.path.parent / "sequences.csv"
-    pd.DataFrame(rows).to_csv(path, index=False)
+    pd.DataFrame(rows).to_csv(path, index=False, float_format="%.10g")  # no float noise
     return path
 
 
@@ -210,7 +212,7 @@ def build_report(store: ArtifactStore, run: str) -> tuple[str | None, str | None
     except ImportError:
         return None, None
     try:
-        paths = build(store.root, run)
+        paths = build(store.root, run, reuse=True)
     except Exception as exc:  # a report problem must not turn finished work into a failure
         return None, f"{type(exc).__name__}: {exc}"
     return str(getattr(paths, "out_dir", paths)), None
@@ -250,7 +252,8 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
             "shared": {n: r.get("key") for n, r in driver.shared.items()},
             "manifest": str(manifest.path), "table": str(table),
             "report": report, "report_error": report_error,
-            "report_s": round(report_s, 3), "elapsed_s": round(time.perf_counter() - t0, 3)}
+            "report_s": round(report_s, 3), "elapsed_s": round(time.perf_counter() - t0, 3),
+            "prefect": True, **verdict_summary(manifest)}
 
 
 @flow(name="embody-dataset", persist_result=False, log_prints=False, validate_parameters=False)

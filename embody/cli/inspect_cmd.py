@@ -8,6 +8,8 @@ from typing import Any
 
 import click
 
+from embody.verdicts import plural
+
 from embody.cli.common import emit_json, json_option
 
 
@@ -71,7 +73,7 @@ def command(path: str, fps: float | None, split: str | None, as_json: bool) -> i
         if as_json:
             emit_json(info)
         else:
-            click.echo(f"{info['dataset']}: {info['kind']} dataset, {info['sequences']} sequences")
+            click.echo(f"{info['dataset']}: {info['kind']} dataset, {plural(info['sequences'], 'sequence')}")
             for seq_id in info["ids"]:
                 click.echo(f"  {seq_id}")
         return 0

@@ -10,6 +10,7 @@ import click
 
 from embody.cli.common import build_config, config_options, emit_json, json_option
 from embody.config import Config
+from embody.verdicts import plural, verdict_line
 
 
 def run_options(f):
@@ -87,10 +88,20 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
     are cheap: every step is cached by content key, so only what changed is recomputed.
     """
     cfg = config_from_options(config_files, sets, **options)
+    say = (lambda text: click.echo(f"embody run: {text}", err=True)) if progress else (
+        lambda text: None)
+    say(f"starting: dataset {dataset or 'synthetic (default)'}, robot {cfg.robot.name}, "
+        f"store {cfg.run.store}")
     path = prepare(dataset, split, cfg)
-    from flows.dataset import run_flow
+    say("checking the store for results of every step")
+    from flows.warm import run_cached
 
-    summary = run_flow(path, cfg, split=split, progress=progress)
+    summary = run_cached(path, cfg, split=split, progress=progress)
+    if summary is None:
+        say("starting Prefect (a local server: ~10 s) and the pipeline")
+        from flows.dataset import run_flow
+
+        summary = run_flow(path, cfg, split=split, progress=progress)
     if as_json:
         emit_json(summary)
     else:
@@ -103,7 +114,9 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
             click.echo(f"report:   {summary['report']}")
         if summary.get("report_error"):
             click.echo(f"warning: report not built: {summary['report_error']}", err=True)
+    if summary.get("verdicts"):  # the closing summary: three verdicts side by side
+        click.echo(f"verdicts: {verdict_line(summary['verdicts'])}", err=True)
     if summary["failed"]:
-        click.echo(f"{summary['failed']} sequence(s) failed:\n{_failure_table(summary)}", err=True)
+        click.echo(f"{plural(summary['failed'], 'sequence')} failed:\n{_failure_table(summary)}", err=True)
         return 1
     return 0

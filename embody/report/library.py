@@ -50,13 +50,10 @@ class Trajectory:
 
     @property
     def violations(self) -> dict[str, int]:
-        """The non-zero validation counters among VIOLATION_KEYS (empty = valid)."""
-        out = {}
-        for key in VIOLATION_KEYS:
-            value = self.validation.get(key, 0)
-            if value is None or not np.isfinite(value) or value != 0:
-                out[key] = int(value) if value is not None and float(value).is_integer() else value
-        return out
+        """The non-zero validation counters among VIOLATION_KEYS (empty = valid): the rule
+        `embody.verdicts.violations` that the run summary and the report count with too."""
+        from embody.verdicts import violations
+        return violations(self.validation)
 
     def save_npz(self, path: Path) -> Path:
         """An `np.load`-able npz with fixed zip timestamps: equal trajectories, equal bytes."""
