@@ -211,6 +211,8 @@ def build_report(store: ArtifactStore, run: str) -> tuple[str | None, str | None
         from embody.report import build_report as build
     except ImportError:
         return None, None
+    if ".ablation-" in run:  # `report --ablation`'s internal runs: their report is Table II
+        return None, None
     try:
         paths = build(store.root, run, reuse=True)
     except Exception as exc:  # a report problem must not turn finished work into a failure
