@@ -73,5 +73,4 @@ def paper_citation() -> str:
     if PAPER["title"]:
         venue = f", {PAPER['venue']}" if PAPER["venue"] else ""
         return f"“{PAPER['title']}”{venue}"
-    return (f"{PAPER['described_as'][0].upper()}{PAPER['described_as'][1:]} (its title and venue "
-            "are not recorded in this repository)")
+    return f"{PAPER['described_as']} (its title and venue are not recorded in this repository)"

@@ -34,8 +34,10 @@ table.report thead th{border-bottom:2px solid #444;vertical-align:bottom}
 table.report tbody th{text-align:left;background:#f3f3f3;padding-top:.6em}
 table.sortable thead th{cursor:pointer}
 table.sortable thead th:hover{background:#eef}
-td.text{text-align:left;max-width:24em;overflow-wrap:anywhere}
-td.yes{color:#070} td.no{color:#a00}
+table.report td.text{text-align:left;min-width:10em;max-width:24em;overflow-wrap:anywhere}
+#sequences td:first-child{overflow-wrap:anywhere;min-width:7em;max-width:16em}
+#sequences th:nth-child(2){text-align:left}
+table.report td.yes{color:#070} table.report td.no{color:#a00}
 figure{margin:1em 0}
 figure img{display:block;max-width:100%;height:auto;border:1px solid #ddd}
 figcaption{font-size:.9em;color:#555}
@@ -84,7 +86,7 @@ def _link(path: Path, root: Path, text: str | None = None) -> str:
 def _figure(path: Path, root: Path, caption: str) -> str:
     src = html.escape(_rel(path, root), quote=True)
     return (f'<figure><a href="{src}" title="open at full size"><img src="{src}" '
-            f'alt="{html.escape(caption, quote=True)}" loading="lazy"></a>'
+            f'alt="{html.escape(caption, quote=True)}"></a>'
             f"<figcaption>{html.escape(caption)} (click for full size)</figcaption></figure>")
 
 
