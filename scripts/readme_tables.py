@@ -16,12 +16,13 @@ from pathlib import Path
 
 START, END = "<!-- tables:start -->", "<!-- tables:end -->"
 TABLES = (
+    ("verdicts", "Verdicts: processed ok, export-valid, critic-accepted"),
     ("table1_collision", "Table I: self-collision mitigation"),
     ("table2_ablation", "Table II: loss-term ablation"),
     ("table3_retargeting", "Table III: retargeting fidelity, IK-only vs refined"),
 )
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, too
-from embody.report.definitions import METRICS  # noqa: E402  (one source for page and README)
+from embody.report.definitions import METRICS, VERDICT_DEFINITIONS  # noqa: E402  (one source for page and README)
 
 
 def excerpt(report_dir: Path) -> str:
@@ -32,7 +33,7 @@ def excerpt(report_dir: Path) -> str:
         if md.is_file():
             parts += [f"**{title}** (run `{report_dir.name}`)", "", md.read_text().rstrip(), ""]
     parts += ["Metrics:", ""]
-    parts += [f"- **{name}**: {text}" for name, text in METRICS]
+    parts += [f"- **{name}**: {text}" for name, text in (*VERDICT_DEFINITIONS, *METRICS)]
     parts += ["", END]
     return "\n".join(parts)
 

@@ -103,7 +103,13 @@ def command(run: str | None, store_root: str, out_dir: str | None, ablation: boo
     if ablation:
         data.ablation = run_ablation(store_root, run, say)
     say("writing tables, figures and index.html")
-    paths = write_report(data, Path(out_dir) if out_dir else default_out_dir(run))
+    from embody.report.reader import open_run
+    from embody.report.stamp import SOURCE_STAMP, source_digest, stamp_report
+
+    target = Path(out_dir) if out_dir else default_out_dir(run)
+    (target / SOURCE_STAMP).unlink(missing_ok=True)
+    paths = write_report(data, target)
+    stamp_report(paths.out_dir, source_digest(open_run(store_root, run)[1].path))
     summary = json.loads(paths.summary.read_text())
     if as_json:
         emit_json({"run": run, "out_dir": str(paths.out_dir), "index": str(paths.index),
