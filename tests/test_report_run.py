@@ -321,3 +321,44 @@ def test_readme_tables_script(run, tmp_path) -> None:
         assert (run["report"] / f"{name}.md").read_text().strip() in text
     assert "**Table II:" not in text  # no ablation run, no Table II
     assert "- **Collision energy**:" in text
+
+
+def test_fully_cached_rerun_skips_prefect(run, tmp_path, capsys) -> None:
+    """When the store holds every result, `embody run` records the run (manifest, table,
+    report) without starting Prefect; an unchanged rerun keeps the report as it is."""
+    from flows.warm import run_cached
+
+    sets = [x for s in CHEAP if not s.startswith("debug.") for x in ("--set", s)]
+    args = ["run", str(run["dataset"]), "--store", str(run["store"]), "--name", "warm",
+            "--limit", "2", "--json", *sets]  # seq0, seq1: every step is stored by `run`
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        assert main(args) == 0
+        first = capsys.readouterr()
+        summary = json.loads(first.out)
+        index = tmp_path / "reports" / "warm" / "index.html"
+        stamp = index.stat().st_mtime_ns
+        assert main(args) == 0
+        second = json.loads(capsys.readouterr().out)
+    finally:
+        os.chdir(cwd)
+    assert first.err.startswith("embody run: starting")  # says what is starting, first
+    assert summary["prefect"] is False and second["prefect"] is False
+    assert set(summary["computed"].values()) == {0} and summary["ok"] == 2
+    assert summary["verdicts"]["total"] == 2
+    assert summary["sequences"] == {k: v for k, v in run["summary"]["sequences"].items()
+                                    if k in ("seq0", "seq1")}
+    tiny = json.loads((run["store"] / "runs" / RUN / "manifest.json").read_text())
+    warm = json.loads((run["store"] / "runs" / "warm" / "manifest.json").read_text())
+    for sid in ("seq0", "seq1"):
+        assert warm["sequences"][sid]["steps"] == tiny["sequences"][sid]["steps"]
+        assert warm["sequences"][sid]["status"] == "ok"
+    assert warm["finished"] is not None
+    assert index.stat().st_mtime_ns == stamp  # same manifest content: report kept
+    assert (run["store"] / "runs" / "warm" / "sequences.csv").is_file()
+    # Anything missing (here: another collision setting) → the flow has to run.
+    cfg = load_config(sets=[*CHEAP[:-1], "collision.steps=4", f"run.store={run['store']}",
+                            "run.name=cold"])
+    assert run_cached(run["dataset"], cfg) is None
+    assert not (run["store"] / "runs" / "cold").exists()
