@@ -86,3 +86,20 @@ def test_table2_only_with_ablation(tmp_path) -> None:
     data.ablation = {}
     paths = write_report(data, tmp_path / "r")
     assert not (tmp_path / "r" / "table2_ablation.csv").exists()
+
+
+def test_csvs_carry_no_float_noise(tmp_path) -> None:
+    import re
+
+    from embody.report.tables import Table
+
+    data = _data()
+    data.retarget.loc["s0", "wrist_pos_err_mm"] = 0.1 + 0.2  # 0.30000000000000004
+    paths = write_report(data, tmp_path / "r")
+    for csv in [paths.sequences, *(f["csv"] for f in paths.tables.values())]:
+        for number in re.findall(r"\d+\.\d+", csv.read_text()):
+            significant = number.replace(".", "").lstrip("0")
+            assert len(significant) <= 10, (csv.name, number)
+    assert "0.3," in paths.sequences.read_text()
+    t = Table("t", "t", pd.DataFrame({"a": ["x"], "b": [1 / 3]}))
+    assert t.to_csv() == "a,b\nx,0.3333333333\n"

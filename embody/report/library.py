@@ -146,6 +146,6 @@ def export_library(trajectories: Iterable[Trajectory], out_dir: str | Path,
     excluded.sort(key=lambda row: row["id"])
     excl = pd.DataFrame(excluded, columns=["id", "robot", "text", "frames", "dt", "duration_s",
                                            "status", "reason"]).astype({"frames": "Int64"})
-    library.to_csv(out_dir / "library.csv", index=False, lineterminator="\n")
-    excl.to_csv(out_dir / "excluded.csv", index=False, lineterminator="\n")
+    library.to_csv(out_dir / "library.csv", index=False, lineterminator="\n", float_format="%.10g")
+    excl.to_csv(out_dir / "excluded.csv", index=False, lineterminator="\n", float_format="%.10g")
     return library, excl
