@@ -8,14 +8,13 @@ Shared steps (the shape fit) run once; steps that need them wait until they are 
 
 from __future__ import annotations
 
+import functools
 import queue
 import re
 import time
 from collections import deque
 from pathlib import Path
 from typing import Any
-
-from prefect import flow
 
 from embody.config import Config
 from flows.progress import Progress
@@ -26,7 +25,6 @@ from store import ArtifactStore, Manifest
 from tasks.execute import cached, new_record
 from tasks.pipeline import Context, Pipeline
 from tasks.stages import default_pipeline
-from tasks.steps import batch_task, shared_task
 
 __all__ = ["dataset_flow", "default_run_name", "resolve_dataset", "run_dataset", "run_flow",
            "write_tables"]
@@ -99,6 +97,7 @@ class _Driver:
             if step.name in self.shared or any(s.name not in self.shared for s in step.inputs):
                 continue
             self.shared[step.name] = {"status": "running"}
+            from tasks.steps import shared_task  # Prefect: imported once a task is needed
             fut = shared_task(step).submit(step, self.ctx, self._shared_keys())
             self._watch(fut, ("shared", step.name))
 
@@ -128,6 +127,7 @@ class _Driver:
         if hits is not None:
             self._complete(b, i, hits)
             return
+        from tasks.steps import batch_task  # Prefect: imported once a task is needed
         fut = batch_task(step, b).submit(step, self.ctx, records, self._shared_keys())
         self._watch(fut, ("batch", b, i))
 
@@ -258,17 +258,35 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
             "prefect": True, **verdict_summary(manifest)}
 
 
-@flow(name="embody-dataset", persist_result=False, log_prints=False, validate_parameters=False)
-def dataset_flow(dataset: str, split: str | None = None, config: dict[str, Any] | None = None,
+def _dataset_flow(dataset: str, split: str | None = None, config: dict[str, Any] | None = None,
                  pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
     """Prefect entry point; `config` is the full config as JSON data (deployments need JSON)."""
     cfg = Config.model_validate(config or {})
     return run_dataset(dataset, cfg=cfg, split=split, pipeline=pipeline, progress=progress)
 
 
+_dataset_flow.__name__ = _dataset_flow.__qualname__ = "dataset_flow"  # deployments' entrypoint
+
+
+@functools.cache
+def prefect_flow() -> Any:
+    """The Prefect flow around `_dataset_flow`. Prefect is imported here, on first use, so
+    resolving a dataset, checking the store and a fully cached run never pay for it."""
+    from prefect import flow
+
+    return flow(name="embody-dataset", persist_result=False, log_prints=False,
+                validate_parameters=False)(_dataset_flow)
+
+
+def __getattr__(name: str) -> Any:
+    if name == "dataset_flow":  # `from flows.dataset import dataset_flow` still works
+        return prefect_flow()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
              pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
     """Run `dataset_flow` with the task runner `cfg.run` asks for."""
     runner = make_task_runner(cfg.run)
-    return dataset_flow.with_options(task_runner=runner)(
+    return prefect_flow().with_options(task_runner=runner)(
         str(dataset), split, cfg.model_dump(mode="json"), pipeline, progress)

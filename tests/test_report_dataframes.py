@@ -50,7 +50,7 @@ def test_report_from_dataframes(tmp_path) -> None:
     t1 = pd.read_csv(paths.tables["table1_collision"]["csv"]).set_index("Metric")
     for label, value in table1(data.collision)["value"].items():
         row, column = table1_slot(str(label))
-        assert number(t1.loc[row, column]) == number(value) or (
+        assert np.isclose(number(t1.loc[row, column]), number(value), rtol=1e-9) or (
             np.isnan(number(value)) and np.isnan(number(t1.loc[row, column]))), label
     t3 = pd.read_csv(paths.tables["table3_retargeting"]["csv"]).set_index("Method")
     assert t3.loc["IK only", "Wrist pos. mean (mm)"] == 20.0

@@ -72,7 +72,9 @@ class Table:
         return [str(c) for c in self.frame.columns]
 
     def to_csv(self) -> str:
-        return self.frame.to_csv(index=False, lineterminator="\n", float_format="%.10g")
+        # Mixed (object) columns hold floats too: round those cells the same way.
+        frame = self.frame.map(lambda v: float(f"{v:.10g}") if isinstance(v, float) else v)
+        return frame.to_csv(index=False, lineterminator="\n", float_format="%.10g")
 
     def to_markdown(self) -> str:
         def row(values: list[str]) -> str:
