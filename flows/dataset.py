@@ -9,6 +9,7 @@ Shared steps (the shape fit) run once; steps that need them wait until they are 
 from __future__ import annotations
 
 import errno
+import functools
 import queue
 import re
 import time
@@ -16,17 +17,16 @@ from collections import deque
 from pathlib import Path
 from typing import Any
 
-from prefect import flow
-
 from embody.config import Config
 from embody.errors import ConfigError
 from flows.progress import Progress
+from flows.verdicts import verdict_summary
+from embody.verdicts import sequence_verdicts
 from flows.runners import make_task_runner
 from store import ArtifactStore, Manifest, check_run_name
 from tasks.execute import cached, new_record
 from tasks.pipeline import Context, Pipeline
 from tasks.stages import default_pipeline
-from tasks.steps import batch_task, shared_task
 
 __all__ = ["check_run_reuse", "dataset_flow", "default_run_name", "resolve_dataset", "run_dataset",
            "run_flow", "write_tables"]
@@ -138,6 +138,7 @@ class _Driver:
             if step.name in self.shared or any(s.name not in self.shared for s in step.inputs):
                 continue
             self.shared[step.name] = {"status": "running"}
+            from tasks.steps import shared_task  # Prefect: imported once a task is needed
             fut = shared_task(step).submit(step, self.ctx, self._shared_keys())
             self._watch(fut, ("shared", step.name))
 
@@ -167,6 +168,7 @@ class _Driver:
         if hits is not None:
             self._complete(b, i, hits)
             return
+        from tasks.steps import batch_task  # Prefect: imported once a task is needed
         fut = batch_task(step, b).submit(step, self.ctx, records, self._shared_keys())
         self._watch(fut, ("batch", b, i))
 
@@ -249,7 +251,7 @@ def write_tables(store: ArtifactStore, run: str, manifest: Manifest | None = Non
     rows = []
     for sid, seq in manifest.sequences.items():
         row = {"id": sid, "status": seq["status"], "failed_step": seq["failed_step"],
-               "error": seq["error"]}
+               "error": seq["error"], **sequence_verdicts(seq)}
         for step, metrics in seq["metrics"].items():
             row.update({f"{step}.{k}": v for k, v in metrics.items()
                         if isinstance(v, (int, float, str, bool)) or v is None})
@@ -257,7 +259,7 @@ def write_tables(store: ArtifactStore, run: str, manifest: Manifest | None = Non
     path = manifest.path.parent / "sequences.csv"
     tmp = path.with_name(f".{path.name}.tmp")
     try:
-        csv_safe(pd.DataFrame(rows)).to_csv(tmp, index=False)
+        csv_safe(pd.DataFrame(rows)).to_csv(tmp, index=False, float_format="%.10g")  # no float noise
         tmp.replace(path)
     finally:
         tmp.unlink(missing_ok=True)
@@ -270,8 +272,10 @@ def build_report(store: ArtifactStore, run: str) -> tuple[str | None, str | None
         from embody.report import build_report as build
     except ImportError:
         return None, None
+    if ".ablation-" in run:  # `report --ablation`'s internal runs: their report is Table II
+        return None, None
     try:
-        paths = build(store.root, run)
+        paths = build(store.root, run, reuse=True)
     except Exception as exc:  # a report problem must not turn finished work into a failure
         return None, f"{type(exc).__name__}: {exc}"
     return str(getattr(paths, "out_dir", paths)), None
@@ -325,20 +329,39 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
             "manifest": str(manifest.path), "table": str(table) if table else None,
             "errors": errors, "recovered": recovered,
             "report": report, "report_error": report_error,
-            "report_s": round(report_s, 3), "elapsed_s": round(time.perf_counter() - t0, 3)}
+            "report_s": round(report_s, 3), "elapsed_s": round(time.perf_counter() - t0, 3),
+            "prefect": True, **verdict_summary(manifest)}
 
 
-@flow(name="embody-dataset", persist_result=False, log_prints=False, validate_parameters=False)
-def dataset_flow(dataset: str, split: str | None = None, config: dict[str, Any] | None = None,
+def _dataset_flow(dataset: str, split: str | None = None, config: dict[str, Any] | None = None,
                  pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
     """Prefect entry point; `config` is the full config as JSON data (deployments need JSON)."""
     cfg = Config.model_validate(config or {})
     return run_dataset(dataset, cfg=cfg, split=split, pipeline=pipeline, progress=progress)
 
 
+_dataset_flow.__name__ = _dataset_flow.__qualname__ = "dataset_flow"  # deployments' entrypoint
+
+
+@functools.cache
+def prefect_flow() -> Any:
+    """The Prefect flow around `_dataset_flow`. Prefect is imported here, on first use, so
+    resolving a dataset, checking the store and a fully cached run never pay for it."""
+    from prefect import flow
+
+    return flow(name="embody-dataset", persist_result=False, log_prints=False,
+                validate_parameters=False)(_dataset_flow)
+
+
+def __getattr__(name: str) -> Any:
+    if name == "dataset_flow":  # `from flows.dataset import dataset_flow` still works
+        return prefect_flow()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
 def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
              pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
     """Run `dataset_flow` with the task runner `cfg.run` asks for."""
     runner = make_task_runner(cfg.run)
-    return dataset_flow.with_options(task_runner=runner)(
+    return prefect_flow().with_options(task_runner=runner)(
         str(dataset), split, cfg.model_dump(mode="json"), pipeline, progress)

@@ -16,35 +16,13 @@ from pathlib import Path
 
 START, END = "<!-- tables:start -->", "<!-- tables:end -->"
 TABLES = (
+    ("verdicts", "Verdicts: processed ok, export-valid, critic-accepted"),
     ("table1_collision", "Table I: self-collision mitigation"),
     ("table2_ablation", "Table II: loss-term ablation"),
     ("table3_retargeting", "Table III: retargeting fidelity, IK-only vs refined"),
 )
-METRICS = (
-    ("Collision energy", "volumetric self-collision energy L_col (Eq. 1): mean over frames of the "
-     "squared depths of body vertices inside other body parts' convex volumes; statistics over "
-     "the sequences that collided before mitigation."),
-    ("Improved sequences", "colliding sequences whose energy went down (n/N and %); sequences with "
-     "zero energy before count as \"no collision\", neither success nor failure."),
-    ("Collision reduction", "(before − after) / before × 100 per sequence, then median or mean."),
-    ("Pose MSE vs. original", "mean over frames of the squared norm of the pose change "
-     "(axis-angle, all joints); median over sequences."),
-    ("ΔAccel MSE", "mean squared second difference of the pose after minus before: the jerkiness "
-     "the optimisation added (negative = smoother); median over sequences."),
-    ("Runtime per sequence", "wall-clock seconds of the collision optimisation, mean."),
-    ("Paper (reported)", "the paper's own figures for comparison; blank where it reports none."),
-    ("Table II", "the same metrics per loss setting: N colliding sequences, Succ. = improved %, "
-     "Red. = median reduction %, medians of Pose/ΔAccel MSE, mean time."),
-    ("Wrist pos. mean / p95", "distance between robot and human wrists in the robot torso frame "
-     "(mm), both wrists, mean and 95th percentile over frames, averaged over sequences."),
-    ("Wrist rot. mean", "geodesic angle between robot and human wrist orientations (deg)."),
-    ("DTW wrist", "wrist distance after dynamic time warping (mm): robust to timing drift."),
-    ("Limit viol. / Vel. viol.", "(frame, joint) samples outside the joint position / velocity "
-     "limits, summed over sequences (target 0)."),
-    ("Self-coll. frames", "frames with a penetrating MuJoCo contact between non-adjacent robot "
-     "bodies, summed over sequences (target 0)."),
-    ("Rounds / Accepted", "critic rounds used (mean) and the share of sequences it accepted."),
-)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, too
+from embody.report.definitions import METRICS, VERDICT_DEFINITIONS  # noqa: E402  (one source for page and README)
 
 
 def excerpt(report_dir: Path) -> str:
@@ -55,7 +33,7 @@ def excerpt(report_dir: Path) -> str:
         if md.is_file():
             parts += [f"**{title}** (run `{report_dir.name}`)", "", md.read_text().rstrip(), ""]
     parts += ["Metrics:", ""]
-    parts += [f"- **{name}**: {text}" for name, text in METRICS]
+    parts += [f"- **{name}**: {text}" for name, text in (*VERDICT_DEFINITIONS, *METRICS)]
     parts += ["", END]
     return "\n".join(parts)
 

@@ -66,7 +66,7 @@ def run(tmp_path_factory, prefect_harness):
         os.chdir(cwd)
     assert summary["failed"] == 1 and summary["report_error"] is None, summary
     return {"tmp": tmp, "store": tmp / "store", "dataset": dataset,
-            "report": tmp / "reports" / RUN}
+            "report": tmp / "reports" / RUN, "summary": summary}
 
 
 def _library_results(store: Path):
@@ -94,7 +94,7 @@ def _close(a, b) -> bool:
 
 
 def test_tables_equal_library_metric_functions(run) -> None:
-    from embody.collision.metrics import table1, table2
+    from embody.collision.metrics import table1
     from embody.critic import refine_table
     from embody.report.assemble import PAPER_TABLE1, number, table1_slot
 
@@ -111,10 +111,7 @@ def test_tables_equal_library_metric_functions(run) -> None:
     energy = t1.loc["Collision energy (mean)"]
     assert float(energy["Before"]) > float(energy["After"])
 
-    t2 = pd.read_csv(run["report"] / "table2_ablation.csv").set_index("Setting")
-    lib2 = table2({"This run": coll})
-    for column in lib2.columns:
-        assert _close(t2.loc["This run", column], lib2.loc["This run", column]), column
+    assert not (run["report"] / "table2_ablation.csv").exists()  # only with --ablation
 
     t3 = pd.read_csv(run["report"] / "table3_retargeting.csv").set_index("Method")
     lib3 = refine_table(refined)
@@ -142,6 +139,17 @@ def test_tables_equal_library_metric_functions(run) -> None:
                   number(table1(coll).loc["Improved n/N (%)", "value"]))
     assert _close(summary["retarget.refined.wrist_pos_mean_mm"], lib3.loc["refined", "wrist_mm_mean"])
     assert _close(summary["retarget.preserving.wrist_pos_mean_mm"], lib3.loc["IK-only", "wrist_mm_mean"])
+    # The three verdicts: the report, summary.json and the run's own summary agree.
+    verdicts = {k.split(".", 1)[1]: v for k, v in summary.items() if k.startswith("verdicts.")}
+    assert verdicts == run["summary"]["verdicts"]
+    manifest_seqs = json.loads((run["store"] / "runs" / RUN / "manifest.json").read_text())
+    from embody.verdicts import sequence_verdicts
+    assert run["summary"]["sequences"] == {
+        sid: sequence_verdicts(seq) for sid, seq in manifest_seqs["sequences"].items()}
+    assert verdicts["processed_ok"] == 2 and verdicts["total"] == 3
+    assert verdicts["critic_accepted"] == int(lib3.loc["refined", "accepted"] * 2 + 0.5)
+    t0 = pd.read_csv(run["report"] / "verdicts.csv", keep_default_na=False).set_index("Verdict")
+    assert t0.loc["Export-valid", "Sequences"] == f"{verdicts['export_valid']}/3"
     for key in ("collision.pose_mse_median", "collision.daccel_mse_median",
                 "collision.runtime_mean_s", "retarget.refined.wrist_rot_mean_deg",
                 "retarget.limit_violations", "retarget.self_collision_frames"):
@@ -150,7 +158,7 @@ def test_tables_equal_library_metric_functions(run) -> None:
 
 def test_report_files_and_page(run) -> None:
     report = run["report"]
-    for name in ("table1_collision", "table2_ablation", "table3_retargeting"):
+    for name in ("verdicts", "table1_collision", "table3_retargeting"):
         for ext in ("csv", "md", "tex"):
             assert (report / f"{name}.{ext}").stat().st_size > 0
         tex = (report / f"{name}.tex").read_text()
@@ -161,7 +169,8 @@ def test_report_files_and_page(run) -> None:
     assert seqs.loc["seq0", "text"] == "sign 0 & more_50%"
     assert {"collide.reduction_pct", "retarget.wrist_pos_err_mm", "refine.wrist_mm_mean",
             "refine.accepted", "validation.self_collision_frames", "metrics.mean_jerk",
-            "source.frames"} <= set(seqs.columns)
+            "source.frames", "processed_ok", "export_valid", "critic_accepted"} <= set(seqs.columns)
+    assert not seqs.loc["seq2", "processed_ok"] and seqs.loc["seq0", "processed_ok"]
     figures = {p.relative_to(report).as_posix() for p in (report / "figures").rglob("*.png")}
     assert {"figures/collision_energy.png", "figures/pose_vs_reduction.png",
             "figures/wrists/seq0.png", "figures/wrists/seq1.png",
@@ -175,16 +184,17 @@ def test_report_files_and_page(run) -> None:
     from test_report_html import check_report_page
     require_tool(("chromium", "chromium-browser"), CHROMIUM_INSTALL)
     attrs = check_report_page(report / "index.html", run["tmp"],
-                              {"table1_collision", "table2_ablation", "table3_retargeting"})
-    assert int(attrs["images"]) == len(figures)
+                              {"verdicts", "table1_collision", "table3_retargeting", "sequences"})
+    links = {r["id"]: r["links"] for r in attrs["rows"]}
+    assert {len(links["seq0"]), len(links["seq1"]), len(links["seq2"])} == {3, 0}
 
 
 def test_tex_tables_compile(run, pdflatex, tmp_path) -> None:
-    for name in ("table1_collision", "table2_ablation", "table3_retargeting"):
+    for name in ("verdicts", "table1_collision", "table3_retargeting"):
         shutil.copy(run["report"] / f"{name}.tex", tmp_path)
     (tmp_path / "doc.tex").write_text(
         "\\documentclass{article}\\usepackage{booktabs}\\begin{document}"
-        "\\input{table1_collision.tex}\\input{table2_ablation.tex}\\input{table3_retargeting.tex}\\end{document}\n")
+        "\\input{verdicts.tex}\\input{table1_collision.tex}\\input{table3_retargeting.tex}\\end{document}\n")
     proc = subprocess.run([pdflatex, "-interaction=nonstopmode", "-halt-on-error", "doc.tex"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout[-3000:]
@@ -201,31 +211,41 @@ def test_report_cli_is_deterministic(run, tmp_path) -> None:
 
 
 def test_ablation_reuses_cache(run, tmp_path) -> None:
+    """Table II's settings all run in the ablation store (same flow, same timing for every
+    row), leave the main store alone, and are cached there for the next `--ablation`."""
     from embody.collision.metrics import table2
-    from embody.report.reader import metrics_frame, open_run
+    from embody.report.reader import latest_run, metrics_frame, open_run
     from store import ArtifactStore
 
     st = ArtifactStore(run["store"])
+    abl = ArtifactStore(run["store"] / "ablation")
     before = {s: len(st.computations(s)) for s in ("source", "collide", "retarget", "refine")}
     cwd = os.getcwd()
     os.chdir(tmp_path)
     try:
-        assert main(["report", RUN, "--store", str(run["store"]), "--out", str(tmp_path / "r"),
-                     "--ablation"]) == 0
+        for _ in range(2):
+            assert main(["report", RUN, "--store", str(run["store"]), "--out",
+                         str(tmp_path / "r"), "--ablation"]) == 0
     finally:
         os.chdir(cwd)
-    after = {s: len(st.computations(s)) for s in before}
-    # Only the two settings that differ from the run recompute the collision step.
-    assert after == {**before, "collide": before["collide"] + 4}
+    assert {s: len(st.computations(s)) for s in before} == before
+    # 3 settings × the 2 sequences that collide (seq2's injected failure is in collide);
+    # the second --ablation computes nothing.
+    assert len(abl.computations("collide")) == 6
+    assert not (tmp_path / "reports").exists()  # the internal runs write no reports
     t2 = pd.read_csv(tmp_path / "r" / "table2_ablation.csv").set_index("Setting")
     assert t2.index.tolist() == ["Collision only", "+ Closeness", "+ Closeness + Smoothness"]
-    settings = {s: metrics_frame(open_run(run["store"], f"{RUN}.ablation-{slug}")[1], "collide")
+    settings = {s: metrics_frame(open_run(abl.root, f"{RUN}.ablation-{slug}")[1], "collide")
                 for s, slug in (("Collision only", "collision-only"), ("+ Closeness", "closeness"),
                                 ("+ Closeness + Smoothness", "closeness-smoothness"))}
     lib = table2(settings)
     for setting in lib.index:
         for column in lib.columns:
             assert _close(t2.loc[setting, column], lib.loc[setting, column]), (setting, column)
+    # An internal ablation run is never "the latest run" `embody report` picks.
+    (st.runs_dir / f"{RUN}.ablation-x").mkdir(exist_ok=True)
+    (st.runs_dir / f"{RUN}.ablation-x" / "manifest.json").write_text("{}")
+    assert latest_run(run["store"]) == RUN
 
 
 @pytest.mark.parametrize("fmt", ["npz", "csv"])
@@ -233,10 +253,24 @@ def test_export_library(run, tmp_path, fmt) -> None:
     from embody.report.reader import run_trajectories
     from embody.report.library import VIOLATION_KEYS, Trajectory
 
+    from embody.verdicts import export_valid
+
+    # Default: sequences the critic rejected are left out, named as such.
     out = tmp_path / "lib"
+    assert main(["export", RUN, str(out), "--robot", ROBOT, "--store", str(run["store"]),
+                 "--format", fmt]) == 1
+    excluded = pd.read_csv(out / "excluded.csv").set_index("id")
+    summary = json.loads((run["report"] / "summary.json").read_text())
+    rejected = {i for i in excluded.index if "critic rejected" in excluded.loc[i, "reason"]}
+    assert len(rejected) == 2 - summary["verdicts.critic_accepted"]
+    # --include-rejected: exactly the export-valid sequences of the run summary are exported.
     code = main(["export", RUN, str(out), "--robot", ROBOT, "--store", str(run["store"]),
-                 "--format", fmt])
+                 "--format", fmt, "--include-rejected"])
     assert code == 1  # seq2 failed in the run, so it is excluded
+    exported = set(pd.read_csv(out / "library.csv")["id"]) if (out / "library.csv").stat().st_size else set()
+    assert exported == {i for i, v in run["summary"]["sequences"].items() if v["export_valid"]}
+    assert all(export_valid(t.validation) == (t.id in exported)
+               for t in run_trajectories(run["store"], RUN, ROBOT)[0])
     library = pd.read_csv(out / "library.csv")
     excluded = pd.read_csv(out / "excluded.csv").set_index("id")
     assert excluded.loc["seq2", "status"] == "failed"
@@ -338,6 +372,48 @@ def test_readme_tables_script(run, tmp_path) -> None:
     text = readme.read_text()
     assert text.startswith("intro\n<!-- tables:start -->") and text.endswith("<!-- tables:end -->\noutro\n")
     assert "old" not in text
-    for name in ("table1_collision", "table2_ablation", "table3_retargeting"):
+    for name in ("verdicts", "table1_collision", "table3_retargeting"):
         assert (run["report"] / f"{name}.md").read_text().strip() in text
+    assert "**Table II:" not in text  # no ablation run, no Table II
     assert "- **Collision energy**:" in text
+
+
+def test_fully_cached_rerun_skips_prefect(run, tmp_path, capsys) -> None:
+    """When the store holds every result, `embody run` records the run (manifest, table,
+    report) without starting Prefect; an unchanged rerun keeps the report as it is."""
+    from flows.warm import run_cached
+
+    sets = [x for s in CHEAP if not s.startswith("debug.") for x in ("--set", s)]
+    args = ["run", str(run["dataset"]), "--store", str(run["store"]), "--name", "warm",
+            "--limit", "2", "--json", *sets]  # seq0, seq1: every step is stored by `run`
+    cwd = os.getcwd()
+    os.chdir(tmp_path)
+    try:
+        assert main(args) == 0
+        first = capsys.readouterr()
+        summary = json.loads(first.out)
+        index = tmp_path / "reports" / "warm" / "index.html"
+        stamp = index.stat().st_mtime_ns
+        assert main(args) == 0
+        second = json.loads(capsys.readouterr().out)
+    finally:
+        os.chdir(cwd)
+    assert first.err.startswith("embody run: starting")  # says what is starting, first
+    assert summary["prefect"] is False and second["prefect"] is False
+    assert set(summary["computed"].values()) == {0} and summary["ok"] == 2
+    assert summary["verdicts"]["total"] == 2
+    assert summary["sequences"] == {k: v for k, v in run["summary"]["sequences"].items()
+                                    if k in ("seq0", "seq1")}
+    tiny = json.loads((run["store"] / "runs" / RUN / "manifest.json").read_text())
+    warm = json.loads((run["store"] / "runs" / "warm" / "manifest.json").read_text())
+    for sid in ("seq0", "seq1"):
+        assert warm["sequences"][sid]["steps"] == tiny["sequences"][sid]["steps"]
+        assert warm["sequences"][sid]["status"] == "ok"
+    assert warm["finished"] is not None
+    assert index.stat().st_mtime_ns == stamp  # same manifest content: report kept
+    assert (run["store"] / "runs" / "warm" / "sequences.csv").is_file()
+    # Anything missing (here: another collision setting) → the flow has to run.
+    cfg = load_config(sets=[*CHEAP[:-1], "collision.steps=4", f"run.store={run['store']}",
+                            "run.name=cold"])
+    assert run_cached(run["dataset"], cfg) is None
+    assert not (run["store"] / "runs" / "cold").exists()

@@ -5,6 +5,8 @@ from __future__ import annotations
 
 import click
 
+from embody.verdicts import plural
+
 from embody.cli.common import emit_json, json_option
 from embody.export.formats import FORMATS
 
@@ -20,16 +22,20 @@ from embody.export.formats import FORMATS
               "gmr (GMR motion pickle) or beyondmimic (BeyondMimic csv_to_npz input).")
 @click.option("--check", is_flag=True, help="Re-validate the library in DIR with MuJoCo from "
               "its files alone; exit 1 if any file fails.")
+@click.option("--include-rejected/--exclude-rejected", default=False, show_default=True,
+              help="Keep sequences the critic rejected (default: exclude them, like failed "
+                   "ones; runs without a critic have none).")
 @json_option
 def command(args: tuple[str, ...], robot: str | None, store_root: str, fmt: str, check: bool,
-            as_json: bool) -> int:
+            include_rejected: bool, as_json: bool) -> int:
     """Write one file per valid sequence of RUN into OUT, plus library.csv, library.json and
     excluded.csv.
 
     The exported array is the control-rate trajectory the run's metrics step validated; every
     file is read back as its consumer reads it and re-validated (joint limits, velocity limits,
     MuJoCo self-collision at every sample). Sequences that fail, and sequences the run failed,
-    are excluded and listed. Exit 1 when any was excluded.
+    are excluded and listed. So are sequences the critic rejected, unless --include-rejected is
+    given. Exit 1 when any was excluded.
     """
     if check:
         if len(args) != 1:
@@ -47,13 +53,19 @@ def command(args: tuple[str, ...], robot: str | None, store_root: str, fmt: str,
     run, out = args
     check_run_name(run, "RUN")
     trajectories, failed = run_trajectories(store_root, run, robot)
+    if not include_rejected:
+        rejected = [t for t in trajectories if t.validation.get("accepted") is False]
+        trajectories = [t for t in trajectories if t.validation.get("accepted") is not False]
+        failed = [*failed, *((t.id, "critic rejected (--include-rejected keeps it)")
+                             for t in rejected)]
     library, excluded = export_library(trajectories, out, fmt, failed,  # type: ignore[arg-type]
                                        robot=run_robot(store_root, run))
     if as_json:
         emit_json({"out": out, "format": fmt, "exported": library["id"].tolist(),
                    "excluded": excluded[["id", "reason"]].to_dict("records")})
     else:
-        click.echo(f"exported {len(library)} trajectories ({fmt}) to {out} (library.csv, library.json)")
+        click.echo(f"exported {plural(len(library), 'trajectory', 'trajectories')} ({fmt}) to "
+                   f"{out} (library.csv, library.json)")
         for row in excluded.itertuples():
             click.echo(f"excluded {row.id}: {row.reason}")
     return 1 if len(excluded) else 0

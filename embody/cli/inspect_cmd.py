@@ -8,6 +8,8 @@ from typing import Any
 
 import click
 
+from embody.verdicts import plural
+
 from embody.cli.common import (build_config, config_options, emit_json, input_options, input_sets,
                                json_option, load_input)
 
@@ -82,7 +84,7 @@ def command(path: str, split: str | None, fps: float | None, up_axis: str | None
         if as_json:
             emit_json(info)
         else:
-            click.echo(f"{info['dataset']}: {info['kind']} dataset, {info['sequences']} sequences")
+            click.echo(f"{info['dataset']}: {info['kind']} dataset, {plural(info['sequences'], 'sequence')}")
             for seq_id in info["ids"]:
                 click.echo(f"  {seq_id}")
         return 0

@@ -6,6 +6,8 @@ import json
 from pathlib import Path
 
 import click
+
+from embody.verdicts import plural
 import numpy as np
 
 from embody.cli.common import (build_config, config_options, emit_json, input_options, input_sets,
@@ -56,5 +58,6 @@ def command(in_path: str, out: str, critic: str | None, fps: float | None, up_ax
                    "table": json.loads(table.to_json(orient="index")), "files": files})
     else:
         click.echo(table.to_string(float_format=lambda v: f"{v:.2f}"))
-        click.echo(f"{len(result.rounds)} rounds, accepted: {result.accepted}; wrote {len(files)} files to {out}")
+        click.echo(f"{plural(len(result.rounds), 'round')}, accepted: {result.accepted}; "
+                   f"wrote {plural(len(files), 'file')} to {out}")
     return 0

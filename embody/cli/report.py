@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import time
 from pathlib import Path
 from typing import Any
 
@@ -31,28 +32,45 @@ def ablation_configs(base: Any) -> dict[str, Any]:
     return out
 
 
-def run_ablation(store_root: str, run: str) -> dict[str, Any]:
-    """Run the Table II settings through the dataset flow (source + collide only: the source is
-    a cache hit, and so is every setting already computed) → {setting: collision metrics}."""
+def ablation_store(store_root: str | Path) -> Path:
+    """Table II's own store (`<store>/ablation`): every setting is computed there by the same
+    flow, so its times are measured the same way (a cache hit on the main run's collision
+    results would carry timings taken under the full pipeline's load)."""
+    return Path(store_root).expanduser().resolve() / "ablation"
+
+
+def run_ablation(store_root: str, run: str, say: Any = None) -> dict[str, Any]:
+    """Run the Table II settings through the dataset flow (source + collide only) in the
+    ablation store, cached there across reports → {setting: collision metrics}."""
     from embody.report.reader import COLLIDE, metrics_frame, open_run, run_config
     from flows.env import configure
 
+    say = say or (lambda text: None)
     store, manifest = open_run(store_root, run)
     configure(store.root)
+    dataset, split = manifest.data.get("dataset"), manifest.data.get("split")
+    if not dataset:
+        raise InputError(manifest.path, "dataset", "the run does not record its dataset")
+    say("starting Prefect (a local server: ~10 s) for the Table II settings")
     from flows.dataset import run_flow
     from tasks.pipeline import Pipeline
     from tasks.stages import COLLIDE as COLLIDE_STEP, SOURCE
 
-    dataset, split = manifest.data.get("dataset"), manifest.data.get("split")
-    if not dataset:
-        raise InputError(manifest.path, "dataset", "the run does not record its dataset")
+    target = ablation_store(store.root)
+    settings = ablation_configs(run_config(manifest))
     out = {}
-    for setting, cfg in ablation_configs(run_config(manifest)).items():
+    for k, (setting, cfg) in enumerate(settings.items(), 1):
         slug = re.sub(r"[^a-z]+", "-", setting.lower()).strip("-")
         cfg = cfg.model_copy(update={"run": cfg.run.model_copy(
-            update={"name": f"{run}.ablation-{slug}", "store": str(store.root)})})
-        run_flow(dataset, cfg, split=split, pipeline=Pipeline(SOURCE, (COLLIDE_STEP,)))
-        _, ablated = open_run(store.root, cfg.run.name)
+            update={"name": f"{run}.ablation-{slug}", "store": str(target)})})
+        say(f"Table II setting {k}/{len(settings)}: {setting}")
+        t0 = time.perf_counter()
+        summary = run_flow(dataset, cfg, split=split, progress=True,
+                           pipeline=Pipeline(SOURCE, (COLLIDE_STEP,)))
+        computed = summary["computed"].get(COLLIDE, 0)
+        say(f"  {setting}: {computed} computed, {summary['ok'] - computed} cached "
+            f"({time.perf_counter() - t0:.1f} s)")
+        _, ablated = open_run(target, cfg.run.name)
         out[setting] = metrics_frame(ablated, COLLIDE)
     return out
 
@@ -65,22 +83,34 @@ def run_ablation(store_root: str, run: str) -> dict[str, Any]:
               help="Output folder [default: reports/<run>].")
 @click.option("--ablation", is_flag=True,
               help="Also run the three Table II collision settings (cached like any run).")
-@click.option("--max-figures", type=click.IntRange(min=0), default=12, show_default=True,
-              help="Wrist-trajectory figures, for the sequences with the largest IK error.")
+@click.option("--max-figures", type=click.IntRange(min=0), default=24, show_default=True,
+              help="Wrist-trajectory plots, for the sequences with the largest IK error "
+                   "(comparison sheets and previews: every rendered sequence).")
 @click.option("--max-sheets", type=click.IntRange(min=0), default=4, show_default=True,
               help="Critic comparison sheets to render (about 2 s each).")
 @json_option
 def command(run: str | None, store_root: str, out_dir: str | None, ablation: bool,
             max_figures: int, max_sheets: int, as_json: bool) -> int:
-    """Write the report of RUN (default: the store's latest run) to reports/RUN/."""
+    """Write the report of RUN (default: the store's latest main run) to reports/RUN/."""
     from embody.report import collect, default_out_dir, latest_run, write_report
     from store import check_run_name
 
+    def say(text: str) -> None:
+        click.echo(f"embody report: {text}", err=True)
+
     run = check_run_name(run or latest_run(store_root), "RUN")
+    say(f"reading run {run} (figures for up to {max_figures} sequences)")
     data = collect(store_root, run, max_figures=max_figures, max_sheets=max_sheets)
     if ablation:
-        data.ablation = run_ablation(store_root, run)
-    paths = write_report(data, Path(out_dir) if out_dir else default_out_dir(run))
+        data.ablation = run_ablation(store_root, run, say)
+    say("writing tables, figures and index.html")
+    from embody.report.reader import open_run
+    from embody.report.stamp import SOURCE_STAMP, source_digest, stamp_report
+
+    target = Path(out_dir) if out_dir else default_out_dir(run)
+    (target / SOURCE_STAMP).unlink(missing_ok=True)
+    paths = write_report(data, target)
+    stamp_report(paths.out_dir, source_digest(open_run(store_root, run)[1].path))
     summary = json.loads(paths.summary.read_text())
     if as_json:
         emit_json({"run": run, "out_dir": str(paths.out_dir), "index": str(paths.index),

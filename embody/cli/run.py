@@ -10,6 +10,7 @@ import click
 
 from embody.cli.common import build_config, config_options, emit_json, input_options, json_option
 from embody.config import Config
+from embody.verdicts import plural, verdict_line
 
 
 def run_options(f):
@@ -130,12 +131,22 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
     from flows.env import on_sigterm
 
     cfg = config_from_options(config_files, sets, **options)
+    say = (lambda text: click.echo(f"embody run: {text}", err=True)) if progress else (
+        lambda text: None)
+    say(f"starting: dataset {dataset or 'synthetic (default)'}, robot {cfg.robot.name}, "
+        f"store {cfg.run.store}")
     path = prepare(dataset, split, cfg, overwrite)
     on_sigterm()  # SIGTERM cleans up like Ctrl-C: the ephemeral Prefect server is stopped
-    from flows.dataset import run_flow
+    say("checking the store for results of every step")
+    from flows.warm import run_cached
 
     try:
-        summary = run_flow(path, cfg, split=split, progress=progress)
+        summary = run_cached(path, cfg, split=split, progress=progress)
+        if summary is None:
+            say("starting Prefect (a local server: ~10 s) and the pipeline")
+            from flows.dataset import run_flow
+
+            summary = run_flow(path, cfg, split=split, progress=progress)
     except OSError as exc:  # e.g. the disk filled before any sequence could record it
         reason = "no space left on device" if exc.errno == errno.ENOSPC else str(exc)
         click.echo(f"error: the run could not write to the store ({reason})", err=True)
@@ -156,8 +167,10 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
     for item in summary.get("recovered", []):
         click.echo(f"warning: {item['id']}: recomputed corrupt artifact {item['artifact']}",
                    err=True)
+    if summary.get("verdicts"):  # the closing summary: three verdicts side by side
+        click.echo(f"verdicts: {verdict_line(summary['verdicts'])}", err=True)
     if summary["failed"]:
-        click.echo(f"{summary['failed']} sequence(s) failed:\n{_failure_table(summary)}", err=True)
+        click.echo(f"{plural(summary['failed'], 'sequence')} failed:\n{_failure_table(summary)}", err=True)
     for error in summary.get("errors", []):
         click.echo(f"error: {error}", err=True)
     if summary["failed"] or summary.get("errors"):

@@ -9,6 +9,8 @@ from typing import Any
 
 import click
 
+from embody.verdicts import plural
+
 from embody.cli.common import emit_json, json_option
 
 _store_option = click.option("--store", "store_dir", default="embody-store", show_default=True,
@@ -57,7 +59,7 @@ def ls(store_dir: str, as_json: bool) -> int:
         return 0
     click.echo(f"store {store.root}")
     for step, c in sorted(steps.items()):
-        click.echo(f"  {step:<12} {c['artifacts']:>7} artifacts {c['bytes'] / 1e6:>10.2f} MB")
+        click.echo(f"  {step:<12} {c['artifacts']:>7} {'artifact ' if c['artifacts'] == 1 else 'artifacts'} {c['bytes'] / 1e6:>10.2f} MB")
     for run, r in sorted(runs.items()):
         state = "finished" if r["finished"] else "unfinished"
         click.echo(f"  run {run}: {r['ok']}/{r['sequences']} ok, {r['failed']} failed ({state})")
@@ -81,7 +83,7 @@ def verify(store_dir: str, as_json: bool) -> int:
     else:
         for c in corrupt:
             click.echo(f"CORRUPT {c['step']}/{c['key']}: {c['problem']}")
-        click.echo(f"{checked} artifacts checked, {len(corrupt)} corrupt")
+        click.echo(f"{plural(checked, 'artifact')} checked, {len(corrupt)} corrupt")
     return 1 if corrupt else 0
 
 
@@ -155,6 +157,6 @@ def gc(store_dir: str, dry_run: bool, older_than: str | None, as_json: bool) -> 
         for run in live:
             click.echo(f"kept every artifact of unfinished run {run} "
                        "(in progress or killed; --older-than overrides)")
-        click.echo(f"{verb} {len(removed)} artifacts and {len(temps)} stale temps "
+        click.echo(f"{verb} {plural(len(removed), 'artifact')} and {plural(len(temps), 'stale temp')} "
                    f"({freed / 1e6:.2f} MB); {len(referenced)} referenced")
     return 0

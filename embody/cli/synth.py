@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import click
 
+from embody.verdicts import plural
+
 from embody.cli.common import emit_json, json_option
 
 
@@ -29,5 +31,5 @@ def command(out: str, n: int, seed: int, as_json: bool) -> int:
         return 0
     for row in rows:
         click.echo(f"{row['path']}  {row['text']}  [{', '.join(row['artifacts']) or 'clean'}]")
-    click.echo(f"wrote {len(paths)} sequences to {out}")
+    click.echo(f"wrote {plural(len(paths), 'sequence')} to {out}")
     return 0

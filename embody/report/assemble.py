@@ -215,6 +215,26 @@ def table3(data: RunData) -> Table:
                  frame)
 
 
+#: The verdicts table's rows: label → `embody.verdicts` name.
+VERDICT_ROWS = {"Processed ok": "processed_ok", "Export-valid": "export_valid",
+                "Critic-accepted": "critic_accepted"}
+
+
+def verdicts_table(data: RunData) -> Table:
+    """The report's first table: how many sequences hold each of the three verdicts."""
+    per = data.verdicts()
+    total = len(per)
+    rows = []
+    for label, name in VERDICT_ROWS.items():
+        known = per[name].dropna() if name in per else pd.Series(dtype=object)
+        n = int(known.astype(bool).sum()) if len(known) else None
+        rows.append({"Verdict": label,
+                     "Sequences": f"{n}/{total}" if n is not None else "n/a",
+                     "Share (%)": 100.0 * n / total if n is not None and total else None})
+    return Table("verdicts", "Verdicts: processed ok, export-valid, critic-accepted",
+                 pd.DataFrame(rows, columns=["Verdict", "Sequences", "Share (%)"]))
+
+
 def _row(table: Table, label: str) -> pd.Series | None:
     hits = table.frame[table.frame.iloc[:, 0].astype(str) == label]
     return None if hits.empty else hits.iloc[0]
@@ -233,6 +253,10 @@ def summary(data: RunData, tables: dict[str, Table]) -> dict[str, Any]:
         "sequences.ok": int((data.sequences["status"] == "ok").sum()),
         "sequences.failed": int((data.sequences["status"] != "ok").sum()),
     }
+    from embody.verdicts import run_verdicts
+    per = data.verdicts()
+    counts = run_verdicts(per.to_dict("records"))
+    out.update({f"verdicts.{k}": v for k, v in counts.items()})
     t1 = tables.get("table1_collision")
     if t1 is not None:
         for key, (row, col) in {

@@ -3,27 +3,15 @@
 from __future__ import annotations
 
 import json
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from embody.csvsafe import csv_safe
 from embody.report import assemble, figures
+from embody.report.paths import ReportPaths
 from embody.report.data import RunData
 from embody.report.html import render_index
 from embody.report.library import safe_name
 from embody.report.tables import Table
-
-
-@dataclass(frozen=True)
-class ReportPaths:
-    """Where everything of one report was written."""
-
-    out_dir: Path
-    index: Path
-    summary: Path
-    sequences: Path
-    tables: dict[str, dict[str, Path]] = field(default_factory=dict)
-    figures: list[Path] = field(default_factory=list)
 
 
 def default_out_dir(run_name: str) -> Path:
@@ -64,34 +52,46 @@ def _remember(out_dir: Path, paths: list[Path]) -> None:
     (out_dir / _RECORD).write_text(json.dumps({"files": rel}, indent=1) + "\n")
 
 
-def _figures(data: RunData, out_dir: Path) -> dict[str, list[Path]]:
+def _figures(data: RunData, out_dir: Path) -> tuple[dict[str, list[Path]],
+                                                    dict[str, dict[str, Path]]]:
+    """(section → figures shown on the page, sequence id → {"sheet"|"wrists"|"preview": path})."""
     fig_dir = out_dir / "figures"
     out: dict[str, list[Path]] = {"Collision": [], "Wrist trajectories": [],
                                   "Critic comparison sheets": []}
+    links: dict[str, dict[str, Path]] = {}
     if len(data.collision):
         out["Collision"] = [
             figures.collision_energy(data.collision, fig_dir / "collision_energy.png"),
             figures.pose_vs_reduction(data.collision, fig_dir / "pose_vs_reduction.png")]
     for sid, tracks in sorted(data.wrists.items()):
-        out["Wrist trajectories"].append(figures.wrist_tracks(
-            tracks, data.wrist_fps[sid], fig_dir / "wrists" / f"{safe_name(sid)}.png", title=sid))
+        path = figures.wrist_tracks(tracks, data.wrist_fps[sid],
+                                    fig_dir / "wrists" / f"{safe_name(sid)}.png", title=sid)
+        out["Wrist trajectories"].append(path)
+        links.setdefault(sid, {})["wrists"] = path
     for sid, png in sorted(data.sheets.items()):
         dst = fig_dir / "sheets" / f"{safe_name(sid)}.png"
         dst.parent.mkdir(parents=True, exist_ok=True)
         dst.write_bytes(png)
         out["Critic comparison sheets"].append(dst)
-    return out
-
-
-def _previews(data: RunData, out_dir: Path) -> list[Path]:
-    """The render stage's animated previews, linked from the page (videos are not images)."""
-    paths = []
+        links.setdefault(sid, {})["sheet"] = dst
     for sid, (blob, suffix) in sorted(data.previews.items()):
-        dst = out_dir / "figures" / "previews" / f"{safe_name(sid)}{suffix}"
+        dst = fig_dir / "previews" / f"{safe_name(sid)}{suffix}"
         dst.parent.mkdir(parents=True, exist_ok=True)
         dst.write_bytes(blob)
-        paths.append(dst)
-    return paths
+        links.setdefault(sid, {})["preview"] = dst
+    return out, links
+
+
+def tables_of(data: RunData) -> dict[str, Table]:
+    """The report's tables in page order: the verdicts first, Table II only with its rows."""
+    tables: dict[str, Table] = {"verdicts": assemble.verdicts_table(data)}
+    if len(data.collision) or data.ablation:
+        tables["table1_collision"] = assemble.table1(data)
+    if data.ablation:  # without `--ablation` there is no ablation to show
+        tables["table2_ablation"] = assemble.table2(data)
+    if len(data.retarget) or data.refine:
+        tables["table3_retargeting"] = assemble.table3(data)
+    return tables
 
 
 def write_report(data: RunData, out_dir: str | Path) -> ReportPaths:
@@ -99,29 +99,31 @@ def write_report(data: RunData, out_dir: str | Path) -> ReportPaths:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     _forget_previous(out_dir)
-    tables: dict[str, Table] = {}
-    if len(data.collision) or data.ablation:
-        tables["table1_collision"] = assemble.table1(data)
-        tables["table2_ablation"] = assemble.table2(data)
-    if len(data.retarget) or data.refine:
-        tables["table3_retargeting"] = assemble.table3(data)
+    tables = tables_of(data)
     written = {name: t.write(out_dir) for name, t in tables.items()}
 
     sequences = out_dir / "sequences.csv"
-    csv_safe(data.per_sequence()).to_csv(sequences, index=False, lineterminator="\n")
+    per_sequence = data.per_sequence()
+    csv_safe(per_sequence).to_csv(sequences, index=False, lineterminator="\n", float_format="%.10g")
     summary = assemble.summary(data, tables)
     summary_path = out_dir / "summary.json"
     summary_path.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
 
-    figs = _figures(data, out_dir)
-    previews = _previews(data, out_dir)
+    figs, links = _figures(data, out_dir)
+    if len(data.retarget) and "wrist_pos_err_mm" in data.retarget:
+        worst = data.retarget["wrist_pos_err_mm"].sort_values(ascending=False, kind="stable")
+        top = [links[s]["sheet"] for s in worst.index if "sheet" in links.get(s, {})][:4]
+        if top:  # shown inline, full width; every other sheet is linked from its table row
+            figs[f"Comparison sheets of the {len(top)} sequences with the largest IK wrist "
+                 "error"] = top
     index = render_index(out_dir, run=data.name,
                          tables={n: (tables[n], written[n]) for n in tables},
-                         figures=figs, summary=summary,
-                         files=[sequences, summary_path, *previews],
-                         failures=data.failures)
-    _remember(out_dir, [index, sequences, summary_path, *previews,
+                         figures=figs, summary=summary, files=[sequences, summary_path],
+                         failures=data.failures, sequences=per_sequence, links=links,
+                         figure_rule=data.figure_rule)
+    _remember(out_dir, [index, sequences, summary_path,
                         *(p for files in written.values() for p in files.values()),
-                        *(p for ps in figs.values() for p in ps)])
+                        *(p for ps in figs.values() for p in ps),
+                        *(p for seq in links.values() for p in seq.values())])
     return ReportPaths(out_dir=out_dir, index=index, summary=summary_path, sequences=sequences,
                        tables=written, figures=[p for ps in figs.values() for p in ps])

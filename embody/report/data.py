@@ -43,6 +43,27 @@ class RunData:
     sheets: dict[str, bytes] = field(default_factory=dict)
     #: sequence id → (animated preview bytes, file suffix) from the render stage.
     previews: dict[str, tuple[bytes, str]] = field(default_factory=dict)
+    #: How the sequences with figures were chosen (printed on the page when not all have them).
+    figure_rule: str = ""
+
+    def verdicts(self) -> pd.DataFrame:
+        """processed_ok / export_valid / critic_accepted per sequence, by `embody.verdicts`
+        (the same function the run summary applies to the manifest)."""
+        from embody.verdicts import VERDICTS, sequence_verdicts
+
+        metrics = self.other.get("metrics", pd.DataFrame())
+        refined = self.refined[sorted(self.refined)[0]] if self.refined else pd.DataFrame()
+        rows = {}
+        for sid, status in self.sequences["status"].items():
+            seq: dict[str, Any] = {"status": status, "metrics": {}}
+            if sid in metrics.index:
+                seq["metrics"]["metrics"] = metrics.loc[sid].dropna().to_dict()
+            if sid in refined.index and "accepted" in refined:
+                seq["metrics"]["refine"] = {"accepted": bool(refined.loc[sid, "accepted"])}
+            rows[sid] = sequence_verdicts(seq)
+        frame = pd.DataFrame.from_dict(rows, orient="index", columns=list(VERDICTS))
+        frame.index.name = "id"
+        return frame.astype(object).where(frame.notna(), None)
 
     def per_sequence(self) -> pd.DataFrame:
         """Every metric of every sequence in one flat table (the `sequences.csv` rows).
@@ -56,7 +77,7 @@ class RunData:
             parts += [(f"refine{tag}", self.refined[critic]),
                       (f"validation{tag}", self.validation.get(critic, pd.DataFrame()))]
         parts += sorted(self.other.items())
-        frame = self.sequences.copy()
+        frame = self.sequences.join(self.verdicts(), how="left")
         for prefix, df in parts:
             if len(df):
                 frame = frame.join(df.add_prefix(f"{prefix}."), how="left")

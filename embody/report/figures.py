@@ -14,7 +14,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-_DPI = 100
+_DPI = 120  # labels stay legible at natural size (the page shows them unscaled)
 _SIDES = ("left", "right")
 _AXES = ("x", "y", "z")
 
@@ -31,10 +31,10 @@ def collision_energy(collision: pd.DataFrame, path: Path) -> Path:
     """Grouped bars of collision energy before/after, one pair per sequence (log scale)."""
     ids = [str(i) for i in collision.index]
     x = np.arange(len(ids))
-    fig, ax = plt.subplots(figsize=(max(4.0, 0.5 * len(ids) + 2), 3.2))
+    fig, ax = plt.subplots(figsize=(min(max(6.0, 0.45 * len(ids) + 2), 13.0), 4.0))
     ax.bar(x - 0.2, collision["energy_before"], 0.4, label="before")
     ax.bar(x + 0.2, collision["energy_after"], 0.4, label="after")
-    ax.set_xticks(x, ids, rotation=60, ha="right", fontsize=7)
+    ax.set_xticks(x, ids, rotation=60, ha="right", fontsize=9)
     ax.set_ylabel("collision energy")
     if (collision[["energy_before", "energy_after"]] > 0).all().all():
         ax.set_yscale("log")
@@ -46,10 +46,10 @@ def collision_energy(collision: pd.DataFrame, path: Path) -> Path:
 
 def pose_vs_reduction(collision: pd.DataFrame, path: Path) -> Path:
     """Scatter of pose change (MSE vs original) against collision reduction (%)."""
-    fig, ax = plt.subplots(figsize=(4.5, 3.2))
+    fig, ax = plt.subplots(figsize=(7.0, 4.5))
     ax.scatter(collision["reduction_pct"], collision["pose_mse"], s=14)
     for sid, row in collision.iterrows():
-        ax.annotate(str(sid), (row["reduction_pct"], row["pose_mse"]), fontsize=6)
+        ax.annotate(str(sid), (row["reduction_pct"], row["pose_mse"]), fontsize=8)
     ax.set_xlabel("collision reduction (%)")
     ax.set_ylabel("pose MSE vs. original")
     ax.set_title("Pose change vs. collision reduction")

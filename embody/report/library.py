@@ -56,13 +56,10 @@ class Trajectory:
 
     @property
     def violations(self) -> dict[str, int]:
-        """The non-zero validation counters among VIOLATION_KEYS (empty = valid)."""
-        out = {}
-        for key in VIOLATION_KEYS:
-            value = self.validation.get(key, 0)
-            if value is None or not np.isfinite(value) or value != 0:
-                out[key] = int(value) if value is not None and float(value).is_integer() else value
-        return out
+        """The non-zero validation counters among VIOLATION_KEYS (empty = valid): the rule
+        `embody.verdicts.violations` that the run summary and the report count with too."""
+        from embody.verdicts import violations
+        return violations(self.validation)
 
     def layout(self, robot: Any | None = None) -> Layout:
         """What the writers need besides q (root pose from the robot's MJCF, when given)."""
@@ -191,8 +188,8 @@ def export_library(trajectories: Iterable[Trajectory], out_dir: str | Path,
     excluded.sort(key=lambda row: row["id"])
     excl = pd.DataFrame(excluded, columns=["id", "robot", "text", "frames", "dt", "duration_s",
                                            "status", "reason"]).astype({"frames": "Int64"})
-    csv_safe(library).to_csv(out_dir / "library.csv", index=False, lineterminator="\n")
-    csv_safe(excl).to_csv(out_dir / "excluded.csv", index=False, lineterminator="\n")
+    csv_safe(library).to_csv(out_dir / "library.csv", index=False, lineterminator="\n", float_format="%.10g")
+    csv_safe(excl).to_csv(out_dir / "excluded.csv", index=False, lineterminator="\n", float_format="%.10g")
     any_traj = next(iter(robots.values()), robot)
     meta = {"version": LIBRARY_VERSION, "format": fmt, "consumer": CONSUMERS[fmt],
             "robot": getattr(any_traj, "name", None) if any_traj is not None else None,

@@ -53,9 +53,20 @@ def run_config(manifest: Any) -> Any:
                          f"this version (rerun `embody run`): {exc.errors()[0]['msg']}") from None
 
 
+#: Run names of `embody report --ablation`'s Table II settings (`<run>.ablation-<setting>`).
+ABLATION_MARK = ".ablation-"
+
+
+def is_main_run(name: str) -> bool:
+    """False for the internal runs of `report --ablation` (older stores keep them beside the
+    main runs); `embody report` with no name never picks those."""
+    return ABLATION_MARK not in name
+
+
 def latest_run(store_root: str | Path) -> str:
-    """The most recently written run of a store (what `embody report` shows by default)."""
-    runs = sorted(Path(store_root, "runs").glob("*/manifest.json"), key=lambda p: p.stat().st_mtime)
+    """The most recently written main run of a store (what `embody report` shows by default)."""
+    runs = sorted((p for p in Path(store_root, "runs").glob("*/manifest.json")
+                   if is_main_run(p.parent.name)), key=lambda p: p.stat().st_mtime)
     if not runs:
         raise InputError(Path(store_root), None, "the store has no runs (run `embody run` first)")
     return runs[-1].parent.name
@@ -159,13 +170,15 @@ class _Robotics:
         return robot_wrists(self.robot, q)[0]
 
 
-def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
+def collect(store_root: str | Path, run: str, *, max_figures: int = 24,
             max_sheets: int = 4) -> RunData:
     """Everything a report needs about `run`.
 
-    Wrist figures are drawn for the `max_figures` sequences with the largest IK wrist error and
-    comparison sheets for the first `max_sheets` of those (rendering costs ~2 s each), so a
-    20k-sequence run still gets a readable page in bounded time.
+    Every sequence the render stage rendered gets its stored comparison sheet and preview (a
+    copy, no rendering). Wrist plots (robot FK plus a plot, ~0.5 s each) are drawn for the
+    `max_figures` sequences with the largest IK wrist error; sequences without a stored render
+    get a re-rendered sheet for the first `max_sheets` of those (~2 s each). So a
+    20k-sequence run still gets a page in bounded time, and the page states the rule.
     """
     from embody.render import RenderError
     from embody.retarget.validation import validation_counts
@@ -208,18 +221,24 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
             {i: final_validation(store, robotics.robot, seqs[i], ik[i], r.q)
              for i, r in refined.items()},
             orient="index")
+    for sid in ok:  # the render stage stored it: no re-rendering
+        if RENDER in seqs[sid]["steps"]:
+            stored = load_result(store, seqs[sid], RENDER)
+            data.sheets[sid] = stored.sheet_png
+            if stored.preview is not None:
+                data.previews[sid] = (stored.preview, stored.preview_suffix or ".bin")
     worst = data.retarget.loc[ok, "wrist_pos_err_mm"].sort_values(ascending=False, kind="stable")
-    for rank, sid in enumerate(worst.index[:max_figures]):
+    chosen = list(worst.index[:max_figures])
+    if len(chosen) < len(ok):
+        data.figure_rule = (f"Wrist plots: the {len(chosen)} of {len(ok)} finished sequences "
+                            "with the largest IK-only wrist position error (`embody report "
+                            "--max-figures N` draws more).")
+    for rank, sid in enumerate(chosen):
         if sid in refined:
             r = refined[sid]
             tracks = {"reference": r.ik_only.target_pos, "IK only": robotics.wrists(r.ik_only.q),
                       "refined": robotics.wrists(r.final.q)}
-            if RENDER in seqs[sid]["steps"]:  # the render stage stored it: no re-rendering
-                stored = load_result(store, seqs[sid], RENDER)
-                data.sheets[sid] = stored.sheet_png
-                if stored.preview is not None:
-                    data.previews[sid] = (stored.preview, stored.preview_suffix or ".bin")
-            elif rank < max_sheets:
+            if sid not in data.sheets and rank < max_sheets:
                 motion = load_result(store, seqs[sid], COLLIDE).motion
                 try:
                     data.sheets[sid] = robotics.sheet(motion, r, f"{sid}: final round")
@@ -232,6 +251,11 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 12,
                       "IK only": robotics.wrists(ik[sid].q)}
         data.wrists[sid] = tracks
         data.wrist_fps[sid] = float(ik[sid].fps)
+    missing = [i for i in ok if i not in data.sheets]
+    if missing and any(RENDER not in seqs[i]["steps"] for i in missing):
+        data.figure_rule += (" Comparison sheets: stored by the render stage for every rendered "
+                             f"sequence; re-rendered for at most {max_sheets} of the others "
+                             "(`--max-sheets`).")
     return data
 
 

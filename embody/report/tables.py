@@ -1,6 +1,7 @@
 """A report table and its four renderings (CSV, Markdown, booktabs LaTeX, HTML).
 
-The CSV keeps full-precision numbers (for machines); the other three share one cell formatter
+The CSV keeps ten significant digits (for machines, without binary float noise such as
+0.30000000000000004); the other three share one cell formatter
 so the README, the paper and the HTML page show identical digits.
 """
 
@@ -71,7 +72,9 @@ class Table:
         return [str(c) for c in self.frame.columns]
 
     def to_csv(self) -> str:
-        return self.frame.to_csv(index=False, lineterminator="\n")
+        # Mixed (object) columns hold floats too: round those cells the same way.
+        frame = self.frame.map(lambda v: float(f"{v:.10g}") if isinstance(v, float) else v)
+        return frame.to_csv(index=False, lineterminator="\n", float_format="%.10g")
 
     def to_markdown(self) -> str:
         def row(values: list[str]) -> str:

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-VALIDATION_KEYS = ("joint_limit_violations", "velocity_violations", "self_collision_frames")
+from embody.verdicts import VALIDATION_KEYS  # noqa: E402  (the export rule lives there)
 
 
 def validation_counts(robot: Any, q: np.ndarray, fps: float) -> dict[str, float]:

@@ -7,10 +7,16 @@ from pathlib import Path
 
 from embody.config.robot import RobotConfig
 from embody.errors import ConfigError
-from embody.robot.model import Robot, build_robot
 from embody.robot.spec import RobotSpec, read_spec
 
 __all__ = ["Robot", "RobotSpec", "load_robot", "robots_dir", "menagerie_roots"]
+
+
+def __getattr__(name: str):  # noqa: ANN202 - the model (torch, MuJoCo) loads on first use
+    if name in ("Robot", "build_robot"):
+        from embody.robot import model
+        return getattr(model, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def robots_dir(cfg: RobotConfig) -> Path:
@@ -65,6 +71,7 @@ def _load(name: str, robots: str, override: str | None) -> Robot:
         known = sorted(p.stem for p in Path(robots).glob("*.yaml"))
         raise ConfigError("robot.name", f"unknown robot {name!r}; known: {known}")
     spec = read_spec(yaml_path)
+    from embody.robot.model import build_robot
     return build_robot(name, spec, _resolve_mjcf(spec, yaml_path, override), str(yaml_path))
 
 

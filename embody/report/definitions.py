@@ -1,0 +1,76 @@
+"""What the report's numbers mean: metric definitions, verdicts and the paper it follows.
+
+One source for the HTML page and the README excerpt (`scripts/readme_tables.py`), so the
+definitions a reader sees next to a table are the ones the README prints.
+"""
+
+from __future__ import annotations
+
+from embody.verdicts import VERDICTS
+
+__all__ = ["COLUMNS", "METRICS", "PAPER", "VERDICT_DEFINITIONS"]
+
+#: The paper whose tables these are. Its title and venue are not recorded anywhere in this
+#: repository or its docs, so it is cited the way the docs describe it (never invented).
+PAPER = {
+    "title": None,
+    "venue": None,
+    "described_as": "the paper this pipeline reproduces: generated sign-language SMPL-X motion "
+                    "retargeted to a humanoid robot, with a volumetric self-collision loss "
+                    "(VolumetricSMPL) in SMPL-X space and a vision-language-model critic that "
+                    "answers with control primitives",
+}
+
+#: Table column / row name → definition.
+METRICS = (
+    ("Collision energy", "volumetric self-collision energy L_col (Eq. 1): mean over frames of the "
+     "squared depths of body vertices inside other body parts' convex volumes; statistics over "
+     "the sequences that collided before mitigation."),
+    ("Improved sequences", "colliding sequences whose energy went down (n/N and %); sequences with "
+     "zero energy before count as \"no collision\", neither success nor failure."),
+    ("Collision reduction", "(before − after) / before × 100 per sequence, then median or mean."),
+    ("Pose MSE vs. original", "mean over frames of the squared norm of the pose change "
+     "(axis-angle, all joints); median over sequences."),
+    ("ΔAccel MSE", "mean squared second difference of the pose after minus before: the jerkiness "
+     "the optimisation added (negative = smoother); median over sequences."),
+    ("Runtime per sequence", "wall-clock seconds of the collision optimisation, mean."),
+    ("Paper (reported)", "the paper's own figures for comparison; blank where it reports none."),
+    ("Table II", "the same metrics per loss setting: N colliding sequences, Succ. = improved %, "
+     "Red. = median reduction %, medians of Pose/ΔAccel MSE, mean time."),
+    ("Wrist pos. mean / p95", "distance between robot and human wrists in the robot torso frame "
+     "(mm), both wrists, mean and 95th percentile over frames, averaged over sequences."),
+    ("Wrist rot. mean", "geodesic angle between robot and human wrist orientations (deg)."),
+    ("DTW wrist", "wrist distance after dynamic time warping (mm): robust to timing drift."),
+    ("Limit viol. / Vel. viol.", "(frame, joint) samples outside the joint position / velocity "
+     "limits, summed over sequences (target 0)."),
+    ("Self-coll. frames", "frames with a penetrating MuJoCo contact between non-adjacent robot "
+     "bodies, summed over sequences (target 0)."),
+    ("Rounds / Accepted", "critic rounds used (mean) and the share of sequences it accepted."),
+)
+
+#: The verdicts, as the first table names them.
+VERDICT_DEFINITIONS = (
+    ("Processed ok", VERDICTS["processed_ok"] + "."),
+    ("Export-valid", VERDICTS["export_valid"] + "."),
+    ("Critic-accepted", VERDICTS["critic_accepted"] + "."),
+)
+
+#: The per-sequence table's columns: header → (sequences.csv column, definition).
+COLUMNS = {
+    "Wrist err. (mm)": ("retarget.wrist_pos_err_mm",
+                        "IK-only wrist position error against the human wrists, mean (mm)"),
+    "Wrist rot. (deg)": ("retarget.wrist_rot_err_deg",
+                         "IK-only wrist orientation error, mean (deg)"),
+    "Self-coll. frames": ("metrics.self_collision_frames",
+                          "MuJoCo self-collision frames of the final trajectory"),
+    "Coll. red. (%)": ("collide.reduction_pct",
+                       "SMPL-X collision energy reduction of the mitigation step (%)"),
+}
+
+
+def paper_citation() -> str:
+    """The paper as the page cites it: title and venue when known, else as the docs name it."""
+    if PAPER["title"]:
+        venue = f", {PAPER['venue']}" if PAPER["venue"] else ""
+        return f"“{PAPER['title']}”{venue}"
+    return f"{PAPER['described_as']} (its title and venue are not recorded in this repository)"
