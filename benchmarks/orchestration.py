@@ -50,13 +50,13 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     os.chdir(work)  # the run's report goes to ./reports/<run>
 
-    from flows.env import configure
+    from embody.flows.env import configure
     configure(store_dir)
     import torch
     torch.set_num_threads(1)
     from embody.config import Config
-    from flows.dataset import run_flow
-    from store import ArtifactStore
+    from embody.flows.dataset import run_flow
+    from embody.store import ArtifactStore
 
     data = write_dataset(work / f"data-n{args.n}-f{args.frames}", args.n, args.frames)
     store = ArtifactStore(store_dir)

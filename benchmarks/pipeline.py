@@ -37,9 +37,9 @@ def main() -> None:
 
     from embody.config import Config
     from embody.synth import default_dataset
-    from flows.dataset import run_flow
-    from flows.env import configure
-    from store import ArtifactStore
+    from embody.flows.dataset import run_flow
+    from embody.flows.env import configure
+    from embody.store import ArtifactStore
 
     configure(store_dir)
     data = default_dataset(store_dir / "data")

@@ -89,7 +89,7 @@ def _tree_rss(proc: Any) -> tuple[int, int]:
 
 def step_seconds(store: Path, n: int) -> dict[str, float]:
     """Each step's recorded compute seconds per sequence (the shared shape fit divided by n)."""
-    from store import ArtifactStore
+    from embody.store import ArtifactStore
     out: dict[str, float] = {}
     for row in ArtifactStore(store).computations():
         out[row["step"]] = out.get(row["step"], 0.0) + float(row.get("compute_s") or 0.0)
@@ -124,7 +124,7 @@ class Bench:
         """One `embody run`, sampled; `kill_at`: SIGKILL its group once that many sequences
         have their metrics artifact."""
         import psutil
-        from store import ArtifactStore
+        from embody.store import ArtifactStore
 
         log_before = self.server_log.stat().st_size if self.server_log.is_file() else 0
         tasks_before = count_task_runs(self.api)
@@ -218,7 +218,7 @@ def main() -> None:
           f"{', CHEAP stage config (not for figures)' if args.cheap else ', stage configs default'}"
           f"; work {work}", flush=True)
 
-    from flows.server import LocalServer
+    from embody.flows.server import LocalServer
 
     shutil.rmtree(work / "prefect-home", ignore_errors=True)
     server = LocalServer(work / "prefect-home")
@@ -237,7 +237,7 @@ def main() -> None:
         one = b.run("cold_1worker", work / "store-c", "processes", 1) if "one" not in skip else None
         recomputed = unfinished = -1
         if "kill" not in skip:
-            from store import ArtifactStore, Manifest
+            from embody.store import ArtifactStore, Manifest
             store_d = work / "store-d"
             killed = b.run("killed", store_d, "processes", w, kill_at=max(1, args.n // 2))
             st = ArtifactStore(store_d)

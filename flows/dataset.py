@@ -19,14 +19,14 @@ from typing import Any
 
 from embody.config import Config
 from embody.errors import ConfigError
-from flows.progress import Progress
-from flows.verdicts import verdict_summary
+from embody.flows.progress import Progress
+from embody.flows.verdicts import verdict_summary
 from embody.verdicts import sequence_verdicts
-from flows.runners import make_task_runner
-from store import ArtifactStore, Manifest, check_run_name
-from tasks.execute import cached, new_record
-from tasks.pipeline import Context, Pipeline
-from tasks.stages import default_pipeline
+from embody.flows.runners import make_task_runner
+from embody.store import ArtifactStore, Manifest, check_run_name
+from embody.tasks.execute import cached, new_record
+from embody.tasks.pipeline import Context, Pipeline
+from embody.tasks.stages import default_pipeline
 
 __all__ = ["check_run_reuse", "dataset_flow", "default_run_name", "resolve_dataset", "run_dataset",
            "run_flow", "write_tables"]
@@ -138,7 +138,7 @@ class _Driver:
             if step.name in self.shared or any(s.name not in self.shared for s in step.inputs):
                 continue
             self.shared[step.name] = {"status": "running"}
-            from tasks.steps import shared_task  # Prefect: imported once a task is needed
+            from embody.tasks.steps import shared_task  # Prefect: imported once a task is needed
             fut = shared_task(step).submit(step, self.ctx, self._shared_keys())
             self._watch(fut, ("shared", step.name))
 
@@ -168,7 +168,7 @@ class _Driver:
         if hits is not None:
             self._complete(b, i, hits)
             return
-        from tasks.steps import batch_task  # Prefect: imported once a task is needed
+        from embody.tasks.steps import batch_task  # Prefect: imported once a task is needed
         fut = batch_task(step, b).submit(step, self.ctx, records, self._shared_keys())
         self._watch(fut, ("batch", b, i))
 
@@ -286,7 +286,7 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     """Run the pipeline over a dataset inside the current flow; returns the run summary."""
     from embody.io import load_dataset
 
-    from flows.env import register_server
+    from embody.flows.env import register_server
 
     t0 = time.perf_counter()
     store = ArtifactStore(cfg.run.store)

@@ -4,7 +4,7 @@ A Dask worker unpickles its next task on its event-loop thread while the previou
 another; if that task was the first to import torch, scipy's array-API check saw a half-imported
 `torch` module (`partially initialized module 'torch' has no attribute 'Tensor'`), the worker
 died and the run went on with one worker fewer. Dask imports this module (`--preload
-flows.preload`) when a worker starts; `flows.runners` passes it to local clusters.
+embody.flows.preload`) when a worker starts; `flows.runners` passes it to local clusters.
 """
 
 from __future__ import annotations
@@ -13,4 +13,4 @@ import scipy.spatial.transform  # noqa: F401  (imports its array-API torch check
 import torch  # noqa: F401
 
 import embody.io  # noqa: F401
-import tasks.stages  # noqa: F401
+import embody.tasks.stages  # noqa: F401

@@ -19,9 +19,9 @@ def make_task_runner(run: RunConfig) -> Any:
         if run.dask_address:
             return DaskTaskRunner(address=run.dask_address)
         # Workers import torch & co. before any task (see flows/preload.py); a remote cluster's
-        # workers need `dask worker ... --preload flows.preload` for the same reason.
+        # workers need `dask worker ... --preload embody.flows.preload` for the same reason.
         return DaskTaskRunner(cluster_kwargs={"n_workers": run.workers, "threads_per_worker": 1,
                                               "processes": True, "dashboard_address": ":0",
-                                              "preload": ["flows.preload"]})
+                                              "preload": ["embody.flows.preload"]})
     from prefect.task_runners import ThreadPoolTaskRunner
     return ThreadPoolTaskRunner(max_workers=run.workers)

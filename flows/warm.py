@@ -14,11 +14,11 @@ from pathlib import Path
 from typing import Any
 
 from embody.config import Config
-from flows.progress import Progress
-from flows.verdicts import verdict_summary
-from store import ArtifactStore, Manifest
-from tasks.execute import cached, new_record
-from tasks.pipeline import Context
+from embody.flows.progress import Progress
+from embody.flows.verdicts import verdict_summary
+from embody.store import ArtifactStore, Manifest
+from embody.tasks.execute import cached, new_record
+from embody.tasks.pipeline import Context
 
 __all__ = ["run_cached"]
 
@@ -30,7 +30,7 @@ def run_cached(dataset: str | Path, cfg: Config, *, split: str | None = None,
     `run` is the run name the flow would use (default: `cfg.run.name`, else the dataset stem).
     """
     from embody.io import load_dataset
-    from tasks.stages import default_pipeline
+    from embody.tasks.stages import default_pipeline
 
     t0 = time.perf_counter()
     store = ArtifactStore(cfg.run.store)
@@ -40,7 +40,7 @@ def run_cached(dataset: str | Path, cfg: Config, *, split: str | None = None,
     refs = refs[: cfg.run.limit] if cfg.run.limit else refs
     # The flow module's helpers (names, tables, report): importing Prefect is cheap next to
     # starting its server, which is what this path avoids.
-    from flows import dataset as flow_module
+    from embody.flows import dataset as flow_module
     if run is None:
         run = flow_module.run_name(cfg, dataset, split)
     pipeline = default_pipeline(critic=cfg.run.critic, render=cfg.run.render)

@@ -30,7 +30,7 @@ import numpy as np
 import zarr
 
 from embody.errors import ConfigError, EmbodyError
-from store.keys import arrays_checksum
+from embody.store.keys import arrays_checksum
 
 __all__ = ["Artifact", "ArtifactStore", "CorruptArtifact", "array_digest", "jsonable",
            "package_versions"]

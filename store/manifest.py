@@ -15,8 +15,8 @@ from pathlib import Path
 from typing import Any, Iterable
 
 from embody.errors import ConfigError, InputError
-from store.artifacts import ArtifactStore
-from store.writers import RunWriter
+from embody.store.artifacts import ArtifactStore
+from embody.store.writers import RunWriter
 
 __all__ = ["Manifest", "check_run_name", "load_manifests", "write_json_atomic"]
 

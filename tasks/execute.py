@@ -11,9 +11,9 @@ import time
 import traceback
 from typing import Any
 
-from store.artifacts import CorruptArtifact, jsonable
-from store.keys import files_key
-from tasks.pipeline import Context, Step
+from embody.store.artifacts import CorruptArtifact, jsonable
+from embody.store.keys import files_key
+from embody.tasks.pipeline import Context, Step
 
 __all__ = ["InjectedFailure", "cached", "new_record", "record_key", "run_batch", "run_shared",
            "source_key"]

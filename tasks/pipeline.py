@@ -12,8 +12,8 @@ from pathlib import Path
 from typing import Any, Callable, Mapping
 
 from embody.config import Config
-from store.artifacts import ArtifactStore
-from store.keys import content_key, files_key
+from embody.store.artifacts import ArtifactStore
+from embody.store.keys import content_key, files_key
 
 __all__ = ["Context", "Pipeline", "Step", "resource"]
 

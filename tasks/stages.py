@@ -13,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from embody.motion import Motion
-from tasks.pipeline import Context, Pipeline, Step
+from embody.tasks.pipeline import Context, Pipeline, Step
 
 __all__ = ["Metrics", "default_pipeline", "SOURCE", "COLLIDE", "SHAPE_FIT", "RETARGET",
            "REFINE", "RENDER", "METRICS"]

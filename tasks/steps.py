@@ -12,8 +12,8 @@ from typing import Any
 from prefect import Task, task
 from prefect.cache_policies import NO_CACHE
 
-from tasks.execute import run_batch, run_shared
-from tasks.pipeline import Context, Step
+from embody.tasks.execute import run_batch, run_shared
+from embody.tasks.pipeline import Context, Step
 
 __all__ = ["batch_task", "shared_task"]
 

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from embody.cli import main
-from store import ArtifactStore
+from embody.store import ArtifactStore
 
 #: The real steps, made cheap: no collision optimisation, one IK iteration, a short shape fit.
 CHEAP = ["--set", "collision.enabled=false", "--set", "ik.iterations=1",

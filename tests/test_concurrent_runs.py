@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from store import ArtifactStore, Manifest
-from store.writers import locked
+from embody.store import ArtifactStore, Manifest
+from embody.store.writers import locked
 
 K = "ab" * 32
 #: `embody ...` in a subprocess, with this interpreter.

@@ -19,10 +19,10 @@ import numpy as np
 import pytest
 
 from embody.config import Config
-from store import ArtifactStore, Manifest
-from tasks.execute import new_record, run_batch
-from tasks.pipeline import Context, Pipeline, Step
-from tasks.stages import SOURCE
+from embody.store import ArtifactStore, Manifest
+from embody.tasks.execute import new_record, run_batch
+from embody.tasks.pipeline import Context, Pipeline, Step
+from embody.tasks.stages import SOURCE
 
 N_SEQ = 7
 
@@ -103,14 +103,14 @@ def _computed(store: ArtifactStore) -> list[tuple[str, str | None]]:
 
 
 def _flow(data, cfg):
-    from flows.dataset import run_flow
+    from embody.flows.dataset import run_flow
     return run_flow(data, cfg, pipeline=TOY)
 
 
 # -- task logic without Prefect (the task's body is `run_batch`) ---------------------------------
 def test_batch_step_hits_do_no_work(data, tmp_path):
     from embody.io import load_dataset
-    from tasks.steps import _batch
+    from embody.tasks.steps import _batch
 
     ctx = Context(cfg=_cfg(tmp_path), store_root=str(tmp_path), run="unit")
     refs = list(load_dataset(data))[:2]
@@ -179,7 +179,7 @@ _KILLED_RUN = """
 import sys
 sys.path.insert(0, sys.argv[1])
 from test_flow import TOY, _cfg
-from flows.dataset import run_flow
+from embody.flows.dataset import run_flow
 from pathlib import Path
 run_flow(sys.argv[2], _cfg(Path(sys.argv[3]), workers=1, batch_size=1), pipeline=TOY)
 """
@@ -233,7 +233,7 @@ def test_dask_matches_threads(prefect_harness, data, tmp_path):
 def test_progress_lines_and_terminal_bars():
     import io
 
-    from flows.progress import Progress
+    from embody.flows.progress import Progress
 
     plain = io.StringIO()
     bar = Progress(["source", "collide"], 20, stream=plain)

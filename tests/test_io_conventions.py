@@ -14,9 +14,9 @@ from embody.cli import main
 from embody.config import load_config
 from embody.errors import InputError
 from embody.io import hand_mean, load, load_dataset, save
-from tasks.execute import source_key
-from tasks.pipeline import Context
-from tasks.stages import SOURCE
+from embody.tasks.execute import source_key
+from embody.tasks.pipeline import Context
+from embody.tasks.stages import SOURCE
 
 RNG = np.random.default_rng(3)
 T = 5

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from embody.cli import main
-from store import ArtifactStore
+from embody.store import ArtifactStore
 
 T = 5
 

@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from flows.server import LocalServer
+from embody.flows.server import LocalServer
 
 ROOT = Path(__file__).resolve().parents[1]
 EMBODY = [sys.executable, "-c", "import sys; from embody.cli import main; sys.exit(main())"]

@@ -47,7 +47,7 @@ def _dataset(root: Path, frames: int = 8) -> Path:
 
 
 def _flow(dataset: Path, store: Path, name: str, sets: list[str], pipeline=None) -> dict:
-    from flows.dataset import run_flow
+    from embody.flows.dataset import run_flow
 
     cfg = load_config(sets=[*CHEAP, *sets, f"run.store={store}", f"run.name={name}"])
     return run_flow(dataset, cfg, pipeline=pipeline)
@@ -71,8 +71,8 @@ def run(tmp_path_factory, prefect_harness):
 
 def _library_results(store: Path):
     """The stage results of every ok sequence, read straight from the artifacts."""
-    from store import ArtifactStore, Manifest
-    from tasks.stages import COLLIDE, REFINE
+    from embody.store import ArtifactStore, Manifest
+    from embody.tasks.stages import COLLIDE, REFINE
 
     st = ArtifactStore(store)
     manifest = Manifest.load(st, RUN)
@@ -215,7 +215,7 @@ def test_ablation_reuses_cache(run, tmp_path) -> None:
     row), leave the main store alone, and are cached there for the next `--ablation`."""
     from embody.collision.metrics import table2
     from embody.report.reader import latest_run, metrics_frame, open_run
-    from store import ArtifactStore
+    from embody.store import ArtifactStore
 
     st = ArtifactStore(run["store"])
     abl = ArtifactStore(run["store"] / "ablation")
@@ -302,7 +302,7 @@ def test_export_refuses_tampered_store(run, tmp_path) -> None:
     import zarr
 
     from embody.report.reader import run_trajectories
-    from store import ArtifactStore, Manifest
+    from embody.store import ArtifactStore, Manifest
 
     store = tmp_path / "store"
     shutil.copytree(run["store"], store)
@@ -326,7 +326,7 @@ def test_export_refuses_tampered_store(run, tmp_path) -> None:
     arr[:] = np.tile(q, (arr.shape[0], 1))
     # Re-record its digests and checksum too, as a buggy writer would have: the store's own
     # integrity check then passes, so only the export's re-validation can catch it.
-    from store.artifacts import array_digest, arrays_checksum
+    from embody.store.artifacts import array_digest, arrays_checksum
     attrs = dict(group.attrs)
     root = st.path("metrics", manifest.sequences[sid]["steps"]["metrics"])
     arrays = {name: np.asarray(a[...]) for name, a in group.arrays()}
@@ -381,7 +381,7 @@ def test_readme_tables_script(run, tmp_path) -> None:
 def test_fully_cached_rerun_skips_prefect(run, tmp_path, capsys) -> None:
     """When the store holds every result, `embody run` records the run (manifest, table,
     report) without starting Prefect; an unchanged rerun keeps the report as it is."""
-    from flows.warm import run_cached
+    from embody.flows.warm import run_cached
 
     sets = [x for s in CHEAP if not s.startswith("debug.") for x in ("--set", s)]
     args = ["run", str(run["dataset"]), "--store", str(run["store"]), "--name", "warm",

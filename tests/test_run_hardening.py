@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from embody.cli import main
-from store import ArtifactStore, Manifest
+from embody.store import ArtifactStore, Manifest
 
 SECRET = "sk-LEAKCHECK-4b1d9e-do-not-leak"
 
@@ -137,7 +137,7 @@ def toy(tmp_path, monkeypatch):
 
 
 def _flow(data, store: Path):
-    from flows.dataset import run_flow
+    from embody.flows.dataset import run_flow
     from test_flow import TOY, _cfg
 
     return run_flow(data, _cfg(store), pipeline=TOY)
@@ -184,18 +184,18 @@ def test_full_disk_at_the_end_gives_a_summary_not_a_traceback(prefect_harness, t
 _RUN = """
 import sys
 sys.path.insert(0, sys.argv[1])
-from flows.env import configure, on_sigterm
+from embody.flows.env import configure, on_sigterm
 configure(sys.argv[3])
 on_sigterm()
 from test_flow import TOY, _cfg
-from flows.dataset import run_flow
+from embody.flows.dataset import run_flow
 from pathlib import Path
 run_flow(sys.argv[2], _cfg(Path(sys.argv[3]), workers=1, batch_size=1), pipeline=TOY)
 """
 
 
 def _alive(pid: int) -> bool:
-    from flows.env import _alive as alive
+    from embody.flows.env import _alive as alive
     return alive(pid)
 
 
@@ -243,7 +243,7 @@ def _process(*argv: str, home: Path) -> subprocess.Popen:
 def test_the_next_run_stops_servers_orphaned_by_sigkill(tmp_path, monkeypatch, capsys):
     """What a SIGKILLed run leaves: its pidfile and a live server whose owner is gone. The
     server here is a process with a Prefect server's command line under the store's home."""
-    from flows.env import configure
+    from embody.flows.env import configure
 
     store = tmp_path / "store"
     home = (store / "prefect").resolve()

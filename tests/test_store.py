@@ -15,8 +15,8 @@ import pytest
 
 from embody.cli import main
 from embody.config import Config
-from store import ArtifactStore, Manifest, arrays_checksum, content_key, files_key
-from tasks.stages import COLLIDE, RETARGET, SHAPE_FIT
+from embody.store import ArtifactStore, Manifest, arrays_checksum, content_key, files_key
+from embody.tasks.stages import COLLIDE, RETARGET, SHAPE_FIT
 
 K1, K2 = "a" * 64, "b" * 64
 
@@ -110,7 +110,7 @@ def test_concurrent_writers_one_winner_no_leftovers(tmp_path):
 
 _SLOW_WRITER = """
 import sys, numpy as np
-from store import ArtifactStore
+from embody.store import ArtifactStore
 rng = np.random.default_rng(0)
 arrays = {f"a{i:03d}": rng.normal(size=(256, 1024)) for i in range(150)}
 ArtifactStore(sys.argv[1]).publish("render", sys.argv[2], arrays, {}, {})

@@ -15,10 +15,10 @@ import pytest
 from embody.cli import main
 from embody.config import Config
 from embody.errors import ConfigError
-from store import ArtifactStore, CorruptArtifact, Manifest, check_run_name
-from tasks.execute import new_record, run_batch
-from tasks.pipeline import Context, Step
-from tasks.stages import SOURCE
+from embody.store import ArtifactStore, CorruptArtifact, Manifest, check_run_name
+from embody.tasks.execute import new_record, run_batch
+from embody.tasks.pipeline import Context, Step
+from embody.tasks.stages import SOURCE
 
 K1, K2, K3 = "ab" + "1" * 62, "cd" + "2" * 62, "ef" + "3" * 62
 
@@ -227,7 +227,7 @@ def test_gc_never_follows_a_symlink_out_of_the_store(tmp_path, capsys):
 
 
 def test_full_disk_fails_one_sequence_and_leaves_no_temps(tmp_path, monkeypatch):
-    import store.artifacts as artifacts
+    import embody.store.artifacts as artifacts
     from embody.io import load_dataset
 
     refs = list(load_dataset(_write_amass(tmp_path / "data", n=3)))
@@ -314,7 +314,7 @@ def test_vlm_config_is_checked_before_the_run(tmp_path, monkeypatch, capsys):
 
 # -- run names: robot in the default, no silent reuse (issue 17 item 1) ------------------------------
 def test_default_run_name_includes_the_robot():
-    from flows.dataset import default_run_name
+    from embody.flows.dataset import default_run_name
 
     assert default_run_name(Path("x/synth-n24-s0"), None, "unitree_g1_dex3") == \
         "synth-n24-s0.unitree_g1_dex3"
@@ -335,14 +335,14 @@ def test_reusing_a_run_name_for_another_robot_is_refused(tmp_path, capsys):
     assert main(["run", str(other), "--store", str(store.root), "--name", "mine"]) == 2
     assert "dataset" in capsys.readouterr().err
     assert json.loads(m.path.read_text())["sequences"] == {"seq000": m.sequences["seq000"]}
-    from flows.dataset import check_run_reuse
+    from embody.flows.dataset import check_run_reuse
 
     check_run_reuse(store.root, "mine", data, None, "unitree_g1_dex3")  # same robot and data: ok
     check_run_reuse(store.root, "mine", other, None, "unitree_h1", overwrite=True)
 
 
 def test_sequences_csv_cells_are_never_formulas(tmp_path):
-    from flows.dataset import write_tables
+    from embody.flows.dataset import write_tables
 
     store = ArtifactStore(tmp_path)
     m = Manifest(store, "r")

@@ -48,7 +48,7 @@ def command(args: tuple[str, ...], robot: str | None, store_root: str, fmt: str,
     from embody.report.library import export_library
     from embody.report.reader import run_robot, run_trajectories
 
-    from store import check_run_name
+    from embody.store import check_run_name
 
     run, out = args
     check_run_name(run, "RUN")

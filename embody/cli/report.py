@@ -43,7 +43,7 @@ def run_ablation(store_root: str, run: str, say: Any = None) -> dict[str, Any]:
     """Run the Table II settings through the dataset flow (source + collide only) in the
     ablation store, cached there across reports → {setting: collision metrics}."""
     from embody.report.reader import COLLIDE, metrics_frame, open_run, run_config
-    from flows.env import configure
+    from embody.flows.env import configure
 
     say = say or (lambda text: None)
     store, manifest = open_run(store_root, run)
@@ -52,9 +52,9 @@ def run_ablation(store_root: str, run: str, say: Any = None) -> dict[str, Any]:
     if not dataset:
         raise InputError(manifest.path, "dataset", "the run does not record its dataset")
     say("starting Prefect (a local server: ~10 s) for the Table II settings")
-    from flows.dataset import run_flow
-    from tasks.pipeline import Pipeline
-    from tasks.stages import COLLIDE as COLLIDE_STEP, SOURCE
+    from embody.flows.dataset import run_flow
+    from embody.tasks.pipeline import Pipeline
+    from embody.tasks.stages import COLLIDE as COLLIDE_STEP, SOURCE
 
     target = ablation_store(store.root)
     settings = ablation_configs(run_config(manifest))
@@ -93,7 +93,7 @@ def command(run: str | None, store_root: str, out_dir: str | None, ablation: boo
             max_figures: int, max_sheets: int, as_json: bool) -> int:
     """Write the report of RUN (default: the store's latest main run) to reports/RUN/."""
     from embody.report import collect, default_out_dir, latest_run, write_report
-    from store import check_run_name
+    from embody.store import check_run_name
 
     def say(text: str) -> None:
         click.echo(f"embody report: {text}", err=True)

@@ -78,7 +78,7 @@ def check_store_path(text: str) -> Path:
 def check_up_front(cfg: Config, dataset: str | None) -> None:
     """Config that is knowable before the run (exit 2, nothing created): store path, run name,
     and for the VLM critic its base_url and API key."""
-    from store import check_run_name
+    from embody.store import check_run_name
 
     check_store_path(cfg.run.store)
     if cfg.run.name:
@@ -92,11 +92,11 @@ def prepare(dataset: str | None, split: str | None, cfg: Config, overwrite: bool
     """Validate config and resolve and list the dataset before Prefect starts, so bad input
     fails fast (exit 2); a reused run name of another robot or dataset is refused."""
     from embody.io import load_dataset
-    from flows.env import configure
+    from embody.flows.env import configure
 
     check_up_front(cfg, dataset)
     configure(cfg.run.store)
-    from flows.dataset import check_run_reuse, resolve_dataset, run_name
+    from embody.flows.dataset import check_run_reuse, resolve_dataset, run_name
     path = resolve_dataset(dataset, cfg)
     load_dataset(path, split, cfg.io)
     check_run_reuse(cfg.run.store, run_name(cfg, path, split), path, split, cfg.robot.name,
@@ -128,7 +128,7 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
     """
     import errno
 
-    from flows.env import on_sigterm
+    from embody.flows.env import on_sigterm
 
     cfg = config_from_options(config_files, sets, **options)
     say = (lambda text: click.echo(f"embody run: {text}", err=True)) if progress else (
@@ -138,13 +138,13 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
     path = prepare(dataset, split, cfg, overwrite)
     on_sigterm()  # SIGTERM cleans up like Ctrl-C: the ephemeral Prefect server is stopped
     say("checking the store for results of every step")
-    from flows.warm import run_cached
+    from embody.flows.warm import run_cached
 
     try:
         summary = run_cached(path, cfg, split=split, progress=progress)
         if summary is None:
             say("starting Prefect (a local server: ~10 s) and the pipeline")
-            from flows.dataset import run_flow
+            from embody.flows.dataset import run_flow
 
             summary = run_flow(path, cfg, split=split, progress=progress)
     except OSError as exc:  # e.g. the disk filled before any sequence could record it

@@ -47,7 +47,7 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
             sets: tuple[str, ...], cron: str, deployment: str, **options: Any) -> int:
     """Serve `embody run DATASET ...` as a Prefect deployment on a cron schedule."""
     cfg = config_from_options(config_files, sets, **options)
-    from flows.env import configure
+    from embody.flows.env import configure
 
     check_up_front(cfg, dataset)  # nothing created for a bad store path or VLM config
     configure(cfg.run.store)  # before Prefect is imported
@@ -63,8 +63,8 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
         click.echo(f"error: {problem}.\n\n{EXPLANATION}", err=True)
         return 2
     path = prepare(dataset, split, cfg)
-    from flows.dataset import dataset_flow
-    from flows.runners import make_task_runner
+    from embody.flows.dataset import dataset_flow
+    from embody.flows.runners import make_task_runner
 
     click.echo(f"serving deployment {deployment!r} ({cron}) against "
                f"{os.environ['PREFECT_API_URL']}; Ctrl-C stops", err=True)

@@ -18,7 +18,7 @@ _store_option = click.option("--store", "store_dir", default="embody-store", sho
 
 
 def _open(store_dir: str) -> Any:
-    from store import ArtifactStore
+    from embody.store import ArtifactStore
     from embody.errors import InputError
 
     store = ArtifactStore(store_dir)
@@ -41,7 +41,7 @@ def command() -> None:
 @json_option
 def ls(store_dir: str, as_json: bool) -> int:
     """Artifacts per step (count, size) and the runs with their sequence status."""
-    from store import load_manifests
+    from embody.store import load_manifests
 
     store = _open(store_dir)
     steps: dict[str, dict[str, int]] = defaultdict(lambda: {"artifacts": 0, "bytes": 0})
@@ -115,7 +115,7 @@ def gc(store_dir: str, dry_run: bool, older_than: str | None, as_json: bool) -> 
     """
     import time
 
-    from store import load_manifests
+    from embody.store import load_manifests
 
     store = _open(store_dir)
     max_age = _duration(older_than) if older_than is not None else None

@@ -37,7 +37,7 @@ def build_report(store_root: str | Path, run_name: str, out_dir: str | Path | No
     code is kept as it is (a fully cached rerun then takes no time here).
     """
     from embody.report.stamp import current_report, source_digest, stamp_report
-    from store.artifacts import ArtifactStore
+    from embody.store.artifacts import ArtifactStore
 
     manifest = ArtifactStore(store_root).runs_dir / run_name / "manifest.json"
     digest = source_digest(manifest) if manifest.is_file() else ""

@@ -16,7 +16,7 @@ from embody.report.tables import Table
 
 def default_out_dir(run_name: str) -> Path:
     """`./reports/<run>` relative to the working directory, like the store's default."""
-    from store.manifest import check_run_name
+    from embody.store.manifest import check_run_name
 
     return Path("reports") / check_run_name(run_name, "RUN")
 

@@ -28,8 +28,8 @@ RETARGET, REFINE, RENDER, METRICS = "retarget", "refine", "render", "metrics"
 
 def open_run(store_root: str | Path, run: str) -> tuple[Any, Any]:
     """(ArtifactStore, Manifest) of `run`; InputError naming the known runs when it is absent."""
-    from store.artifacts import ArtifactStore
-    from store.manifest import Manifest, check_run_name
+    from embody.store.artifacts import ArtifactStore
+    from embody.store.manifest import Manifest, check_run_name
 
     store = ArtifactStore(store_root)
     path = store.runs_dir / check_run_name(run, "RUN") / "manifest.json"
@@ -112,7 +112,7 @@ def final_validation(store: Any, robot: Any, seq: dict[str, Any], ik: Any,
 
 def load_result(store: Any, seq: dict[str, Any], step: str) -> Any:
     """The stored result of `step` for one manifest sequence entry, as the stage's own type."""
-    from tasks.stages import COLLIDE as C, REFINE as R, RENDER as V, RETARGET as T, SOURCE as S
+    from embody.tasks.stages import COLLIDE as C, REFINE as R, RENDER as V, RETARGET as T, SOURCE as S
 
     loader = {s.name: s.load for s in (S, C, T, R, V)}[step]
     art = store.read(step, seq["steps"][step])
