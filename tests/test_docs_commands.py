@@ -118,7 +118,7 @@ def test_documented_command_parses(where: str, command: str) -> None:
 def test_the_parse_check_catches_wrong_commands() -> None:
     assert parse_error("embody run --critic nope")
     assert parse_error("embody run --no-such-option")
-    assert parse_error("embody export only-one-argument --robot r")
+    assert parse_error("embody export run out --robot r --format xyz")
     assert parse_error("embody run data --limit many")
     assert _clean("cd /data && /opt/x/bin/embody run /d --json >> log 2>> err") == "embody run /d --json"
 

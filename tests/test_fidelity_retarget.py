@@ -94,4 +94,7 @@ def test_critic_moves_a_hand_planted_below_the_chin_up(setup):
     assert moves.get("move_right_up", 0.0) >= 0.05, first.action
     assert first.action["verdict"] == "revise"
     assert result.rounds[1].metrics["location_err"] < 0.8 * first.metrics["location_err"]
-    assert result.final is result.rounds[1]  # critic.keep auto: the better fidelity score
+    # critic.keep auto keeps the round with the best fidelity score (location + palm angle):
+    # since the control-rate contact repair, the move up can cost palm angle near the head.
+    best = min(result.rounds, key=lambda r: r.metrics["fidelity_score"])
+    assert result.final is best

@@ -108,8 +108,12 @@ def test_tables_equal_library_metric_functions(run) -> None:
         assert (cell == value) if isinstance(value, str) else _close(cell, value), label
     for row, paper in PAPER_TABLE1.items():
         assert t1.loc[row, "Paper (reported)"] == paper
+    # The optimiser is judged by mesh penetration depth (it stops once no frame penetrates, so
+    # the energy may stay where it was); neither measure may get worse.
     energy = t1.loc["Collision energy (mean)"]
-    assert float(energy["Before"]) > float(energy["After"])
+    assert float(energy["Before"]) >= float(energy["After"])
+    depth = t1.loc["Max depth mm"]
+    assert float(depth["After"]) <= float(depth["Before"])
 
     assert not (run["report"] / "table2_ablation.csv").exists()  # only with --ablation
 
@@ -337,7 +341,10 @@ def test_export_refuses_tampered_store(run, tmp_path) -> None:
                                  if f.is_file() and f.name != "zarr.json"}}
     group.attrs.update(attrs)
     out = tmp_path / "lib"
-    assert main(["export", RUN, str(out), "--robot", ROBOT, "--store", str(store)]) == 1
+    # --include-rejected: the tampered sequence must reach the file check even if the critic
+    # rejected it (rejected sequences are excluded before any file is written).
+    assert main(["export", RUN, str(out), "--robot", ROBOT, "--store", str(store),
+                 "--include-rejected"]) == 1
     excluded = pd.read_csv(out / "excluded.csv").set_index("id")
     assert excluded.loc[sid, "status"] == "refused"
     assert "self_collision_frames" in excluded.loc[sid, "reason"]

@@ -24,10 +24,10 @@ _STYLE = """
 body{font-family:system-ui,sans-serif;margin:0 auto;padding:1.5em 2em;max-width:1600px;
      color:#222;overflow-wrap:anywhere}
 h1{margin-top:0}
-table.report{border-collapse:collapse;margin:1em 0;max-width:100%}
+table.report{border-collapse:collapse;margin:1em 0;max-width:100%;font-size:.85em}
 .scroll{overflow-x:auto;max-width:100%}
 table.report caption{font-weight:bold;text-align:left;padding:.3em 0}
-table.report th,table.report td{border-top:1px solid #ccc;padding:.25em .6em;text-align:right;
+table.report th,table.report td{border-top:1px solid #ccc;padding:.25em .4em;text-align:right;
      overflow-wrap:normal}
 table.report th:first-child,table.report td:first-child{text-align:left}
 table.report thead th{border-bottom:2px solid #444;vertical-align:bottom}

@@ -17,10 +17,10 @@ SOURCE_STAMP = ".embody-report-source"
 
 
 def source_digest(manifest_path: Path) -> str:
-    """What a store-built report depends on: the run manifest (minus its timestamps) and the
-    report code. Equal digests mean rebuilding would write the same report."""
+    """What a store-built report depends on: the run manifest (minus its timestamps and writer
+    bookkeeping) and the report code. Equal digests mean rebuilding would write the same report."""
     data = json.loads(manifest_path.read_text())
-    for volatile in ("created", "finished"):
+    for volatile in ("created", "finished", "done_at", "writers"):
         data.pop(volatile, None)
     h = hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode())
     here = Path(__file__).resolve().parent
