@@ -56,21 +56,6 @@ def on_sigterm() -> None:
         pass
 
 
-def _alive(pid: int) -> bool:
-    """Running (a zombie waiting for its reaper counts as gone)."""
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    try:
-        stat = Path(f"/proc/{pid}/stat").read_text()
-        return stat.rsplit(")", 1)[1].split()[0] != "Z"
-    except (OSError, IndexError):
-        return True
-
-
 def register_server() -> Path | None:
     """Write the pidfile of this process's ephemeral Prefect server (None when there is none,
     e.g. with a real `PREFECT_API_URL`); removed again at exit."""
@@ -112,6 +97,8 @@ def _is_prefect_server(pid: int, home: Path) -> bool:
 
 def stop_orphans(home: str | Path, wait_s: float = 5.0) -> list[int]:
     """Stop the Prefect servers whose owning run is gone; returns their pids."""
+    from embody.store.artifacts import pid_alive  # zarr & numpy: only when there are pidfiles
+
     folder = Path(home).expanduser() / _PIDS
     if not folder.is_dir():
         return []
@@ -123,14 +110,14 @@ def stop_orphans(home: str | Path, wait_s: float = 5.0) -> list[int]:
         except (OSError, ValueError, KeyError, TypeError):
             path.unlink(missing_ok=True)
             continue
-        if _alive(owner):
+        if pid_alive(owner):
             continue
-        if _alive(server) and _is_prefect_server(server, Path(info.get("home", home))):
+        if pid_alive(server) and _is_prefect_server(server, Path(info.get("home", home))):
             os.kill(server, signal.SIGTERM)
             deadline = time.monotonic() + wait_s
-            while _alive(server) and time.monotonic() < deadline:
+            while pid_alive(server) and time.monotonic() < deadline:
                 time.sleep(0.05)
-            if _alive(server):
+            if pid_alive(server):
                 os.kill(server, signal.SIGKILL)
             stopped.append(server)
         path.unlink(missing_ok=True)

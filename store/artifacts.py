@@ -94,14 +94,19 @@ def _real_dir(path: Path) -> bool:
     return path.is_dir() and not path.is_symlink()
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Running on this host (a zombie waiting for its reaper counts as gone)."""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
         return False
     except PermissionError:
         return True
-    return True
+    try:
+        stat = Path(f"/proc/{pid}/stat").read_text()
+        return stat.rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return True
 
 
 class ArtifactStore:
@@ -261,7 +266,7 @@ class ArtifactStore:
         if _real_dir(self.runs_dir):
             for path in self.runs_dir.glob("*/.*.tmp"):
                 pid = path.name.rsplit(".", 2)[-2]
-                dead = not (pid.isdigit() and _pid_alive(int(pid)))
+                dead = not (pid.isdigit() and pid_alive(int(pid)))
                 if self.contains(path) and (dead or now - path.lstat().st_mtime > max_age_s):
                     out.append(path)
         if not _real_dir(self.artifacts_dir):
@@ -272,7 +277,7 @@ class ArtifactStore:
             tag = path.name.split(_TMP, 1)[1]
             t_host, _, rest = tag.rpartition("-")[0].rpartition("-")
             pid = int(rest) if rest.isdigit() else -1
-            dead = t_host == host and not _pid_alive(pid)
+            dead = t_host == host and not pid_alive(pid)
             if dead or now - path.stat().st_mtime > max_age_s:
                 out.append(path)
         return out

@@ -195,7 +195,7 @@ run_flow(sys.argv[2], _cfg(Path(sys.argv[3]), workers=1, batch_size=1), pipeline
 
 
 def _alive(pid: int) -> bool:
-    from embody.flows.env import _alive as alive
+    from embody.store.artifacts import pid_alive as alive
     return alive(pid)
 
 
