@@ -62,3 +62,14 @@ def test_long_ik_is_solved_in_windows_and_still_tracks():
     assert sol.metrics["wrist_pos_err_max_mm"] < 10.0
     assert np.all(sol.q >= robot.lower) and np.all(sol.q <= robot.upper)
     assert sol.metrics["velocity_violations"] == 0
+    assert sol.metrics["self_collision_frames"] == 0  # the cross-fades are contact-repaired too
+
+
+def test_the_public_solver_is_the_windowed_one():
+    """`embody.retarget.solve` (what the retarget step, the critic's re-solves and the fidelity
+    baseline call) windows long sequences, so none of them holds a whole long sequence's
+    Jacobians at once."""
+    import embody.retarget
+    from embody.retarget.windows import solve_windowed
+
+    assert embody.retarget.solve is solve_windowed
