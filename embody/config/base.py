@@ -33,3 +33,9 @@ def canonical_json(value: BaseModel | dict[str, Any] | list[Any]) -> str:
     """Sorted keys, no whitespace, normalised floats: the text a content key hashes."""
     data = value.model_dump(mode="json") if isinstance(value, BaseModel) else value
     return json.dumps(_normalise(data), sort_keys=True, separators=(",", ":"), ensure_ascii=True)
+
+
+def check_window(frames: int, overlap: int) -> None:
+    """Windowed processing (collision, IK): a cross-fade may cover at most half a window."""
+    if overlap * 2 > frames:
+        raise ValueError("window_overlap must be at most half of window_frames")

@@ -6,7 +6,7 @@ from typing import Literal
 
 from pydantic import Field, model_validator
 
-from embody.config.base import Section
+from embody.config.base import Section, check_window
 
 MaskPreset = Literal["hands", "hands_wrists", "arms", "upper_body", "joints"]
 
@@ -105,6 +105,5 @@ class CollisionConfig(Section):
 
     @model_validator(mode="after")
     def _overlap_fits(self) -> "CollisionConfig":
-        if self.window_overlap * 2 > self.window_frames:
-            raise ValueError("window_overlap must be at most half of window_frames")
+        check_window(self.window_frames, self.window_overlap)
         return self
