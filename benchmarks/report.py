@@ -18,8 +18,9 @@ from pathlib import Path
 import torch
 
 from embody.report import collect, latest_run, write_report
-from embody.report.reader import open_run, run_config, run_trajectories
-from embody.report.library import export_library
+from embody.export.runs import run_trajectories
+from embody.report.reader import open_run, run_config
+from embody.export.library import export_library
 
 
 def main() -> int:

@@ -27,16 +27,19 @@ class Metrics:
 
     metrics: dict[str, Any] = field(default_factory=dict)
     arrays: dict[str, np.ndarray] = field(default_factory=dict)
+    #: Labels of the arrays (e.g. the landmark names `location_landmark` indexes); not metrics.
+    labels: dict[str, list[str]] = field(default_factory=dict)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         return dict(self.arrays)
 
     def to_attrs(self) -> dict[str, Any]:
-        return {"metrics": self.metrics}
+        return {"metrics": self.metrics, "labels": self.labels}
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> "Metrics":
-        return cls(dict(attrs.get("metrics", {})), {k: np.asarray(v) for k, v in arrays.items()})
+        return cls(dict(attrs.get("metrics", {})), {k: np.asarray(v) for k, v in arrays.items()},
+                   {k: list(v) for k, v in attrs.get("labels", {}).items()})
 
 
 def _robot_files(cfg: Any) -> list[Path]:
@@ -134,12 +137,12 @@ def _render_metrics(result: Any) -> dict[str, Any]:
     return {"keyframes": int(len(result.keyframes)), "preview": result.preview_suffix or ""}
 
 
-def _fidelity(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+def _fidelity(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, np.ndarray], list[str]]:
     """Sign fidelity against the human that IK retargets (after collision mitigation), per row of
     Table III: `ik` (shape-fit targets only; solved here as the baseline when the run used
     location-preserving targets), `preserving` (the retarget step then) and `refined`."""
     from embody.metrics.embodiments import human_track, robot_track
-    from embody.metrics.fidelity import compare_with
+    from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with
     from embody.retarget import build_targets, solve
     from embody.retarget.validation import validation_counts
     motion, ik, cfg = inputs["collide"].motion, inputs["retarget"], ctx.cfg
@@ -157,11 +160,34 @@ def _fidelity(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any], dic
         rows["refined"] = np.asarray(inputs["refine"].q)
     frames: dict[str, np.ndarray] = {}
     for row, q in rows.items():
-        per_frame, metrics = compare_with(human, robot_track(ctx.robot, q, ik.fps), cfg.fidelity)
+        robot = robot_track(ctx.robot, q, ik.fps)
+        per_frame, metrics = compare_with(human, robot, cfg.fidelity)
         out.update({f"fidelity.{row}.{k}": v for k, v in metrics.items()})
         frames = {"location_err": per_frame["location_err"], "location_landmark": per_frame["location_landmark"]}
+        names = [n for n in LOCATION_LANDMARKS if human.has(n) and robot.has(n)]  # what it indexes
     out["fidelity.final"] = list(rows)[-1]
-    return out, frames
+    return out, frames, names
+
+
+def _report_tracks(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """What the report plots and tabulates but cannot compute (it never loads the robot): the
+    wrist tracks (T,2,3, torso frame, m) of the IK's reference, the IK-only and the refined
+    trajectory, and the critic's metrics of its IK-only round (`critic_ik.*`)."""
+    from embody.critic.refine import robot_wrists
+    from embody.retarget import build_targets
+    refined = inputs.get("refine")
+    if refined is not None:
+        first = refined.ik_only
+        arrays = {"wrist_reference": first.target_pos, "wrist_ik": robot_wrists(ctx.robot, first.q)[0],
+                  "wrist_refined": robot_wrists(ctx.robot, refined.q)[0]}
+        out: dict[str, Any] = {f"critic_ik.{k}": v for k, v in first.metrics.items()
+                               if isinstance(v, (int, float, bool))}
+        out["critic_ik.accepted"] = bool(first.accepted)
+    else:
+        targets = build_targets(inputs["collide"].motion, ctx.body, inputs["shape_fit"], ctx.robot, ctx.cfg.ik)
+        arrays = {"wrist_reference": targets.wrist_pos, "wrist_ik": robot_wrists(ctx.robot, inputs["retarget"].q)[0]}
+        out = {}
+    return out, {k: np.asarray(v, dtype=np.float32) for k, v in arrays.items()}
 
 
 def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
@@ -180,15 +206,17 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     else:
         q, q_control = np.asarray(ik.q, dtype=np.float64), np.asarray(ik.q_control, np.float64)
     source = validation_counts(ctx.robot, q, ik.fps)
-    fidelity, frames = _fidelity(ctx, inputs)
+    fidelity, frames, names = _fidelity(ctx, inputs)
+    tracked, tracks = _report_tracks(ctx, inputs)
     return Metrics({"frames": int(q.shape[0]), "joints": int(q.shape[-1]),
                     "duration_s": float(q.shape[0] / ik.fps), "mean_jerk": mean_jerk(q, ik.fps),
                     "final": "refine" if "refine" in inputs else "retarget",
                     "control_frames": int(q_control.shape[0]),
                     "validation_rate_hz": float(ik.control_rate_hz),
                     **validation_counts(ctx.robot, q_control, ik.control_rate_hz),
-                    **{f"source_{k}": v for k, v in source.items()}, **fidelity},
-                   {"q_control": q_control, **frames})
+                    **{f"source_{k}": v for k, v in source.items()}, **fidelity, **tracked},
+                   {"q_control": q_control, **frames, **tracks},
+                   {"location_landmark": names})
 
 
 # v2: per-dataset default frame rates, detected up axis / hands (BEAT2), `io` overrides.
@@ -207,10 +235,10 @@ RENDER = Step("render", "1", ("body", "robot", "render"), _render, _render_resul
 RENDER_REFINED = Step("render", "1", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
-# v4: the exported control-rate array (validated) and sign fidelity.
-METRICS = Step("metrics", "4", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+# v5: the exported control-rate array (validated), sign fidelity, the report's wrist tracks.
+METRICS = Step("metrics", "5", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "4", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "5", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from embody.cli import main
 from embody.config.ik import IKConfig
-from embody.report.library import Trajectory, check_library, export_library
+from embody.export.library import Trajectory, check_library, export_library
 from embody.retarget.control import control_trajectory
 from embody.retarget.ik import solve
 from embody.retarget.limits import resample

@@ -7,7 +7,7 @@ import pandas as pd
 import pytest
 
 from embody.errors import InputError
-from embody.report.library import Trajectory, export_library
+from embody.export.library import Trajectory, export_library
 from embody.robot import load_robot
 
 ROBOT = load_robot()
@@ -60,7 +60,7 @@ def test_reexport_removes_stale_files(tmp_path) -> None:
 
 
 def test_safe_names_stay_distinct() -> None:
-    from embody.report.library import safe_name
+    from embody.export.library import safe_name
 
     assert safe_name("seq_001") == "seq_001"
     assert safe_name("a/b") != safe_name("a_b") and safe_name("a/b").startswith("a_b-")

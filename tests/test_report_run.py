@@ -254,8 +254,8 @@ def test_ablation_reuses_cache(run, tmp_path) -> None:
 
 @pytest.mark.parametrize("fmt", ["npz", "csv"])
 def test_export_library(run, tmp_path, fmt) -> None:
-    from embody.report.reader import run_trajectories
-    from embody.report.library import VIOLATION_KEYS, Trajectory
+    from embody.export.runs import run_trajectories
+    from embody.export.library import VIOLATION_KEYS, Trajectory
 
     from embody.verdicts import export_valid
 
@@ -305,7 +305,7 @@ def test_export_refuses_tampered_store(run, tmp_path) -> None:
     the export validates the file it writes, not the counters it was handed."""
     import zarr
 
-    from embody.report.reader import run_trajectories
+    from embody.export.runs import run_trajectories
     from embody.store import ArtifactStore, Manifest
 
     store = tmp_path / "store"
@@ -353,7 +353,7 @@ def test_export_refuses_tampered_store(run, tmp_path) -> None:
 
 
 def test_play_writes_preview(run, tmp_path) -> None:
-    from embody.report.reader import run_trajectories
+    from embody.export.runs import run_trajectories
 
     traj = run_trajectories(run["store"], RUN, ROBOT)[0][0]
     npz = traj.save_npz(tmp_path / "t.npz")

@@ -45,8 +45,8 @@ def command(args: tuple[str, ...], robot: str | None, store_root: str, fmt: str,
         raise click.UsageError("expected RUN OUT (or --check DIR)")
     if robot is None:
         raise click.UsageError("Missing option '--robot'.")
-    from embody.report.library import export_library
-    from embody.report.reader import run_robot, run_trajectories
+    from embody.export.library import export_library
+    from embody.export.runs import run_robot, run_trajectories
 
     from embody.store import check_run_name
 
@@ -72,7 +72,7 @@ def command(args: tuple[str, ...], robot: str | None, store_root: str, fmt: str,
 
 
 def _check(lib_dir: str, robot_name: str | None, as_json: bool) -> int:
-    from embody.report.library import VIOLATION_KEYS, check_library
+    from embody.export.library import VIOLATION_KEYS, check_library
 
     robot = None
     if robot_name:

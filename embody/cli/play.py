@@ -64,7 +64,7 @@ def command(file: str, out: str | None, fmt: str | None, viewer: bool,
         raise UsageError("--viewer needs a display, and none is set (DISPLAY / WAYLAND_DISPLAY); "
                          "run without --viewer to write a preview file instead")
     from embody.render import SceneRenderer, write_preview
-    from embody.report.library import Trajectory
+    from embody.export.library import Trajectory
     from embody.robot import load_robot
 
     cfg = build_config(config_files, sets)

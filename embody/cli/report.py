@@ -84,10 +84,10 @@ def run_ablation(store_root: str, run: str, say: Any = None) -> dict[str, Any]:
 @click.option("--ablation", is_flag=True,
               help="Also run the three Table II collision settings (cached like any run).")
 @click.option("--max-figures", type=click.IntRange(min=0), default=24, show_default=True,
-              help="Wrist-trajectory plots, for the sequences with the largest IK error "
-                   "(comparison sheets and previews: every rendered sequence).")
-@click.option("--max-sheets", type=click.IntRange(min=0), default=4, show_default=True,
-              help="Critic comparison sheets to render (about 2 s each).")
+              help="Wrist and location-error plots, for the sequences with the largest IK "
+                   "error (comparison sheets and previews: every rendered sequence).")
+@click.option("--max-sheets", type=click.IntRange(min=0), default=4, hidden=True,
+              help="Ignored: the report shows the sheets the render step stored, never renders.")
 @json_option
 def command(run: str | None, store_root: str, out_dir: str | None, ablation: bool,
             max_figures: int, max_sheets: int, as_json: bool) -> int:

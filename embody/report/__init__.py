@@ -1,4 +1,7 @@
-"""Reports and exports: the paper's tables, figures, an offline HTML page, a trajectory library.
+"""Reports: the paper's tables, figures and an offline HTML page, read from a run's store.
+
+A pure reader: it imports nothing of the robot, the body, the renderer, the critic or the stages
+(the trajectory library export is `embody.export.library`).
 
 `build_report(store_root, run)` is what `embody run` calls at the end; `write_report(data, dir)`
 does the same from in-memory `RunData` (e.g. DataFrames built in a notebook). Names load on
@@ -11,14 +14,13 @@ import importlib
 from pathlib import Path
 from typing import Any
 
-__all__ = ["ReportPaths", "RunData", "Table", "Trajectory", "build_report", "collect",
-           "export_library", "latest_run", "write_report"]
+__all__ = ["ReportPaths", "RunData", "Table", "build_report", "collect", "latest_run",
+           "write_report"]
 
 _LAZY = {
     "ReportPaths": "embody.report.paths", "default_out_dir": "embody.report.build",
     "write_report": "embody.report.build", "collect": "embody.report.reader",
     "latest_run": "embody.report.reader", "RunData": "embody.report.data",
-    "Trajectory": "embody.report.library", "export_library": "embody.report.library",
     "Table": "embody.report.tables",
 }
 

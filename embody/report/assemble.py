@@ -1,7 +1,7 @@
-"""Tables I–III and the flat summary, computed by the stages' own metric functions.
+"""Tables I–III and the flat summary, aggregated from the run's stored per-sequence metrics.
 
-The numbers come from `embody.collision.metrics.table1/table2` and `embody.critic.refine_table`
-on the run's artifacts. This module only lays them out the paper's way (Before/After columns,
+The numbers come from `embody.metrics.tables` (`table1/table2`, which `embody.collision.metrics`
+re-exports, and `critic_table`, the stored-row form of `embody.critic.refine_table`). This module only lays them out the paper's way (Before/After columns,
 the paper's row names), adds the paper's reported figures as a separate column, and reads the
 summary back out of the tables, so README, `summary.json` and the tables cannot disagree.
 """
@@ -113,7 +113,7 @@ def table1_slot(label: str) -> tuple[str, str]:
 
 def table1(data: RunData) -> Table:
     """Table I: the library's `table1` values in Before/After columns, plus the paper's."""
-    from embody.collision.metrics import table1 as collision_table1
+    from embody.metrics.tables import table1 as collision_table1
 
     lib = collision_table1(data.collision)
     cells: dict[str, dict[str, Any]] = {}
@@ -132,7 +132,7 @@ def table1(data: RunData) -> Table:
 
 def table2(data: RunData) -> Table:
     """Table II over the ablation settings, or the run's own setting alone without `--ablation`."""
-    from embody.collision.metrics import table2 as collision_table2
+    from embody.metrics.tables import table2 as collision_table2
 
     settings = data.ablation or {"This run": data.collision}
     frame = collision_table2(settings).reset_index()
@@ -168,23 +168,23 @@ def _baseline_counts(data: RunData) -> dict[str, float]:
 
 
 def table3(data: RunData) -> Table:
-    """IK-only vs refined (one row per critic) from `refine_table`, plus validation counts.
+    """IK-only vs refined (one row per critic) from `critic_table`, plus validation counts.
 
     Without a critic only the IK-only row is filled, from the IK's own aggregate metrics (its
     targets are the reference then); columns that need the critic's metrics stay blank.
     """
-    from embody.critic import refine_table
+    from embody.metrics.tables import critic_table
 
     rows = []
     ik_counts = _counts(data.retarget)
-    if not data.refine:
+    if not data.refined:
         ik = data.retarget
         rows.append({"Method": "IK only",
                      "Wrist pos. mean (mm)": ik["wrist_pos_err_mm"].mean() if len(ik) else None,
                      "Wrist rot. mean (deg)": ik["wrist_rot_err_deg"].mean() if len(ik) else None,
                      **ik_counts, "N": len(ik)})
-    for critic, results in sorted(data.refine.items()):
-        lib = refine_table(results)
+    for critic, refined_rows in sorted(data.refined.items()):
+        lib = critic_table(data.critic_ik.get(critic, pd.DataFrame()), refined_rows)
         for label, row in lib.iterrows():
             refined = str(label).lower().startswith("refined")
             if not refined and rows:
@@ -275,13 +275,13 @@ def summary(data: RunData, tables: dict[str, Table]) -> dict[str, Any]:
     t3 = tables.get("table3_retargeting")
     if t3 is not None:
         labels = [("IK only", "retarget.ik_only"), ("Location-preserving", "retarget.preserving")]
-        labels += [(f"Refined ({c})", f"retarget.refined.{c}") for c in sorted(data.refine)]
-        if data.refine:  # the first critic's row doubles as "the refined result"
-            labels.append((f"Refined ({sorted(data.refine)[0]})", "retarget.refined"))
+        labels += [(f"Refined ({c})", f"retarget.refined.{c}") for c in sorted(data.refined)]
+        if data.refined:  # the first critic's row doubles as "the refined result"
+            labels.append((f"Refined ({sorted(data.refined)[0]})", "retarget.refined"))
         for label, prefix in labels:
             for header, key in TABLE3_KEYS.items():
                 out[f"{prefix}.{key}"] = _cell(t3, label, header)
-        final = "retarget.refined" if data.refine else (
+        final = "retarget.refined" if data.refined else (
             "retarget.preserving" if _row(t3, "Location-preserving") is not None else "retarget.ik_only")
         for key in ("limit_violations", "velocity_violations", "self_collision_frames"):
             out[f"retarget.{key}"] = out[f"{final}.{key}"]

@@ -7,10 +7,9 @@ from pathlib import Path
 
 from embody.csvsafe import csv_safe
 from embody.report import assemble, figures
-from embody.report.paths import ReportPaths
+from embody.report.paths import ReportPaths, safe_name
 from embody.report.data import RunData
 from embody.report.html import render_index
-from embody.report.library import safe_name
 from embody.report.tables import Table
 
 
@@ -54,10 +53,11 @@ def _remember(out_dir: Path, paths: list[Path]) -> None:
 
 def _figures(data: RunData, out_dir: Path) -> tuple[dict[str, list[Path]],
                                                     dict[str, dict[str, Path]]]:
-    """(section → figures shown on the page, sequence id → {"sheet"|"wrists"|"preview": path})."""
+    """(section → figures shown on the page, sequence id → {"sheet"|"wrists"|"location"|"preview":
+    path})."""
     fig_dir = out_dir / "figures"
     out: dict[str, list[Path]] = {"Collision": [], "Wrist trajectories": [],
-                                  "Critic comparison sheets": []}
+                                  "Location error": [], "Critic comparison sheets": []}
     links: dict[str, dict[str, Path]] = {}
     if len(data.collision):
         out["Collision"] = [
@@ -68,6 +68,11 @@ def _figures(data: RunData, out_dir: Path) -> tuple[dict[str, list[Path]],
                                     fig_dir / "wrists" / f"{safe_name(sid)}.png", title=sid)
         out["Wrist trajectories"].append(path)
         links.setdefault(sid, {})["wrists"] = path
+    for sid, loc in sorted(data.locations.items()):
+        path = figures.location_error(loc["err"], loc["landmark"], loc["names"], loc["fps"],
+                                      fig_dir / "location" / f"{safe_name(sid)}.png", title=sid)
+        out["Location error"].append(path)
+        links.setdefault(sid, {})["location"] = path
     for sid, png in sorted(data.sheets.items()):
         dst = fig_dir / "sheets" / f"{safe_name(sid)}.png"
         dst.parent.mkdir(parents=True, exist_ok=True)
@@ -89,7 +94,7 @@ def tables_of(data: RunData) -> dict[str, Table]:
         tables["table1_collision"] = assemble.table1(data)
     if data.ablation:  # without `--ablation` there is no ablation to show
         tables["table2_ablation"] = assemble.table2(data)
-    if len(data.retarget) or data.refine:
+    if len(data.retarget) or data.refined:
         tables["table3_retargeting"] = assemble.table3(data)
     return tables
 

@@ -13,6 +13,11 @@ import numpy as np
 import pandas as pd
 
 
+#: Fidelity measures copied to `final.<key>` columns of `sequences.csv` (final trajectory).
+FINAL_FIDELITY = ("location_err", "location_err_mm", "location_agree_pct", "palm_deg",
+                  "handshape_err", "movement_dtw", "contact_f1")
+
+
 @dataclass
 class RunData:
     """One run's results. Every DataFrame is indexed by sequence id.
@@ -20,21 +25,26 @@ class RunData:
     - `sequences`: status ("ok"/"failed"), error and text of every sequence, failed ones included.
     - `collision`: the `embody.collision.mitigate` metrics dict per sequence.
     - `retarget`: the IK-only `IKSolution.metrics` per sequence.
-    - `refine`: critic name → the `RefineResult` objects (what `refine_table` consumes).
-    - `refined`: critic name → the refine step's metrics per sequence (final round, accepted).
+    - `refined`: critic name → the refine step's metrics per sequence (final round, accepted,
+      rounds).
+    - `critic_ik`: critic name → the critic's metrics of its IK-only round per sequence
+      (stored by the metrics step as `critic_ik.*`).
     - `validation`: critic name → validation counters of the refined trajectories.
     - `other`: step name → metrics of the remaining steps (they only go to `sequences.csv`).
     - `ablation`: Table II setting → collision metrics DataFrame (only for `--ablation`).
     - `wrists`: sequence id → {"reference"|"IK only"|"refined": (T,2,3) wrist positions, m}.
     - `sheets`: sequence id → the critic's comparison sheet (PNG bytes).
+    - `locations`: sequence id → {"err": (T,2) location error per hand (body scales),
+      "landmark": (T,2) index of the human hand's nearest landmark, "names": landmark names,
+      "fps": frame rate}, as the metrics step stored them.
     """
 
     name: str
     sequences: pd.DataFrame
     collision: pd.DataFrame = field(default_factory=pd.DataFrame)
     retarget: pd.DataFrame = field(default_factory=pd.DataFrame)
-    refine: dict[str, list[Any]] = field(default_factory=dict)
     refined: dict[str, pd.DataFrame] = field(default_factory=dict)
+    critic_ik: dict[str, pd.DataFrame] = field(default_factory=dict)
     validation: dict[str, pd.DataFrame] = field(default_factory=dict)
     other: dict[str, pd.DataFrame] = field(default_factory=dict)
     ablation: dict[str, pd.DataFrame] = field(default_factory=dict)
@@ -43,6 +53,9 @@ class RunData:
     sheets: dict[str, bytes] = field(default_factory=dict)
     #: sequence id → (animated preview bytes, file suffix) from the render stage.
     previews: dict[str, tuple[bytes, str]] = field(default_factory=dict)
+    locations: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: The robot the run retargeted to (its notes are printed under Table III).
+    robot: str = ""
     #: How the sequences with figures were chosen (printed on the page when not all have them).
     figure_rule: str = ""
 
@@ -81,6 +94,12 @@ class RunData:
         for prefix, df in parts:
             if len(df):
                 frame = frame.join(df.add_prefix(f"{prefix}."), how="left")
+        final = "metrics.fidelity.final"
+        if final in frame:  # the final trajectory's fidelity, whichever Table III row it is
+            for key in FINAL_FIDELITY:
+                frame[f"final.{key}"] = [
+                    row.get(f"metrics.fidelity.{row[final]}.{key}") if isinstance(row[final], str) else None
+                    for row in frame.to_dict("records")]
         frame.index.name = "id"
         return frame.reset_index()
 

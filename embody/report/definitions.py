@@ -61,6 +61,14 @@ COLUMNS = {
                         "IK-only wrist position error against the human wrists, mean (mm)"),
     "Wrist rot. (deg)": ("retarget.wrist_rot_err_deg",
                          "IK-only wrist orientation error, mean (deg)"),
+    "Location err. (mm)": ("final.location_err_mm",
+                           "final trajectory: mean distance between the human's and the robot's "
+                           "palm offsets from the human hand's nearest landmark (body-scale "
+                           "normalised, shown in the robot's mm); per frame in the location plot"),
+    "Location agree (%)": ("final.location_agree_pct",
+                           "final trajectory: frames near a landmark whose nearest landmark is "
+                           "the same on the robot (%)"),
+    "Palm orient. (deg)": ("final.palm_deg", "final trajectory: palm-normal angle error (deg)"),
     "Self-coll. frames": ("metrics.self_collision_frames",
                           "MuJoCo self-collision frames of the final trajectory"),
     "Coll. red. (%)": ("collide.reduction_pct",

@@ -95,3 +95,48 @@ def wrist_tracks(tracks: dict[str, np.ndarray], fps: float, path: Path, *,
     fig.suptitle(f"{title}: worst {win.stop - win.start}-frame window", fontsize=9)
     fig.tight_layout()
     return _save(fig, path)
+
+
+def _runs(labels: np.ndarray) -> list[tuple[int, int, int]]:
+    """(start, stop, label) of each run of equal consecutive labels."""
+    out, start = [], 0
+    for t in range(1, len(labels) + 1):
+        if t == len(labels) or labels[t] != labels[start]:
+            out.append((start, t, int(labels[start])))
+            start = t
+    return out
+
+
+def location_error(err: np.ndarray, landmark: np.ndarray, names: list[str], fps: float,
+                   path: Path, *, title: str) -> Path:
+    """Location error over time per hand (T,2 body scales), the background of each span coloured
+    and labelled by the human hand's nearest landmark (what the error is measured against)."""
+    err, landmark = np.asarray(err, dtype=np.float64), np.asarray(landmark, dtype=np.int64)
+    t = np.arange(len(err)) / fps
+    used = sorted({int(k) for k in np.unique(landmark) if 0 <= k < len(names)})
+    cmap = plt.get_cmap("tab20")
+    colour = {k: cmap(i % 20) for i, k in enumerate(used)}
+    fig, axes = plt.subplots(2, 1, figsize=(10, 4.6), sharex=True)
+    top = max(float(np.nanmax(err)) if err.size else 0.0, 1e-3) * 1.25
+    min_label = max(1, int(0.08 * len(err)))  # label spans wide enough to read
+    for s, side in enumerate(_SIDES):
+        ax = axes[s]
+        for start, stop, k in _runs(landmark[:, s]):
+            if k not in colour:
+                continue
+            x0, x1 = start / fps, stop / fps
+            ax.axvspan(x0, x1, color=colour[k], alpha=0.25, lw=0)
+            if stop - start >= min_label:
+                ax.text((x0 + x1) / 2, top * 0.97, names[k], ha="center", va="top", fontsize=7)
+        ax.plot(t, err[:, s], color="#222", lw=1.2)
+        ax.set_ylim(0, top)
+        ax.set_ylabel(f"{side} hand\n(body scales)", fontsize=8)
+        ax.tick_params(labelsize=7)
+    axes[-1].set_xlabel("time (s)")
+    handles = [plt.Rectangle((0, 0), 1, 1, color=colour[k], alpha=0.4) for k in used]
+    fig.legend(handles, [names[k] for k in used], loc="lower center", ncol=min(len(used), 8),
+               fontsize=7, frameon=False, title="nearest landmark of the human hand",
+               title_fontsize=7)
+    fig.suptitle(f"{title}: location error (palm relative to its nearest landmark)", fontsize=9)
+    fig.tight_layout(rect=(0, 0.1 if used else 0, 1, 1))
+    return _save(fig, path)

@@ -136,7 +136,7 @@ def sequence_table(frame: pd.DataFrame, links: dict[str, dict[str, Path]], root:
     esc = html.escape
     metric_cols = {h: c for h, (c, _) in COLUMNS.items() if c in frame}
     head = (["Sequence", "Text", "Processed ok", "Export-valid", "Critic-accepted"]
-            + list(metric_cols) + ["Sheet", "Preview", "Wrist plot"])
+            + list(metric_cols) + ["Sheet", "Preview", "Wrist plot", "Location plot"])
     parts = ['<div class="scroll"><table class="report sortable" id="sequences">'
              "<caption>Every sequence (click a header to sort)</caption><thead><tr>"
              + "".join(f"<th>{esc(h)}</th>" for h in head) + "</tr></thead><tbody>"]
@@ -152,7 +152,8 @@ def sequence_table(frame: pd.DataFrame, links: dict[str, dict[str, Path]], root:
                 else f"{float(value):.6g}"
             cells.append(f'<td data-v="{num}">{esc(format_cell(value))}</td>')
         mine = links.get(sid, {})
-        for kind, text in (("sheet", "sheet"), ("preview", "preview"), ("wrists", "plot")):
+        for kind, text in (("sheet", "sheet"), ("preview", "preview"), ("wrists", "plot"),
+                           ("location", "plot")):
             cells.append(f"<td>{_link(mine[kind], root, text)}</td>" if kind in mine
                          else '<td data-v="">–</td>')
         parts.append(f'<tr class="{"" if row.get("processed_ok") else "failed"}">'
@@ -209,7 +210,7 @@ def render_index(out_dir: Path, *, run: str, tables: dict[str, tuple[Table, dict
         parts.append("<h2>Failed sequences</h2><ul>")
         parts += [f'<li class="failed">{esc(sid)}: {esc(err)}</li>' for sid, err in failures]
         parts.append("</ul>")
-    linked = ("Critic comparison sheets", "Wrist trajectories")
+    linked = ("Critic comparison sheets", "Wrist trajectories", "Location error")
     for section, paths in figures.items():
         if not paths or (section in linked and sequences is not None):
             continue  # every per-sequence figure is reached from the sequence table

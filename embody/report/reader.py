@@ -1,9 +1,11 @@
-"""Read one run from the artifact store into `RunData` (manifest + the artifacts it names).
+"""Read one run from the artifact store into `RunData`: a pure reader.
 
-Metric dicts come from the manifest (what each step's library call returned). Table III's
-validation counters are those the metrics step stored for the exported control-rate array
-(computed here with the same functions only for runs that predate them); the wrist figures
-need the robot and use the retargeting stage's own functions on the stored trajectories.
+Every number and image comes from what the pipeline stored: the manifest's per-step metric
+dicts, the metrics step's arrays (wrist tracks, per-frame location error) and the render step's
+comparison sheets and previews. Nothing is recomputed here, and nothing of the robot, the body,
+the renderer, the critic or the stages is imported (a test checks the imports), so a report of a
+20k-sequence run costs reading plus plotting. A run whose store lacks something the page shows
+(an older run) gets a blank cell and a note, never a recomputed value.
 """
 
 from __future__ import annotations
@@ -81,108 +83,47 @@ def metrics_frame(manifest: Any, step: str) -> pd.DataFrame:
     return frame
 
 
-def exported_trajectory(store: Any, robot: Any, seq: dict[str, Any], ik: Any,
-                        q: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
-    """The control-rate array `embody export` writes for a sequence and its validation counters:
-    both as the metrics step stored them; for runs made before it stored them, built now with
-    the same function (`retarget.control.control_trajectory`) and validated here."""
-    from embody.retarget.control import control_trajectory
-    from embody.retarget.validation import VALIDATION_KEYS, validation_counts
-
-    stored = seq.get("metrics", {}).get(METRICS, {})
-    if METRICS in seq.get("steps", {}) and "validation_rate_hz" in stored:
-        art = store.read(METRICS, seq["steps"][METRICS])
-        if "q_control" in art.arrays:
-            return (np.asarray(art.arrays["q_control"]),
-                    {k: float(stored[k]) for k in VALIDATION_KEYS})
-    q_control = control_trajectory(robot, q, ik.fps, ik.control_rate_hz)
-    return q_control, validation_counts(robot, q_control, ik.control_rate_hz)
+#: Validation counters of the exported array (stored by the metrics step).
+VALIDATION_KEYS = ("joint_limit_violations", "velocity_violations", "self_collision_frames")
+#: The metrics step's prefix for the critic's metrics of its IK-only round.
+CRITIC_IK = "critic_ik."
 
 
-def final_validation(store: Any, robot: Any, seq: dict[str, Any], ik: Any,
-                     q: np.ndarray) -> dict[str, float]:
-    """Validation counters of the exported array of a sequence's final trajectory q."""
-    from embody.retarget.validation import VALIDATION_KEYS
-
-    stored = seq.get("metrics", {}).get(METRICS, {})
-    if "validation_rate_hz" in stored and all(k in stored for k in VALIDATION_KEYS):
-        return {k: float(stored[k]) for k in VALIDATION_KEYS}
-    return exported_trajectory(store, robot, seq, ik, q)[1]
+def _prefixed(frame: pd.DataFrame, prefix: str) -> pd.DataFrame:
+    cols = [c for c in frame.columns if str(c).startswith(prefix)]
+    return frame[cols].rename(columns=lambda c: c[len(prefix):]).dropna(how="all")
 
 
-def load_result(store: Any, seq: dict[str, Any], step: str) -> Any:
-    """The stored result of `step` for one manifest sequence entry, as the stage's own type."""
-    from embody.tasks.stages import COLLIDE as C, REFINE as R, RENDER as V, RETARGET as T, SOURCE as S
-
-    loader = {s.name: s.load for s in (S, C, T, R, V)}[step]
-    art = store.read(step, seq["steps"][step])
-    return loader(art.arrays, art.attrs)
-
-
-class _Robotics:
-    """The run's robot (and body, shape fit) loaded on first use."""
-
-    def __init__(self, store: Any, manifest: Any) -> None:
-        self.store, self.manifest, self.cfg = store, manifest, run_config(manifest)
-        self._robot = self._body = self._fit = None
-
-    @property
-    def robot(self) -> Any:
-        if self._robot is None:
-            from embody.robot import load_robot
-            self._robot = load_robot(self.cfg.robot)
-        return self._robot
-
-    def _body_fit(self) -> tuple[Any, Any]:
-        from embody.body import load_body_model
-        from embody.retarget import ShapeFit
-
-        if self._fit is None:
-            art = self.store.read(SHAPE_FIT, self.manifest.data["shared"][SHAPE_FIT])
-            self._fit = ShapeFit.from_arrays(art.arrays, art.attrs)
-            self._body = load_body_model(self.cfg.body)
-        return self._body, self._fit
-
-    def reference_wrists(self, motion: Any) -> np.ndarray:
-        """The IK's reference wrist positions (T,2,3), rebuilt as the retarget step did."""
-        from embody.retarget import build_targets
-
-        body, fit = self._body_fit()
-        return np.asarray(build_targets(motion, body, fit, self.robot, self.cfg.ik).wrist_pos)
-
-    def sheet(self, motion: Any, result: Any, title: str) -> bytes:
-        """The critic's final comparison sheet (human over robot at its keyframes), re-rendered
-        with the render stage's own functions: the refine step keeps hashes, not images."""
-        from embody.render.compare import open_renderer, reference_vertices, render_comparison
-
-        body, fit = self._body_fit()
-        keys = np.asarray(result.keyframes)
-        renderer = open_renderer(self.robot, body, fit, self.cfg.render)
-        try:
-            comp = render_comparison(renderer, self.cfg.render, keys, motion.fps, result.final.q,
-                                     reference_verts=reference_vertices(motion, body, fit, keys))
-            return comp.sheet_png(title)
-        finally:
-            renderer.close()
-
-    def wrists(self, q: np.ndarray) -> np.ndarray:
-        from embody.critic.refine import robot_wrists
-        return robot_wrists(self.robot, q)[0]
+def _metrics_arrays(store: Any, seq: dict[str, Any]) -> tuple[dict[str, np.ndarray], dict[str, Any]]:
+    """The metrics step's arrays and labels of one sequence ({} when it has none)."""
+    key = seq.get("steps", {}).get(METRICS)
+    if key is None:
+        return {}, {}
+    art = store.read(METRICS, key)
+    return art.arrays, dict(art.attrs.get("labels", {}))
 
 
-def collect(store_root: str | Path, run: str, *, max_figures: int = 24,
-            max_sheets: int = 4) -> RunData:
-    """Everything a report needs about `run`.
+def _render(store: Any, seq: dict[str, Any]) -> tuple[bytes | None, tuple[bytes, str] | None]:
+    """The render step's comparison sheet (PNG bytes) and preview (bytes, suffix)."""
+    key = seq.get("steps", {}).get(RENDER)
+    if key is None:
+        return None, None
+    art = store.read(RENDER, key)
+    sheet = np.asarray(art.arrays["sheet_png"]).tobytes() if "sheet_png" in art.arrays else None
+    preview = art.arrays.get("preview")
+    suffix = art.attrs.get("preview_suffix") or ".bin"
+    return sheet, (None if preview is None else (np.asarray(preview).tobytes(), suffix))
 
-    Every sequence the render stage rendered gets its stored comparison sheet and preview (a
-    copy, no rendering). Wrist plots (robot FK plus a plot, ~0.5 s each) are drawn for the
-    `max_figures` sequences with the largest IK wrist error; sequences without a stored render
-    get a re-rendered sheet for the first `max_sheets` of those (~2 s each). So a
-    20k-sequence run still gets a page in bounded time, and the page states the rule.
+
+def collect(store_root: str | Path, run: str, *, max_figures: int | None = 24,
+            max_sheets: int | None = None) -> RunData:
+    """Everything a report needs about `run`, as stored.
+
+    Every finished sequence gets its stored comparison sheet and preview (render step), its
+    wrist plot and its location-error plot (metrics step arrays). `max_figures` limits the plots
+    to that many sequences with the largest IK wrist error; the page states the
+    rule (None: every sequence). `max_sheets` is accepted for compatibility (sheets are never re-rendered now).
     """
-    from embody.render import RenderError
-    from embody.retarget.validation import validation_counts
-
     store, manifest = open_run(store_root, run)
     seqs = manifest.sequences
     ids = sorted(seqs)
@@ -190,120 +131,76 @@ def collect(store_root: str | Path, run: str, *, max_figures: int = 24,
         {"status": [seqs[i]["status"] for i in ids],
          "failed_step": [seqs[i].get("failed_step") or "" for i in ids],
          "error": [seqs[i].get("error") or "" for i in ids],
-         "text": [_text(store, seqs[i]) for i in ids]},
+         "text": [sequence_text(store, seqs[i]) for i in ids]},
         index=pd.Index(ids, name="id"))
     data = RunData(name=run, sequences=sequences, collision=metrics_frame(manifest, COLLIDE),
                    retarget=metrics_frame(manifest, RETARGET))
+    cfg = manifest.data.get("config") or {}
+    data.robot = str((cfg.get("robot") or {}).get("name") or "")
     steps = {step for seq in seqs.values() for step in seq.get("metrics", {})}
     data.other = {step: metrics_frame(manifest, step) for step in sorted(steps)
                   if step not in (COLLIDE, RETARGET, REFINE)}
     ok = [i for i in ids if seqs[i]["status"] == "ok" and RETARGET in seqs[i]["steps"]]
     if not ok:
         return data
-    robotics = _Robotics(store, manifest)
-    critic = robotics.cfg.critic.kind
-    ik = {i: load_result(store, seqs[i], RETARGET) for i in ok}
-    refined = {i: load_result(store, seqs[i], REFINE) for i in ok if REFINE in seqs[i]["steps"]}
-    if "self_collision_frames" not in data.retarget:
-        extra = {i: validation_counts(robotics.robot, ik[i].q, ik[i].fps) for i in ok}
-        data.retarget["self_collision_frames"] = pd.Series(
-            {i: v["self_collision_frames"] for i, v in extra.items()})
-    if not refined:  # the IK trajectory is the final one: its validity is the exported array's
-        exported = pd.DataFrame.from_dict(
-            {i: final_validation(store, robotics.robot, seqs[i], ik[i], ik[i].q) for i in ok},
-            orient="index")
-        for key in exported:
-            data.retarget.loc[ok, key] = exported[key]
-    if refined:
-        data.refine[critic] = [refined[i] for i in sorted(refined)]
-        data.refined[critic] = metrics_frame(manifest, REFINE)
-        data.validation[critic] = pd.DataFrame.from_dict(
-            {i: final_validation(store, robotics.robot, seqs[i], ik[i], r.q)
-             for i, r in refined.items()},
-            orient="index")
-    for sid in ok:  # the render stage stored it: no re-rendering
-        if RENDER in seqs[sid]["steps"]:
-            stored = load_result(store, seqs[sid], RENDER)
-            data.sheets[sid] = stored.sheet_png
-            if stored.preview is not None:
-                data.previews[sid] = (stored.preview, stored.preview_suffix or ".bin")
-    worst = data.retarget.loc[ok, "wrist_pos_err_mm"].sort_values(ascending=False, kind="stable")
-    chosen = list(worst.index[:max_figures])
+    final = data.other.get(METRICS, pd.DataFrame())
+    if len(final):
+        counters = final.loc[final.index.intersection(ok), [k for k in VALIDATION_KEYS if k in final]]
+    else:
+        counters = pd.DataFrame()
+    refined = metrics_frame(manifest, REFINE)
+    if len(refined):
+        critic = str((cfg.get("critic") or {}).get("kind") or "critic")
+        data.refined[critic] = refined
+        data.critic_ik[critic] = _prefixed(final, CRITIC_IK) if len(final) else pd.DataFrame()
+        data.validation[critic] = counters
+    else:  # the IK trajectory is the final one: its validity is the exported array's
+        for key in counters:
+            data.retarget.loc[counters.index, key] = counters[key]
+    for sid in ok:
+        sheet, preview = _render(store, seqs[sid])
+        if sheet is not None:
+            data.sheets[sid] = sheet
+        if preview is not None:
+            data.previews[sid] = preview
+    error = data.retarget.loc[ok, "wrist_pos_err_mm"] if "wrist_pos_err_mm" in data.retarget \
+        else pd.Series(0.0, index=ok)
+    worst = error.sort_values(ascending=False, kind="stable")
+    chosen = list(worst.index if max_figures is None else worst.index[:max_figures])
     if len(chosen) < len(ok):
-        data.figure_rule = (f"Wrist plots: the {len(chosen)} of {len(ok)} finished sequences "
-                            "with the largest IK-only wrist position error (`embody report "
-                            "--max-figures N` draws more).")
-    for rank, sid in enumerate(chosen):
-        if sid in refined:
-            r = refined[sid]
-            tracks = {"reference": r.ik_only.target_pos, "IK only": robotics.wrists(r.ik_only.q),
-                      "refined": robotics.wrists(r.final.q)}
-            if sid not in data.sheets and rank < max_sheets:
-                motion = load_result(store, seqs[sid], COLLIDE).motion
-                try:
-                    data.sheets[sid] = robotics.sheet(motion, r, f"{sid}: final round")
-                except RenderError as exc:  # no offscreen GL here: the rest of the report stands
-                    log.warning("comparison sheet of %s not rendered: %s", sid, exc)
-                    max_sheets = 0
-        else:
-            motion = load_result(store, seqs[sid], COLLIDE).motion
-            tracks = {"reference": robotics.reference_wrists(motion),
-                      "IK only": robotics.wrists(ik[sid].q)}
+        data.figure_rule = (f"Wrist and location plots: the {len(chosen)} of {len(ok)} finished "
+                            "sequences with the largest IK-only wrist position error (`embody "
+                            "report --max-figures N` draws more).")
+    fps = {sid: float(seqs[sid].get("metrics", {}).get(SOURCE, {}).get("fps") or 30.0) for sid in ok}
+    missing = []
+    for sid in chosen:
+        arrays, labels = _metrics_arrays(store, seqs[sid])
+        if "wrist_reference" not in arrays:
+            missing.append(sid)
+            continue
+        tracks = {"reference": arrays["wrist_reference"], "IK only": arrays["wrist_ik"]}
+        if "wrist_refined" in arrays:
+            tracks["refined"] = arrays["wrist_refined"]
         data.wrists[sid] = tracks
-        data.wrist_fps[sid] = float(ik[sid].fps)
-    missing = [i for i in ok if i not in data.sheets]
-    if missing and any(RENDER not in seqs[i]["steps"] for i in missing):
-        data.figure_rule += (" Comparison sheets: stored by the render stage for every rendered "
-                             f"sequence; re-rendered for at most {max_sheets} of the others "
-                             "(`--max-sheets`).")
+        data.wrist_fps[sid] = fps[sid]
+        if "location_err" in arrays and "location_landmark" in labels:
+            data.locations[sid] = {"err": np.asarray(arrays["location_err"]),
+                                   "landmark": np.asarray(arrays["location_landmark"]),
+                                   "names": list(labels["location_landmark"]), "fps": fps[sid]}
+    if missing:
+        data.figure_rule += (f" {len(missing)} sequences have no stored wrist tracks (a run made "
+                             "before the metrics step stored them: rerun `embody run` to add them).")
+    unrendered = [i for i in ok if i not in data.sheets]
+    if unrendered:
+        data.figure_rule += (f" {len(unrendered)} finished sequences have no comparison sheet "
+                             "(the run had rendering off: `embody run --render`).")
     return data
 
 
-def _text(store: Any, seq: dict[str, Any]) -> str:
+def sequence_text(store: Any, seq: dict[str, Any]) -> str:
     """The sign's text from the source motion's attrs (read without loading its arrays)."""
     key = seq.get("steps", {}).get(SOURCE)
     if key is None:
         return ""
     doc = json.loads((store.path(SOURCE, key) / "zarr.json").read_text())
     return str(doc.get("attributes", {}).get("result", {}).get("meta", {}).get("text", ""))
-
-
-def run_robot(store_root: str | Path, run: str) -> Any:
-    """The robot `run` was retargeted for, as its recorded config loads it."""
-    from embody.robot import load_robot
-
-    return load_robot(run_config(open_run(store_root, run)[1]).robot)
-
-
-def run_trajectories(store_root: str | Path, run: str, robot_name: str
-                     ) -> tuple[list[Any], list[tuple[str, str]]]:
-    """The exported (control-rate) trajectory of every finished sequence of `run` (from the
-    refined one when the critic ran) with its stored validation counters, and (id, reason) of
-    the sequences the run itself failed."""
-    from embody.report.library import Trajectory
-
-    store, manifest = open_run(store_root, run)
-    robotics = _Robotics(store, manifest)
-    if robotics.cfg.robot.name != robot_name:
-        raise InputError(manifest.path, "robot", f"run {run!r} was retargeted for "
-                         f"{robotics.cfg.robot.name!r}, not {robot_name!r}")
-    out, failed = [], []
-    for sid, seq in sorted(manifest.sequences.items()):
-        if seq["status"] != "ok" or RETARGET not in seq["steps"]:
-            failed.append((sid, f"run {seq['status']}: {seq.get('error') or 'not retargeted'}"))
-            continue
-        ik = load_result(store, seq, RETARGET)
-        if REFINE in seq["steps"]:
-            final = load_result(store, seq, REFINE)
-            q = np.asarray(final.q, dtype=np.float64)
-            scores = {**final.final.metrics, "refined": True, "accepted": bool(final.accepted)}
-        else:
-            q = np.asarray(ik.q, dtype=np.float64)
-            scores = {"wrist_mm_mean": ik.metrics.get("wrist_pos_err_mm"),
-                      "wrist_deg_mean": ik.metrics.get("wrist_rot_err_deg"), "refined": False}
-        q_control, counts = exported_trajectory(store, robotics.robot, seq, ik, q)
-        validation = {**scores, **counts, "fps": ik.fps, "control_rate_hz": ik.control_rate_hz}
-        out.append(Trajectory(id=sid, robot=robot_name, joint_names=tuple(ik.joint_names),
-                              q=q_control, dt=1.0 / ik.control_rate_hz, text=_text(store, seq),
-                              validation=validation))
-    return out, failed

@@ -11,7 +11,6 @@ the library is missing and why. `check_library` re-validates a received library 
 
 from __future__ import annotations
 
-import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +21,7 @@ import pandas as pd
 
 from embody.csvsafe import csv_safe
 from embody.errors import InputError
-
+from embody.report.paths import safe_name
 from embody.export.formats import (CONSUMERS, FORMATS, ExportFormat, Layout, read_joint_positions,
                                    root_pose, write_trajectory)
 from embody.retarget.validation import VALIDATION_KEYS
@@ -101,15 +100,6 @@ class Trajectory:
                    joint_names=tuple(str(n) for n in data["joint_names"]), q=data["q"],
                    dt=float(data["dt"]), text=str(data.get("text", "")),
                    validation=json.loads(str(data.get("validation", "{}"))))
-
-
-def safe_name(sid: str) -> str:
-    """A sequence id as a file name; ids with slashes or spaces get a short hash so that
-    "a/b" and "a_b" stay distinct."""
-    safe = "".join(c if c.isalnum() or c in "-_." else "_" for c in sid)
-    if safe == sid:
-        return sid
-    return f"{safe}-{hashlib.sha1(sid.encode('utf-8')).hexdigest()[:8]}"
 
 
 def _remove_previous(out_dir: Path) -> None:
