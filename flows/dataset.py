@@ -281,31 +281,22 @@ def build_report(store: ArtifactStore, run: str) -> tuple[str | None, str | None
     return str(getattr(paths, "out_dir", paths)), None
 
 
-def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
-                pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
-    """Run the pipeline over a dataset inside the current flow; returns the run summary."""
-    from embody.io import load_dataset
-
-    from embody.flows.env import register_server
-
-    t0 = time.perf_counter()
-    store = ArtifactStore(cfg.run.store)
-    data = load_dataset(dataset, split, cfg.io)
-    refs = list(data)[cfg.run.offset:]
-    refs = refs[: cfg.run.limit] if cfg.run.limit else refs
-    run = run_name(cfg, dataset, split)
-    pipeline = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
-    ctx = Context(cfg=cfg, store_root=str(store.root), run=run)
-    register_server()  # so a later run can stop this one's Prefect server if we are killed
+def start_manifest(store: ArtifactStore, run: str, refs: list[Any], dataset: str | Path,
+                   split: str | None, pipeline: Pipeline, cfg: Config) -> Manifest:
+    """A new manifest for `run` over `refs` (what every run, flow or cached, records first)."""
     manifest = Manifest(store, run)
     manifest.start([r.id for r in refs], dataset=str(Path(dataset).expanduser().resolve()),
                    split=split, steps=pipeline.names, config=cfg.model_dump(mode="json"))
-    size = cfg.run.batch_size
-    batches = [[new_record(r) for r in refs[i:i + size]] for i in range(0, len(refs), size)]
-    bar = Progress([s.name for s in pipeline.per_sequence], len(refs), enabled=progress)
-    driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers)
-    driver.run(batches)
-    errors = [driver.save_error] if driver.save_error else []
+    return manifest
+
+
+def finish_run(store: ArtifactStore, run: str, manifest: Manifest, cfg: Config, *,
+               dataset: str | Path, split: str | None, t0: float, computed: dict[str, int],
+               shared: dict[str, Any], prefect: bool, errors: list[str] | None = None
+               ) -> dict[str, Any]:
+    """Save the finished manifest, write `sequences.csv` and the report, and return the run's
+    summary: the one bookkeeping both the flow and the cached path (`flows.warm`) do."""
+    errors = list(errors or [])
     table: Path | None = None
     try:  # a full disk here still ends with the summary and the failure table (exit 1)
         manifest.save(finished=True)
@@ -324,13 +315,40 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     recovered = [{"id": i, "artifact": a} for i, s in seqs.items() for a in s.get("recovered", [])]
     return {"run": run, "store": str(store.root), "dataset": str(dataset), "split": split,
             "total": len(seqs), "ok": len(seqs) - len(failures), "failed": len(failures),
-            "failures": failures, "computed": driver.computed,
-            "shared": {n: r.get("key") for n, r in driver.shared.items()},
+            "failures": failures, "computed": computed, "shared": shared,
             "manifest": str(manifest.path), "table": str(table) if table else None,
             "errors": errors, "recovered": recovered,
             "report": report, "report_error": report_error,
             "report_s": round(report_s, 3), "elapsed_s": round(time.perf_counter() - t0, 3),
-            "prefect": True, **verdict_summary(manifest)}
+            "prefect": prefect, **verdict_summary(manifest)}
+
+
+def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
+                pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
+    """Run the pipeline over a dataset inside the current flow; returns the run summary."""
+    from embody.io import load_dataset
+
+    from embody.flows.env import register_server
+
+    t0 = time.perf_counter()
+    store = ArtifactStore(cfg.run.store)
+    data = load_dataset(dataset, split, cfg.io)
+    refs = list(data)[cfg.run.offset:]
+    refs = refs[: cfg.run.limit] if cfg.run.limit else refs
+    run = run_name(cfg, dataset, split)
+    pipeline = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
+    ctx = Context(cfg=cfg, store_root=str(store.root), run=run)
+    register_server()  # so a later run can stop this one's Prefect server if we are killed
+    manifest = start_manifest(store, run, refs, dataset, split, pipeline, cfg)
+    size = cfg.run.batch_size
+    batches = [[new_record(r) for r in refs[i:i + size]] for i in range(0, len(refs), size)]
+    bar = Progress([s.name for s in pipeline.per_sequence], len(refs), enabled=progress)
+    driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers)
+    driver.run(batches)
+    return finish_run(store, run, manifest, cfg, dataset=dataset, split=split, t0=t0,
+                      computed=driver.computed,
+                      shared={n: r.get("key") for n, r in driver.shared.items()}, prefect=True,
+                      errors=[driver.save_error] if driver.save_error else [])
 
 
 def _dataset_flow(dataset: str, split: str | None = None, config: dict[str, Any] | None = None,

@@ -15,8 +15,7 @@ from typing import Any
 
 from embody.config import Config
 from embody.flows.progress import Progress
-from embody.flows.verdicts import verdict_summary
-from embody.store import ArtifactStore, Manifest
+from embody.store import ArtifactStore
 from embody.tasks.execute import cached, new_record
 from embody.tasks.pipeline import Context
 
@@ -57,10 +56,8 @@ def run_cached(dataset: str | Path, cfg: Config, *, split: str | None = None,
         if hits is None:
             return None
         records = hits
-    # Every result is stored: record the run exactly as the flow would have.
-    manifest = Manifest(store, run)
-    manifest.start([r.id for r in refs], dataset=str(Path(dataset).expanduser().resolve()), split=split,
-                   steps=pipeline.names, config=cfg.model_dump(mode="json"))
+    # Every result is stored: record the run exactly as the flow would have (same bookkeeping).
+    manifest = flow_module.start_manifest(store, run, refs, dataset, split, pipeline, cfg)
     for name, key in shared.items():
         manifest.set_shared(name, key)
     bar = Progress([s.name for s in pipeline.per_sequence], len(refs), enabled=progress)
@@ -69,16 +66,7 @@ def run_cached(dataset: str | Path, cfg: Config, *, split: str | None = None,
     for rec in records:
         manifest.update(rec)
         manifest.finish_sequence(rec["id"])
-    manifest.save(finished=True)
-    table = flow_module.write_tables(store, run)
-    t_report = time.perf_counter()
-    report, report_error = (flow_module.build_report(store, run) if cfg.run.report
-                            else (None, None))
-    report_s = time.perf_counter() - t_report
-    return {"run": run, "store": str(store.root), "dataset": str(dataset), "split": split,
-            "total": len(records), "ok": len(records), "failed": 0, "failures": [],
-            "computed": {s.name: 0 for s in pipeline.per_sequence + pipeline.shared},
-            "shared": dict(shared), "manifest": str(manifest.path), "table": str(table),
-            "report": report, "report_error": report_error, "report_s": round(report_s, 3),
-            "elapsed_s": round(time.perf_counter() - t0, 3), "prefect": False,
-            **verdict_summary(manifest)}
+    return flow_module.finish_run(
+        store, run, manifest, cfg, dataset=dataset, split=split, t0=t0,
+        computed={s.name: 0 for s in pipeline.per_sequence + pipeline.shared},
+        shared=dict(shared), prefect=False)

@@ -102,6 +102,36 @@ def check_report_page(index: Path, tmp: Path, tables: set[str]) -> dict[str, str
     return attrs
 
 
+#: `embody.metrics.fidelity.LOCATION_LANDMARKS` order (the stored indices point into it).
+NAMES = ["head_top", "forehead", "left_eye", "right_eye", "nose", "mouth", "chin", "left_cheek",
+         "right_cheek", "throat", "left_shoulder", "right_shoulder", "sternum", "belly",
+         "left_hip", "right_hip"]
+
+
+def test_location_plot_labels_landmarks(tmp_path) -> None:
+    """The location-error figure names the landmarks the hand was nearest, and only those."""
+    import matplotlib.pyplot as plt
+    t = np.arange(90)
+    err = np.stack([0.1 + 0.05 * np.sin(t / 9), np.full(90, 0.3)], 1)
+    landmark = np.stack([np.where(t < 45, 6, 12), np.full(90, 13)], 1)  # chin → sternum; belly
+    seen: list[str] = []
+    real_text = plt.Axes.text
+
+    def spy(self, x, y, s, *a, **k):
+        seen.append(str(s))
+        return real_text(self, x, y, s, *a, **k)
+
+    plt.Axes.text = spy
+    try:
+        path = figures.location_error(err, landmark, NAMES, 30.0, tmp_path / "loc.png", title="s")
+    finally:
+        plt.Axes.text = real_text
+    assert sorted(set(seen)) == ["belly", "chin", "sternum"]
+    from PIL import Image
+    with Image.open(path) as im:
+        assert im.size[0] >= 1000  # natural size is readable
+
+
 def _png(path: Path, width: int, height: int) -> bytes:
     import matplotlib.pyplot as plt
     fig = plt.figure(figsize=(width / 100, height / 100), dpi=100)
@@ -143,13 +173,17 @@ def test_report_page_in_chromium(tmp_path) -> None:
         data.previews[sid] = (gif, ".png")
         data.wrists[sid] = {"reference": ref, "IK only": ref + 0.01}
         data.wrist_fps[sid] = 30.0
+        landmark = np.repeat([[6, 12], [12, 12]], 30, axis=0)  # chin then sternum (left hand)
+        data.locations[sid] = {"err": np.abs(ref[:, :, 0]) * 0.2, "landmark": landmark,
+                               "names": NAMES, "fps": 30.0}
     paths = write_report(data, tmp_path / "reports" / "demo")
     attrs = check_report_page(paths.index, tmp_path, {"verdicts", "table1_collision",
                                                      "table3_retargeting", "sequences"})
     rows = {r["id"]: r["links"] for r in attrs["rows"]}  # type: ignore[index]
     assert set(rows) == set(ids)
-    for sid in ok:  # sheet, preview and wrist plot of every finished sequence
-        assert len(rows[sid]) == 3, rows[sid]
+    for sid in ok:  # sheet, preview, wrist and location plot of every finished sequence
+        assert len(rows[sid]) == 4, rows[sid]
+        assert f"figures/location/{sid}.png" in rows[sid]
     assert rows["failed one"] == []
     html = paths.index.read_text()
     assert 'src="/' not in html and "file:" not in html

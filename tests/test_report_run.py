@@ -178,7 +178,8 @@ def test_report_files_and_page(run) -> None:
     figures = {p.relative_to(report).as_posix() for p in (report / "figures").rglob("*.png")}
     assert {"figures/collision_energy.png", "figures/pose_vs_reduction.png",
             "figures/wrists/seq0.png", "figures/wrists/seq1.png",
-            "figures/sheets/seq0.png"} <= figures
+            "figures/sheets/seq0.png", "figures/location/seq0.png",
+            "figures/location/seq1.png"} <= figures
     html = (report / "index.html").read_text()
     assert all(f in html for f in figures)
     previews = sorted(p.name for p in (report / "figures" / "previews").iterdir())
@@ -190,7 +191,7 @@ def test_report_files_and_page(run) -> None:
     attrs = check_report_page(report / "index.html", run["tmp"],
                               {"verdicts", "table1_collision", "table3_retargeting", "sequences"})
     links = {r["id"]: r["links"] for r in attrs["rows"]}
-    assert {len(links["seq0"]), len(links["seq1"]), len(links["seq2"])} == {3, 0}
+    assert {len(links["seq0"]), len(links["seq1"]), len(links["seq2"])} == {4, 0}
 
 
 def test_tex_tables_compile(run, pdflatex, tmp_path) -> None:

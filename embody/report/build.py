@@ -125,7 +125,7 @@ def write_report(data: RunData, out_dir: str | Path) -> ReportPaths:
                          tables={n: (tables[n], written[n]) for n in tables},
                          figures=figs, summary=summary, files=[sequences, summary_path],
                          failures=data.failures, sequences=per_sequence, links=links,
-                         figure_rule=data.figure_rule)
+                         figure_rule=data.figure_rule, robot=data.robot)
     _remember(out_dir, [index, sequences, summary_path,
                         *(p for files in written.values() for p in files.values()),
                         *(p for ps in figs.values() for p in ps),

@@ -8,10 +8,12 @@ from __future__ import annotations
 
 from embody.verdicts import VERDICTS
 
-__all__ = ["COLUMNS", "METRICS", "PAPER", "VERDICT_DEFINITIONS"]
+__all__ = ["COLLISION_MODEL", "COLUMNS", "METRICS", "PAPER", "ROBOT_NOTES", "VERDICT_DEFINITIONS",
+           "paper_citation", "robot_note"]
 
 #: The paper whose tables these are. Its title and venue are not recorded anywhere in this
-#: repository or its docs, so it is cited the way the docs describe it (never invented).
+#: repository or its docs, and a search of public pages for the method it describes (checked
+#: 2026-11-23) found no match, so it is cited the way the docs describe it (never invented).
 PAPER = {
     "title": None,
     "venue": None,
@@ -20,6 +22,10 @@ PAPER = {
                     "(VolumetricSMPL) in SMPL-X space and a vision-language-model critic that "
                     "answers with control primitives",
 }
+
+#: The volumetric body model whose self-collision loss the paper uses (title and venue checked).
+COLLISION_MODEL = ("VolumetricSMPL: A Neural Volumetric Body Model for Efficient Interactions, "
+                   "Contacts, and Collisions (Mihajlovic et al., ICCV 2025)")
 
 #: Table column / row name → definition.
 METRICS = (
@@ -46,7 +52,48 @@ METRICS = (
     ("Self-coll. frames", "frames with a penetrating MuJoCo contact between non-adjacent robot "
      "bodies, summed over sequences (target 0)."),
     ("Rounds / Accepted", "critic rounds used (mean) and the share of sequences it accepted."),
+    ("IK only / Location-preserving / Refined", "Table III rows: IK on shape-fit targets; IK on "
+     "targets anchored to the robot's own landmarks (the run's retarget step); after the "
+     "critic's rounds."),
+    ("Location err.", "each hand's palm centre relative to the human hand's nearest face or "
+     "trunk landmark, in the torso frame, divided by each body's scale (shoulder width); the "
+     "error is the distance between the human's and the robot's vectors, mean over frames and "
+     "hands (scale units; mm = scale × the robot's shoulder width). Measured against the human "
+     "after collision mitigation, not against the IK targets."),
+    ("Location agree", "of the frames where the human hand is within 0.5 body scales of a "
+     "landmark, the share where the robot hand's nearest landmark is the same one (%)."),
+    ("Palm orient.", "angle between the human's and the robot's palm normals, each in its own "
+     "torso frame (deg)."),
+    ("Handshape err.", "per finger the robot has, the difference of normalised flexion "
+     "(fingertip-to-palm distance over finger length), mean; blank for a robot without fingers."),
+    ("Movement DTW", "dynamic-time-warped distance between the normalised palm paths (scale "
+     "units)."),
+    ("Contact F1", "hand-hand, hand-face and hand-chest contact frames of the human (surfaces "
+     "within ε) recovered on the robot (MuJoCo geometry distances; a penetrating contact does "
+     "not count), pooled over sequences."),
 )
+
+#: What a robot can and cannot express, printed under Table III for runs of that robot.
+ROBOT_NOTES = {
+    "unitree_g1_dex3": (
+        "Unitree G1 with Dex3 hands: 7-DoF arms with 3 wrist joints, so wrist position and "
+        "orientation are both tracked; each hand has a thumb, an index and a middle finger "
+        "(ring and pinky are mapped onto the middle finger)."),
+    "unitree_h1": (
+        "Unitree H1: 4-DoF arms (shoulder pitch, roll, yaw and elbow), no wrist joints and no "
+        "hands; its 'wrist' is a point at the end of the forearm. Three of the four joints "
+        "place that point anywhere within the arm's reach; the fourth is the elbow's swivel "
+        "about the shoulder-wrist line, the only freedom left for the hand's orientation, "
+        "which is the forearm's. The palm cannot bend, tilt or turn on its own, so wrist "
+        "rotation and palm orientation errors stay large by construction (not a tracking "
+        "failure), handshape is blank (no fingers), and location and contacts are measured "
+        "with the palm point at the end of the forearm."),
+}
+
+
+def robot_note(robot: str) -> str:
+    """What `robot` can and cannot express (blank for a robot without a note)."""
+    return ROBOT_NOTES.get(robot, "")
 
 #: The verdicts, as the first table names them.
 VERDICT_DEFINITIONS = (
@@ -81,4 +128,5 @@ def paper_citation() -> str:
     if PAPER["title"]:
         venue = f", {PAPER['venue']}" if PAPER["venue"] else ""
         return f"“{PAPER['title']}”{venue}"
-    return f"{PAPER['described_as']} (its title and venue are not recorded in this repository)"
+    return (f"{PAPER['described_as']} (its title and venue are not recorded in this repository "
+            f"and could not be found; its collision loss is that of {COLLISION_MODEL})")

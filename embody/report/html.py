@@ -16,7 +16,8 @@ from urllib.parse import quote
 
 import pandas as pd
 
-from embody.report.definitions import COLUMNS, METRICS, VERDICT_DEFINITIONS, paper_citation
+from embody.report.definitions import (COLUMNS, METRICS, VERDICT_DEFINITIONS, paper_citation,
+                                       robot_note)
 from embody.report.tables import Table, format_cell
 
 _STYLE = """
@@ -173,7 +174,7 @@ def render_index(out_dir: Path, *, run: str, tables: dict[str, tuple[Table, dict
                  files: list[Path], failures: list[tuple[str, str]],
                  sequences: pd.DataFrame | None = None,
                  links: dict[str, dict[str, Path]] | None = None,
-                 figure_rule: str = "") -> Path:
+                 figure_rule: str = "", robot: str = "") -> Path:
     """Write `out_dir/index.html`; every href/src is relative to `out_dir`."""
     esc = html.escape
     links = links or {}
@@ -181,6 +182,7 @@ def render_index(out_dir: Path, *, run: str, tables: dict[str, tuple[Table, dict
              f'<meta name="viewport" content="width=device-width, initial-scale=1">'
              f"<title>embody report: {esc(run)}</title><style>{_STYLE}</style></head><body>",
              f"<h1>embody report: {esc(run)}</h1>",
+             *([f'<p class="note">Robot: {esc(robot)}.</p>'] if robot else []),
              f'<p class="note">Tables I–III follow {esc(paper_citation())}. Its published '
              "figures are in Table I's “Paper (reported)” column; every other number is "
              "computed from this run's stored results.</p>"]
@@ -191,6 +193,9 @@ def render_index(out_dir: Path, *, run: str, tables: dict[str, tuple[Table, dict
                      + "</p>")
         if name == "verdicts":
             parts.append(_definitions(VERDICT_DEFINITIONS))
+        if name == "table3_retargeting" and robot_note(robot):
+            parts.append(f'<p class="note" id="robot-note"><b>Robot {esc(robot)}:</b> '
+                         f"{esc(robot_note(robot))}</p>")
         if name == "table2_ablation":
             parts.append('<p class="note">Table II: every setting is computed in the same '
                          "<code>embody report --ablation</code> flow (its own store, the run's "
