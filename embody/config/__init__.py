@@ -102,6 +102,21 @@ def parse_set(item: str) -> dict[str, Any]:
     return nested
 
 
+def _robot_ik(data: dict[str, Any]) -> dict[str, Any]:
+    """The robot definition's own `ik:` values ({"ik": {...}}), read from its YAML (no robot
+    model is built); {} when the robot file is missing or has none (loading it reports that)."""
+    robot = data.get("robot") or {}
+    if not isinstance(robot, dict) or not isinstance(robot.get("name"), str):
+        return {}
+    root = Path(robot["robots_dir"]) if robot.get("robots_dir") else configs_dir() / "robots"
+    path = root / f"{robot['name']}.yaml"
+    try:
+        ik = _read_yaml(path).get("ik") if path.is_file() else None
+    except Exception:  # a broken robot file is reported where the robot loads
+        return {}
+    return {"ik": ik} if isinstance(ik, dict) else {}
+
+
 def load_config(
     files: Iterable[str | Path] = (),
     sets: Iterable[str] = (),
@@ -111,10 +126,12 @@ def load_config(
     """Load defaults, then each file, then each `--set`, validating once at the end."""
     default_path = Path(defaults) if defaults is not None else configs_dir() / "default.yaml"
     data: dict[str, Any] = _read_yaml(default_path) if default_path.exists() else {}
+    user: dict[str, Any] = {}
     for f in files:
-        data = _merge(data, _read_yaml(Path(f)))
+        user = _merge(user, _read_yaml(Path(f)))
     for item in sets:
-        data = _merge(data, parse_set(item))
+        user = _merge(user, parse_set(item))
+    data = _merge(_merge(data, _robot_ik(_merge(data, user))), user)
     try:
         return Config.model_validate(data)
     except ValidationError as exc:

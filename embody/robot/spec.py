@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
@@ -68,6 +68,10 @@ class RobotSpec(_Strict):
     waist_joints: list[str] = []
     hands: dict[str, dict[str, list[str]]] = {}
     velocity_limits: dict[str, float] = {"*": 5.0}
+    #: `ik` config values for this robot (e.g. a robot without wrist joints weights wrist
+    #: rotation differently): applied over the defaults, under the user's files and --set
+    #: (`embody.config.load_config`), so they are part of every robot step's key.
+    ik: dict[str, Any] = {}
     collision: CollisionSpec = CollisionSpec()
     proxies: dict[str, ProxySpec] = {}
     proxy_pairs: list[tuple[str, str]] = []
