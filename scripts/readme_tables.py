@@ -13,6 +13,7 @@ goes between the markers `<!-- <block>:start -->` and `<!-- <block>:end -->` (de
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -39,7 +40,11 @@ def excerpt(report_dir: Path, block: str = "tables", definitions: bool = True) -
         md = report_dir / f"{name}.md"
         if md.is_file():
             parts += [f"**{title}** (run `{report_dir.name}`)", "", md.read_text().rstrip(), ""]
-    robot = report_dir.name.rsplit(".", 1)[-1]
+    try:  # the robot the run used (summary.json), else the default run name's suffix
+        robot = str(json.loads((report_dir / "summary.json").read_text()).get("robot") or "")
+    except (OSError, ValueError):
+        robot = ""
+    robot = robot or report_dir.name.rsplit(".", 1)[-1]
     if robot_note(robot):
         parts += [f"Robot: {robot_note(robot)}", ""]
     if definitions:

@@ -249,6 +249,7 @@ def summary(data: RunData, tables: dict[str, Table]) -> dict[str, Any]:
     """Flat `summary.json` keys, read from the tables (and the sequence statuses)."""
     out: dict[str, Any] = {
         "run": data.name,
+        **({"robot": data.robot} if data.robot else {}),
         "sequences.total": int(len(data.sequences)),
         "sequences.ok": int((data.sequences["status"] == "ok").sum()),
         "sequences.failed": int((data.sequences["status"] != "ok").sum()),

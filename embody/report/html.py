@@ -104,9 +104,10 @@ def summary_table(summary: dict[str, Any]) -> str:
     esc = html.escape
     left = dict(summary)
     parts = ['<table class="report" id="summary"><caption>Summary (summary.json)</caption>']
-    run = left.pop("run", None)
-    if run is not None:
-        parts.append(f"<tbody><tr><td>run</td><td>{esc(str(run))}</td></tr></tbody>")
+    head = [(k, left.pop(k)) for k in ("run", "robot") if k in left]
+    if head:
+        parts.append("<tbody>" + "".join(f"<tr><td>{k}</td><td>{esc(str(v))}</td></tr>"
+                                          for k, v in head) + "</tbody>")
     for prefix, heading in _SECTIONS:
         keys = [k for k in left if k.startswith(prefix)]
         if not keys:
