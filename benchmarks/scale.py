@@ -163,10 +163,13 @@ class Bench:
         server_cpu0 = self._server_cpu()
         load0 = os.getloadavg()[0]
         err_path = self.work / f"{label}.stderr"
+        out_path = self.work / f"{label}.json"
         t0, started = time.perf_counter(), time.time()
-        with open(err_path, "w") as err:
+        # stdout to a file, not a pipe: `--json` of 1,000 sequences is ~110 KB, more than a pipe
+        # buffer, and the driver would block on it while this loop only polls.
+        with open(err_path, "w") as err, open(out_path, "w") as stdout:
             proc = subprocess.Popen(self.command(store, runner, workers, extra), env=self.env,
-                                    cwd=self.work, stdout=subprocess.PIPE, stderr=err, text=True,
+                                    cwd=self.work, stdout=stdout, stderr=err, text=True,
                                     start_new_session=True)
             ps = psutil.Process(proc.pid)
             peak_driver = peak_worker = 0
@@ -186,7 +189,7 @@ class Bench:
                         killed = True
                         break
                     time.sleep(0.2)
-                out = proc.communicate()[0]
+                proc.wait()
             finally:  # the benchmark interrupted: leave no run behind
                 if proc.poll() is None:
                     os.killpg(proc.pid, signal.SIGKILL)
@@ -199,6 +202,7 @@ class Bench:
                 except ProcessLookupError:
                     break
                 time.sleep(0.1)
+        out = out_path.read_text()
         summary = json.loads(out) if out.strip() and not killed else {}
         new_log = b""
         if self.server_log.is_file():
