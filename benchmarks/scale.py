@@ -83,8 +83,8 @@ def write_dataset(folder: Path, n: int, frames: int, seed: int = 0, bases: int =
     return folder
 
 
-def _tree_rss(proc: Any) -> tuple[int, int]:
-    """(driver RSS, largest child RSS) in bytes."""
+def _tree_rss(proc: Any, cpu: dict[int, float] | None = None) -> tuple[int, int]:
+    """(driver RSS, largest child RSS) in bytes; `cpu` collects each child's CPU seconds."""
     import psutil
     try:
         driver = proc.memory_info().rss
@@ -95,6 +95,8 @@ def _tree_rss(proc: Any) -> tuple[int, int]:
     for k in kids:
         try:
             worst = max(worst, k.memory_info().rss)
+            if cpu is not None:
+                cpu[k.pid] = max(cpu.get(k.pid, 0.0), _cpu_s(k))
         except psutil.Error:
             pass
     return driver, worst
@@ -174,12 +176,13 @@ class Bench:
             ps = psutil.Process(proc.pid)
             peak_driver = peak_worker = 0
             driver_cpu = 0.0
+            kids_cpu: dict[int, float] = {}
             loads = [load0]
             killed = False
             metrics = store / "counters" / "metrics.jsonl"
             try:
                 while proc.poll() is None:
-                    d, w = _tree_rss(ps)
+                    d, w = _tree_rss(ps, kids_cpu)
                     peak_driver, peak_worker = max(peak_driver, d), max(peak_worker, w)
                     driver_cpu = max(driver_cpu, _cpu_s(ps))
                     loads.append(os.getloadavg()[0])
@@ -231,6 +234,9 @@ class Bench:
                "noncompute_s_per_task_run": round((span * workers - compute) / tasks, 3)
                if span and tasks else None,
                "driver_cpu_s": round(driver_cpu, 1), "server_cpu_s": round(server_cpu, 1),
+               # CPU (not wall) seconds of the worker processes (sampled, start-up included):
+               # if it rises per sequence with more workers, the cores are not independent
+               "worker_cpu_s": round(sum(kids_cpu.values()), 1),
                "load_avg": round(sum(loads) / len(loads), 1),
                "peak_driver_rss_mb": round(peak_driver / 2**20, 1),
                "peak_worker_rss_mb": round(peak_worker / 2**20, 1), "task_runs": tasks,
@@ -269,6 +275,10 @@ def interleaved(b: Bench, size: int, rounds: int) -> tuple[dict[str, float], lis
         rates[f"{w}w_wall"] = round(60 * sum(x["n"] for x in runs if x["workers"] == w)
                                     / sum(x["wall_s"] for x in runs if x["workers"] == w), 2)
         rates[f"{w}w_load"] = round(sum(x["load_avg"] for x in mine) / max(1, len(mine)), 1)
+        rates[f"{w}w_worker_cpu_s_per_seq"] = round(
+            sum(x["worker_cpu_s"] for x in mine) / max(1, sum(x["n"] for x in mine)), 3)
+        rates[f"{w}w_compute_s_per_seq"] = round(
+            sum(x["compute_s"] for x in mine) / max(1, sum(x["n"] for x in mine)), 3)
     return rates, runs
 
 
