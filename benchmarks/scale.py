@@ -54,8 +54,11 @@ CHEAP = ["--set", "collision.enabled=false", "--set", "collision.depth_metrics=f
          "--set", "ik.iterations=1", "--set", "ik.tracking_iterations=1",
          "--set", "ik.shape_iterations=10", "--set", "critic.rounds=1",
          "--set", "fidelity.baseline=false"]
+#: An HTTP 5xx (access-log status or reason), SQLite locking, a traceback. Not a bare "50x ":
+#: log timestamps' milliseconds (",501 - ") matched that and counted Dask shutdown warnings.
 _ERRORS = re.compile(r"database is locked|HTTPStatusError|Service Unavailable|Internal Server Error"
-                     r"|OperationalError|Traceback|\b50[0-9] ", re.I)
+                     r"|OperationalError|Traceback|HTTP/\d(?:\.\d)?\" 5\d\d|status(?: code)? 5\d\d",
+                     re.I)
 EMBODY = [sys.executable, "-c", "import sys; from embody.cli import main; sys.exit(main())"]
 
 
