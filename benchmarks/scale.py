@@ -4,24 +4,27 @@ Every run is a separate `embody run` process (the default pipeline: source → c
 shape_fit → retarget → refine (geometric critic) → metrics) pointed at one persistent
 `prefect server start` (its own PREFECT_HOME, SQLite), sampled with psutil every 0.2 s:
 
-1. cold, `--runner processes`, W workers       → seq_per_min, driver / worker peak RSS, task runs
-2. warm rerun of (1)                            → warm_s (every step a store hit)
-3. cold, `--runner dask` (LocalCluster, W workers) → seq_per_min_dask
-4. cold, `--runner processes`, 1 worker         → seq_per_min_1worker
+1. cold, `--runner processes`, W workers, N sequences → seq_per_min, driver / worker peak RSS,
+   task runs, driver and server CPU seconds
+2. warm rerun of (1)                                   → warm_s (every step a store hit)
+3. cold, `--runner dask` (LocalCluster, W workers)     → seq_per_min_dask
+4. 1 vs 2 workers (processes) on alternating chunks of fresh sequences, order 2,1,1,2,…
+   (the machine is shared: a load change hits both alike; the mean load is printed)
+                                                       → seq_per_min_1worker, ratio_2w_1w
 5. cold (processes, W workers) killed with SIGKILL (driver and workers) once half the sequences
    have their metrics, then rerun: resumed_recomputed (artifacts computed by the rerun) against
    unfinished_at_kill (artifacts of the finished run that were not in the store at the kill).
 
-Made cheap per sequence through config only, and said so in the output: rendering off
-(`--no-render`; benchmarks/render.py measures it), no end-of-run report (`run.report=false`;
-benchmarks/report.py measures it), sequences cropped to `--frames` (default 60). Collision,
-IK and the critic keep their defaults unless `--cheap` (one IK iteration, short shape fit, one
-critic round, collision optimisation off) — for developing the script, not for the figures.
-`api_errors` counts 5xx / "database is locked" / tracebacks in the server log and in the runs'
-stderr. Peak RSS: the driver process alone; workers: the largest child process (Prefect
-process-pool workers, Dask nanny/worker processes).
+The figures measure orchestration, so per-sequence compute is made tiny, through config only,
+and the output says so: render off (benchmarks/render.py measures it), no end-of-run report
+(benchmarks/report.py), sequences of `--frames` (default 20) frames, and every step kept but
+cheap (`CHEAP`: collision detection without the optimiser or the depth judge, one IK
+iteration, a 10-step shape fit, one critic round, no fidelity IK baseline). `--full` keeps the
+default stage configs. `api_errors` counts 5xx / "database is locked" / tracebacks in the
+server log and in the runs' stderr. Peak RSS: the driver process alone; workers: the largest
+child process (Prefect process-pool workers, Dask nanny/worker processes).
 
-    python benchmarks/scale.py [--n 1000] [--frames 60] [--workers 2] [--batch-size 8] [--out DIR]
+    python benchmarks/scale.py [--n 1000] [--frames 20] [--workers 2] [--batch-size 16] [--out DIR]
 """
 
 from __future__ import annotations
@@ -43,16 +46,26 @@ from typing import Any
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-#: Development only: the real steps with minimal work.
-CHEAP = ["--set", "collision.enabled=false", "--set", "ik.iterations=1",
-         "--set", "ik.shape_iterations=10", "--set", "critic.rounds=1"]
+#: The figures' stage configs: every step of the default pipeline runs (collision detection,
+#: shape fit, IK, one critic round, MuJoCo-validated metrics) with minimal work, so the run
+#: measures orchestration (Prefect, store, driver), not robotics: the collision optimiser and
+#: the mesh depth judge off, one IK iteration, a 10-step shape fit, no fidelity IK baseline.
+CHEAP = ["--set", "collision.enabled=false", "--set", "collision.depth_metrics=false",
+         "--set", "ik.iterations=1", "--set", "ik.tracking_iterations=1",
+         "--set", "ik.shape_iterations=10", "--set", "critic.rounds=1",
+         "--set", "fidelity.baseline=false"]
+#: An HTTP 5xx (access-log status or reason), SQLite locking, a traceback. Not a bare "50x ":
+#: log timestamps' milliseconds (",501 - ") matched that and counted Dask shutdown warnings.
 _ERRORS = re.compile(r"database is locked|HTTPStatusError|Service Unavailable|Internal Server Error"
-                     r"|OperationalError|Traceback|\b50[0-9] ", re.I)
+                     r"|OperationalError|Traceback|HTTP/\d(?:\.\d)?\" 5\d\d|status(?: code)? 5\d\d",
+                     re.I)
 EMBODY = [sys.executable, "-c", "import sys; from embody.cli import main; sys.exit(main())"]
 
 
-def write_dataset(folder: Path, n: int, frames: int, seed: int = 0) -> Path:
-    """`n` synthetic sequences (embody.synth) cropped to `frames`; reused when already there."""
+def write_dataset(folder: Path, n: int, frames: int, seed: int = 0, bases: int = 50) -> Path:
+    """`n` distinct sequences of `frames` frames: windows of `bases` synthetic sequences
+    (embody.synth), sequence i = base i % bases from frame i // bases (so every file's bytes,
+    hence every content key, differ); generating 1,000 full sequences alone took minutes."""
     done = folder / ".complete"
     if done.is_file():
         return folder
@@ -62,16 +75,19 @@ def write_dataset(folder: Path, n: int, frames: int, seed: int = 0) -> Path:
 
     folder.mkdir(parents=True, exist_ok=True)
     ik = ArmIK()
+    motions = [generate_sequence(seed, b, ik) for b in range(min(n, bases))]
     for i in range(n):
-        m = generate_sequence(seed, i, ik)
+        m = motions[i % len(motions)]
         f = min(frames, m.num_frames)
-        save(replace(m, pose=m.pose[:f], transl=m.transl[:f]), folder / f"seq_{i:05d}.npz")
+        start = (i // len(motions)) % max(1, m.num_frames - f + 1)
+        save(replace(m, pose=m.pose[start:start + f], transl=m.transl[start:start + f]),
+             folder / f"seq_{i:05d}.npz")
     done.write_text("ok")
     return folder
 
 
-def _tree_rss(proc: Any) -> tuple[int, int]:
-    """(driver RSS, largest child RSS) in bytes."""
+def _tree_rss(proc: Any, cpu: dict[int, float] | None = None) -> tuple[int, int]:
+    """(driver RSS, largest child RSS) in bytes; `cpu` collects each child's CPU seconds."""
     import psutil
     try:
         driver = proc.memory_info().rss
@@ -82,6 +98,8 @@ def _tree_rss(proc: Any) -> tuple[int, int]:
     for k in kids:
         try:
             worst = max(worst, k.memory_info().rss)
+            if cpu is not None:
+                cpu[k.pid] = max(cpu.get(k.pid, 0.0), _cpu_s(k))
         except psutil.Error:
             pass
     return driver, worst
@@ -103,52 +121,81 @@ def count_task_runs(api: str) -> int:
     return int(r.json())
 
 
+def _cpu_s(proc: Any) -> float:
+    try:
+        t = proc.cpu_times()
+        return float(t.user + t.system)
+    except Exception:
+        return 0.0
+
+
 class Bench:
-    def __init__(self, args: argparse.Namespace, work: Path, api: str, server_log: Path) -> None:
-        self.args, self.work, self.api, self.server_log = args, work, api, server_log
+    def __init__(self, args: argparse.Namespace, work: Path, api: str, server: Any) -> None:
+        self.args, self.work, self.api, self.server = args, work, api, server
+        self.server_log = server.log_path
         self.data = write_dataset(work / f"data-n{args.n}-f{args.frames}", args.n, args.frames)
         self.env = dict(os.environ, PREFECT_API_URL=api, PYTHONPATH=str(ROOT), DO_NOT_TRACK="1",
                         PREFECT_SERVER_ANALYTICS_ENABLED="false", OMP_NUM_THREADS="1",
                         MKL_NUM_THREADS="1")
         self.errors = 0
 
-    def command(self, store: Path, runner: str, workers: int) -> list[str]:
+    def command(self, store: Path, runner: str, workers: int, extra: list[str]) -> list[str]:
         a = self.args
         return [*EMBODY, "run", str(self.data), "--store", str(store), "--name", "scale",
                 "--runner", runner, "--workers", str(workers), "--batch-size", str(a.batch_size),
                 "--no-render", "--set", "run.report=false", "--no-progress", "--json",
-                *(CHEAP if a.cheap else [])]
+                *([] if a.full else CHEAP), *extra]
 
-    def run(self, label: str, store: Path, runner: str, workers: int,
-            kill_at: int | None = None) -> dict[str, Any]:
-        """One `embody run`, sampled; `kill_at`: SIGKILL its group once that many sequences
-        have their metrics artifact."""
+    def _server_cpu(self) -> float:
+        import psutil
+        try:
+            p = psutil.Process(self.server.proc.pid)
+            return _cpu_s(p) + sum(_cpu_s(c) for c in p.children(recursive=True))
+        except Exception:
+            return 0.0
+
+    def run(self, label: str, store: Path, runner: str, workers: int, n: int | None = None,
+            offset: int = 0, kill_at: int | None = None) -> dict[str, Any]:
+        """One `embody run` over `n` sequences from `offset`, sampled; `kill_at`: SIGKILL its
+        group once that many sequences have their metrics artifact."""
         import psutil
         from embody.store import ArtifactStore
 
+        n = n or self.args.n
+        extra = ["--set", f"run.offset={offset}", "--limit", str(n)]
         log_before = self.server_log.stat().st_size if self.server_log.is_file() else 0
         tasks_before = count_task_runs(self.api)
+        server_cpu0 = self._server_cpu()
+        load0 = os.getloadavg()[0]
         err_path = self.work / f"{label}.stderr"
+        out_path = self.work / f"{label}.json"
         t0, started = time.perf_counter(), time.time()
-        with open(err_path, "w") as err:
-            proc = subprocess.Popen(self.command(store, runner, workers), env=self.env,
-                                    cwd=self.work, stdout=subprocess.PIPE, stderr=err, text=True,
+        # stdout to a file, not a pipe: `--json` of 1,000 sequences is ~110 KB, more than a pipe
+        # buffer, and the driver would block on it while this loop only polls.
+        with open(err_path, "w") as err, open(out_path, "w") as stdout:
+            proc = subprocess.Popen(self.command(store, runner, workers, extra), env=self.env,
+                                    cwd=self.work, stdout=stdout, stderr=err, text=True,
                                     start_new_session=True)
             ps = psutil.Process(proc.pid)
             peak_driver = peak_worker = 0
+            driver_cpu = 0.0
+            kids_cpu: dict[int, float] = {}
+            loads = [load0]
             killed = False
             metrics = store / "counters" / "metrics.jsonl"
             try:
                 while proc.poll() is None:
-                    d, w = _tree_rss(ps)
+                    d, w = _tree_rss(ps, kids_cpu)
                     peak_driver, peak_worker = max(peak_driver, d), max(peak_worker, w)
+                    driver_cpu = max(driver_cpu, _cpu_s(ps))
+                    loads.append(os.getloadavg()[0])
                     if kill_at is not None and metrics.is_file() and \
                             sum(1 for _ in metrics.open()) >= kill_at:
                         os.killpg(proc.pid, signal.SIGKILL)
                         killed = True
                         break
                     time.sleep(0.2)
-                out = proc.communicate()[0]
+                proc.wait()
             finally:  # the benchmark interrupted: leave no run behind
                 if proc.poll() is None:
                     os.killpg(proc.pid, signal.SIGKILL)
@@ -161,6 +208,7 @@ class Bench:
                 except ProcessLookupError:
                     break
                 time.sleep(0.1)
+        out = out_path.read_text()
         summary = json.loads(out) if out.strip() and not killed else {}
         new_log = b""
         if self.server_log.is_file():
@@ -172,15 +220,27 @@ class Bench:
                          errors="replace").splitlines())
         self.errors += errors
         tasks = count_task_runs(self.api) - tasks_before
+        server_cpu = self._server_cpu() - server_cpu0
         rows = [r for r in ArtifactStore(store).computations() if r["time"] >= started]
         done = [r["time"] for r in rows if r["step"] == "metrics"]
         # Sequences per minute from the first computed artifact to the last finished sequence:
         # the rate without process start-up (imports, worker spawn), which N does not change.
-        steady = (60 * len(done) / (max(done) - min(r["time"] for r in rows))
-                  if len(done) > 2 else None)
-        n = self.args.n
-        res = {"label": label, "wall_s": round(wall, 2), "seq_per_min": round(60 * n / wall, 2),
-               "steady_seq_per_min": round(steady, 2) if steady else None,
+        span = (max(done) - min(r["time"] for r in rows)) if len(done) > 2 else None
+        compute = sum(float(r.get("compute_s") or 0.0) for r in rows)
+        res = {"label": label, "n": n, "workers": workers, "runner": runner,
+               "wall_s": round(wall, 2), "seq_per_min": round(60 * n / wall, 2),
+               "steady_done": len(done), "steady_span_s": round(span, 2) if span else None,
+               "steady_seq_per_min": round(60 * len(done) / span, 2) if span else None,
+               "compute_s": round(compute, 1),
+               # worker time not spent in a step's compute (Prefect task-run handling, pickling,
+               # store reads, waiting for the driver), per task run; inflated by CPU contention
+               "noncompute_s_per_task_run": round((span * workers - compute) / tasks, 3)
+               if span and tasks else None,
+               "driver_cpu_s": round(driver_cpu, 1), "server_cpu_s": round(server_cpu, 1),
+               # CPU (not wall) seconds of the worker processes (sampled, start-up included):
+               # if it rises per sequence with more workers, the cores are not independent
+               "worker_cpu_s": round(sum(kids_cpu.values()), 1),
+               "load_avg": round(sum(loads) / len(loads), 1),
                "peak_driver_rss_mb": round(peak_driver / 2**20, 1),
                "peak_worker_rss_mb": round(peak_worker / 2**20, 1), "task_runs": tasks,
                "api_errors": errors, "exit": proc.returncode, "killed": killed,
@@ -196,16 +256,70 @@ class Bench:
         return res
 
 
+def interleaved(b: Bench, size: int, rounds: int) -> tuple[dict[str, float], list[dict[str, Any]]]:
+    """1 and 2 workers on alternating chunks of `size` fresh sequences (order ABBA, so a load
+    change during the measurement hits both alike); rates over the steady spans."""
+    offset = 0
+    runs: list[dict[str, Any]] = []
+    store = b.work / "store-r"
+    # The shared shape fit (a hit for every chunk, as in a long run): copied from the cold run.
+    shutil.copytree(b.work / "store-a" / "artifacts" / "shape_fit",
+                    store / "artifacts" / "shape_fit", dirs_exist_ok=True)
+    for r in range(rounds):
+        for workers in ((2, 1) if r % 2 == 0 else (1, 2)):
+            runs.append(b.run(f"chunk{r}_{workers}w", store, "processes",
+                              workers, n=size, offset=offset))
+            offset = (offset + size) % b.args.n
+    rates: dict[str, float] = {}
+    for w in (1, 2):
+        mine = [x for x in runs if x["workers"] == w and x["steady_span_s"]]
+        done, span = sum(x["steady_done"] for x in mine), sum(x["steady_span_s"] for x in mine)
+        rates[f"{w}w"] = round(60 * done / span, 2) if span else float("nan")
+        rates[f"{w}w_wall"] = round(60 * sum(x["n"] for x in runs if x["workers"] == w)
+                                    / sum(x["wall_s"] for x in runs if x["workers"] == w), 2)
+        rates[f"{w}w_load"] = round(sum(x["load_avg"] for x in mine) / max(1, len(mine)), 1)
+        rates[f"{w}w_worker_cpu_s_per_seq"] = round(
+            sum(x["worker_cpu_s"] for x in mine) / max(1, sum(x["n"] for x in mine)), 3)
+        rates[f"{w}w_compute_s_per_seq"] = round(
+            sum(x["compute_s"] for x in mine) / max(1, sum(x["n"] for x in mine)), 3)
+    return rates, runs
+
+
+def kill_resume(b: Bench, n: int) -> tuple[int, int]:
+    """SIGKILL a cold run of `n` sequences at half, rerun it: (recomputed, unfinished at kill)."""
+    from embody.store import ArtifactStore, Manifest
+    store_d = b.work / "store-d"
+    killed = b.run("killed", store_d, "processes", b.args.workers, n=n, kill_at=max(1, n // 2))
+    st = ArtifactStore(store_d)
+    at_kill = {(s, k) for s, k, _ in st.entries()}
+    before = len(st.computations())
+    resumed = b.run("resumed", store_d, "processes", b.args.workers, n=n)
+    recomputed = len(st.computations()) - before
+    needed = Manifest.load(st, "scale").keys()
+    unfinished = len(needed - at_kill)
+    print(f"kill: {len(at_kill)} artifacts in the store at the kill "
+          f"(after {killed['wall_s']} s), {len(needed)} in the finished run; "
+          f"resume computed {recomputed} ({resumed['computed']})", flush=True)
+    return recomputed, unfinished
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=1000)
-    parser.add_argument("--frames", type=int, default=60)
+    parser.add_argument("--frames", type=int, default=20)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--batch-size", type=int, default=8)
-    parser.add_argument("--cheap", action="store_true",
-                        help="Minimal collision/IK/critic work (developing the script only).")
+    parser.add_argument("--batch-size", type=int, default=16)
+    parser.add_argument("--n-small", type=int, default=200,
+                        help="Sequences of the kill/resume and Dask phases (N for both costs "
+                             "hours on a shared 2-core machine).")
+    parser.add_argument("--full", action="store_true",
+                        help="Default stage configs (hours at N=1000 on 2 cores).")
+    parser.add_argument("--chunk", type=int, default=64,
+                        help="Sequences per chunk of the interleaved 1-vs-2-worker phase.")
+    parser.add_argument("--rounds", type=int, default=2,
+                        help="Rounds of the interleaved phase (each: one 1- and one 2-worker chunk).")
     parser.add_argument("--skip", default="", help="Comma-separated phases to skip: "
-                        "dask,one,kill (development only).")
+                        "warm,dask,ratio,kill (development only).")
     parser.add_argument("--out", type=Path, default=None, help="Work folder (default: a temp dir).")
     args = parser.parse_args()
     skip = set(filter(None, args.skip.split(",")))
@@ -214,9 +328,10 @@ def main() -> None:
     for old in work.glob("store-*"):
         shutil.rmtree(old, ignore_errors=True)
     print(f"scale: {args.n} synthetic sequences of {args.frames} frames, batch {args.batch_size}, "
-          f"{args.workers} workers; render OFF, end-of-run report OFF"
-          f"{', CHEAP stage config (not for figures)' if args.cheap else ', stage configs default'}"
-          f"; work {work}", flush=True)
+          f"{args.workers} workers; render OFF, end-of-run report OFF; "
+          + ("stage configs default" if args.full else
+             "stage configs cheap (orchestration-bound): " + " ".join(CHEAP[1::2]))
+          + f"; {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}; work {work}", flush=True)
 
     from embody.flows.server import LocalServer
 
@@ -225,32 +340,38 @@ def main() -> None:
     t0 = time.perf_counter()
     with server as api:
         print(f"prefect server {api} healthy after {time.perf_counter() - t0:.1f} s", flush=True)
-        b = Bench(args, work, api, server.log_path)
+        b = Bench(args, work, api, server)
         w = args.workers
         cold = b.run("cold_processes", work / "store-a", "processes", w)
         steps = step_seconds(work / "store-a", args.n)
         print("compute seconds per sequence (cold, summed over workers): "
               + " ".join(f"{k}={v}" for k, v in steps.items())
-              + f" total={round(sum(steps.values()), 2)}", flush=True)
-        warm = b.run("warm_processes", work / "store-a", "processes", w)
-        dask = b.run("cold_dask", work / "store-b", "dask", w) if "dask" not in skip else None
-        one = b.run("cold_1worker", work / "store-c", "processes", 1) if "one" not in skip else None
+              + f" total={round(sum(steps.values()), 3)}", flush=True)
+        warm = b.run("warm_processes", work / "store-a", "processes", w) \
+            if "warm" not in skip else None
+        small = min(args.n, args.n_small)
         recomputed = unfinished = -1
         if "kill" not in skip:
-            from embody.store import ArtifactStore, Manifest
-            store_d = work / "store-d"
-            killed = b.run("killed", store_d, "processes", w, kill_at=max(1, args.n // 2))
-            st = ArtifactStore(store_d)
-            at_kill = {(s, k) for s, k, _ in st.entries()}
-            before = len(st.computations())
-            resumed = b.run("resumed", store_d, "processes", w)
-            recomputed = len(st.computations()) - before
-            needed = Manifest.load(st, "scale").keys()
-            unfinished = len(needed - at_kill)
-            print(f"kill: {len(at_kill)} artifacts in the store at the kill "
-                  f"(after {killed['wall_s']} s), {len(needed)} in the finished run; "
-                  f"resume computed {recomputed} ({resumed['computed']})", flush=True)
-        mem = [r for r in (cold, dask, one) if r]
+            try:
+                recomputed, unfinished = kill_resume(b, small)
+            except Exception as exc:  # report what was measured, not nothing
+                print(f"kill phase failed: {type(exc).__name__}: {exc}", flush=True)
+        rates: dict[str, float] = {}
+        chunks: list[dict[str, Any]] = []
+        if "ratio" not in skip:
+            try:
+                rates, chunks = interleaved(b, args.chunk, args.rounds)
+                print("interleaved 1 vs 2 workers (steady seq/min, wall seq/min, mean load): "
+                      + json.dumps(rates), flush=True)
+            except Exception as exc:
+                print(f"ratio phase failed: {type(exc).__name__}: {exc}", flush=True)
+        dask = None
+        if "dask" not in skip:
+            try:
+                dask = b.run("cold_dask", work / "store-b", "dask", w, n=small)
+            except Exception as exc:
+                print(f"dask phase failed: {type(exc).__name__}: {exc}", flush=True)
+        mem = [r for r in (cold, dask, *chunks) if r]
         server_rss = 0
         try:
             import psutil
@@ -260,18 +381,26 @@ def main() -> None:
         except Exception:
             pass
         print(f"prefect server RSS now {server_rss / 2**20:.0f} MB; task runs per cold run "
-              f"{cold['task_runs']} ({cold['task_runs'] / args.n:.2f} per sequence)", flush=True)
+              f"{cold['task_runs']} ({cold['task_runs'] / args.n:.2f} per sequence); driver CPU "
+              f"{cold['driver_cpu_s']} s, server CPU {cold['server_cpu_s']} s "
+              f"({1000 * (cold['driver_cpu_s'] + cold['server_cpu_s']) / max(1, cold['task_runs']):.0f}"
+              f" ms per task run)", flush=True)
+    ratio = rates.get("2w", float("nan")) / rates.get("1w", float("nan")) if rates else float("nan")
     print(f"RESULT sequences={args.n} seq_per_min={cold['seq_per_min']} "
-          f"seq_per_min_1worker={one['seq_per_min'] if one else 'nan'} "
+          f"seq_per_min_1worker={rates.get('1w', 'nan')} "
           f"peak_driver_rss_mb={max(r['peak_driver_rss_mb'] for r in mem)} "
           f"peak_worker_rss_mb={max(r['peak_worker_rss_mb'] for r in mem)} "
-          f"warm_s={warm['wall_s']} resumed_recomputed={recomputed} "
+          f"warm_s={warm['wall_s'] if warm else 'nan'} resumed_recomputed={recomputed} "
           f"unfinished_at_kill={unfinished} api_errors={b.errors} "
           f"seq_per_min_dask={dask['seq_per_min'] if dask else 'nan'} "
+          f"steady_seq_per_min_dask={dask['steady_seq_per_min'] if dask else 'nan'} "
+          f"n_kill_dask={small} "
           f"steady_seq_per_min={cold['steady_seq_per_min']} "
-          f"steady_seq_per_min_1worker={one['steady_seq_per_min'] if one else 'nan'} "
-          f"task_runs={cold['task_runs']} compute_s_per_seq={round(sum(steps.values()), 2)} "
-          f"render=off frames={args.frames}{' cheap=1' if args.cheap else ''}")
+          f"seq_per_min_2worker_chunks={rates.get('2w', 'nan')} ratio_2w_1w={ratio:.2f} "
+          f"load_avg={cold['load_avg']} task_runs={cold['task_runs']} "
+          f"driver_cpu_ms_per_task_run={1000 * cold['driver_cpu_s'] / max(1, cold['task_runs']):.0f} "
+          f"compute_s_per_seq={round(sum(steps.values()), 3)} batch={args.batch_size} "
+          f"render=off frames={args.frames} configs={'default' if args.full else 'cheap'}")
 
 
 if __name__ == "__main__":
