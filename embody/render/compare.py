@@ -22,7 +22,7 @@ from embody.render.scene import SceneRenderer, downsample
 from embody.render.sheet import comparison_sheet, png_bytes
 
 #: Frames skinned at once for the preview (bounds memory on long sequences).
-_CHUNK = 64
+_CHUNK = 32
 
 
 def _root_free(motion: Motion, frames: np.ndarray) -> torch.Tensor:
@@ -41,19 +41,23 @@ def reference_vertices(motion: Motion, body: BodyModel, fit, frames: np.ndarray)
 
 class ReferenceSkin:
     """Vertices of only the drawn (decimated) reference mesh, in the torso frame: linear blend
-    skinning of those vertices, when it reproduces `body.vertices` (checked on the reach poses;
-    a body with pose-dependent shape falls back to skinning every vertex)."""
+    skinning of those vertices in float32 (images need no more), when it reproduces
+    `body.vertices` to 10 µm (checked on the reach poses; a body with pose-dependent shape
+    falls back to skinning every vertex)."""
 
     def __init__(self, body: BodyModel, fit, keep: np.ndarray, check_poses: torch.Tensor,
                  check_vertices: torch.Tensor) -> None:
         self.body, self.fit, self.keep = body, fit, np.asarray(keep)
         self.betas = torch.as_tensor(fit.betas, dtype=torch.float64)
         with torch.no_grad():
-            self.rest = body.rest_vertices(self.betas)[self.keep]
-            self.bind = body.rest_joints(self.betas)
-            self.weights = torch.as_tensor(np.asarray(body.skin_weights)[self.keep], dtype=torch.float64)
-            own = skin(body.joint_transforms(check_poses, self.betas), self.rest, self.bind, self.weights)
+            self.rest = body.rest_vertices(self.betas)[self.keep].to(torch.float32)
+            self.bind = body.rest_joints(self.betas).to(torch.float32)
+            self.weights = torch.as_tensor(np.asarray(body.skin_weights)[self.keep], dtype=torch.float32)
+            own = self._skin(body.joint_transforms(check_poses, self.betas))
             self.exact = bool((own - check_vertices[:, self.keep]).abs().max() < 1e-5)
+
+    def _skin(self, transforms: torch.Tensor) -> torch.Tensor:
+        return skin(transforms.to(torch.float32), self.rest, self.bind, self.weights).to(torch.float64)
 
     def __call__(self, motion: Motion, frames: np.ndarray) -> np.ndarray:
         """(N,K,3) torso-frame vertices of the drawn mesh at `frames`."""
@@ -63,8 +67,7 @@ class ReferenceSkin:
             for start in range(0, len(frames), _CHUNK):
                 pose = _root_free(motion, frames[start:start + _CHUNK])
                 if self.exact:
-                    verts = skin(self.body.joint_transforms(pose, self.betas), self.rest, self.bind,
-                                 self.weights)
+                    verts = self._skin(self.body.joint_transforms(pose, self.betas))
                 else:
                     verts = self.body.vertices(pose, self.betas)[:, self.keep]
                 out.append(self.fit.apply(verts).cpu().numpy())
