@@ -18,6 +18,7 @@ drawn). Reading back colour only (no depth buffer) saves most of the read-back t
 from __future__ import annotations
 
 import copy
+import threading
 from typing import Protocol
 
 import numpy as np
@@ -33,6 +34,10 @@ _OFF_FLAGS = (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION
               mujoco.mjtRndFlag.mjRND_SKYBOX, mujoco.mjtRndFlag.mjRND_FOG,
               mujoco.mjtRndFlag.mjRND_HAZE)
 _HIDDEN_GROUP = 5
+#: Robot models prepared for drawing (decimated, recoloured), per process: preparing G1's takes
+#: about half a second and every sequence's renderer needs the same one. Read-only once built.
+_PREPARED: dict[tuple, tuple[mujoco.MjModel, mujoco.MjModel]] = {}
+_PREPARED_LOCK = threading.Lock()
 
 
 class RenderableRobot(Protocol):
@@ -174,6 +179,21 @@ class SceneRenderer:
     # --- setup ----------------------------------------------------------------------------
 
     def _robot_model(self, model: mujoco.MjModel, torso_body: str) -> mujoco.MjModel:
+        cfg = self.cfg
+        key = (id(model), torso_body, self.size, cfg.upper_body, cfg.mesh_cell_m,
+               tuple(cfg.robot_rgba))
+        with _PREPARED_LOCK:
+            source, prepared = _PREPARED.get(key, (None, None))
+            if source is model:  # the entry holds its source, so its id cannot be reused
+                return prepared
+        prepared = self._prepare(model, torso_body)
+        with _PREPARED_LOCK:
+            if len(_PREPARED) >= 8:
+                _PREPARED.clear()
+            _PREPARED[key] = (model, prepared)
+        return prepared
+
+    def _prepare(self, model: mujoco.MjModel, torso_body: str) -> mujoco.MjModel:
         model = copy.copy(model)  # private: we change offscreen size and geom groups
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.size[0])
         model.vis.global_.offheight = max(model.vis.global_.offheight, self.size[1])
