@@ -5,7 +5,9 @@ geometric critic, render, metrics) over the default synthetic set in a fresh sto
 store's computation log for each step's compute time. `seconds_per_seq` is the flow's wall time
 (report build excluded, printed separately) divided by the number of sequences; the per-step
 figures are the summed compute seconds of that step divided by the same number, so with N workers
-they add up to about N × seconds_per_seq.
+they add up to about N × seconds_per_seq. `cpu_s_per_seq` (this process and its finished
+children) and the load average at the end are printed too: on a shared machine compare runs made
+back to back or side by side, never against a figure from another day.
 
     python benchmarks/pipeline.py [--limit N] [--workers 2] [--out DIR]
 """
@@ -21,6 +23,11 @@ from collections import defaultdict
 from pathlib import Path
 
 STEPS = ("collide", "retarget", "refine", "render", "metrics")
+
+
+def _cpu() -> float:
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
 
 
 def main() -> None:
@@ -45,9 +52,10 @@ def main() -> None:
     data = default_dataset(store_dir / "data")
     cfg = Config.model_validate({"run": {"store": str(store_dir), "workers": args.workers,
                                          "limit": args.limit, "name": "bench-pipeline"}})
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), _cpu()
     summary = run_flow(data, cfg)
     wall = time.perf_counter() - t0 - summary["report_s"]
+    cpu = _cpu() - c0
     n = summary["ok"] + summary["failed"]
     per_step: dict[str, float] = defaultdict(float)
     for row in ArtifactStore(store_dir).computations():
@@ -57,7 +65,9 @@ def main() -> None:
     for step, secs in sorted(per_step.items()):
         print(f"  {step:10s} {secs:8.2f} s total  {secs / max(n, 1):6.2f} s/seq")
     print("RESULT " + " ".join([f"seconds_per_seq={wall / max(n, 1):.2f}"]
-                               + [f"{s}_s={per_step.get(s, 0.0) / max(n, 1):.2f}" for s in STEPS]))
+                               + [f"{s}_s={per_step.get(s, 0.0) / max(n, 1):.2f}" for s in STEPS]
+                               + [f"cpu_s_per_seq={cpu / max(n, 1):.2f}",
+                                  f"load1={os.getloadavg()[0]:.1f}"]))
 
 
 if __name__ == "__main__":

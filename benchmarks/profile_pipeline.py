@@ -1,13 +1,23 @@
 """Profile of the default pipeline's per-sequence steps, in one process, with cProfile.
 
-The flow runs steps in Prefect worker threads, which cProfile does not follow; this script calls
-the same library functions the steps call (`tasks/stages.py`), in the same order, on the first N
-sequences of the default synthetic set, with the default config, and prints
+All figures are CPU seconds (`time.process_time`: this process's threads, so llvmpipe's render
+threads count, the ffmpeg encoder child does not), which a loaded shared machine inflates far
+less than wall time; wall seconds per step are printed beside them.
+
+The flow runs steps in Prefect worker threads, which cProfile does not follow; this script runs
+the flow's own step functions (`embody.tasks.stages`, through `tasks.execute.run_batch` with the
+default config, collision depth check included) in one thread, in run order, on the first N
+sequences of the default synthetic set, and prints
   * wall seconds per step and sequence (collide, retarget, refine, render, metrics), and
   * inside those, the cumulative seconds of the kernels that matter: FK, IK Jacobians, the
     self-collision proxies, the banded solve, MuJoCo verification/validation, offscreen rendering.
 
+`--store DIR` keeps the store between invocations; `--reuse collide` then profiles the later
+steps against the stored collision results (the collide step is another engineer's, and costs
+most), which is how the non-collision steps were tuned.
+
     python benchmarks/profile_pipeline.py [--n 3] [--top 25] [--pstats out.pstats]
+                                          [--store DIR --reuse collide]
 """
 
 from __future__ import annotations
@@ -28,11 +38,22 @@ KERNELS = [
     ("ik.collision_proxies", "embody/retarget/costs.py", "_collision"),
     ("ik.banded_solve", "embody/retarget/banded.py", "block_pentadiagonal_solve"),
     ("ik.solve", "embody/retarget/ik.py", "solve"),
-    ("mujoco.verify", "embody/retarget/verify.py", "verify"),
+    ("ik.build_targets", "embody/retarget/targets.py", "build_targets"),
+    ("ik.contact_repair", "embody/retarget/verify.py", "separate"),
+    ("ik.control_trajectory", "embody/retarget/control.py", "control_trajectory"),
     ("mujoco.validation_counts", "embody/retarget/validation.py", "validation_counts"),
-    ("collision.frame_energies", "embody/collision/energy.py", "frame_energies"),
-    ("collision.skinning", "embody/collision/energy.py", "skinned_points"),
+    ("critic.judge", "embody/critic/refine.py", "__call__"),
+    ("fidelity.human_track", "embody/metrics/embodiments.py", "human_track"),
+    ("fidelity.robot_track", "embody/metrics/embodiments.py", "robot_track"),
+    ("fidelity.compare_with", "embody/metrics/fidelity.py", "compare_with"),
+    ("collision.mitigate", "embody/collision/optimize.py", "mitigate"),
+    ("collision.depths", "embody/collision/depth.py", "motion_depths"),
     ("render.sequence", "embody/render/record.py", "render_sequence"),
+    ("render.mjr_render", "~", "<built-in method mujoco._render.mjr_render>"),
+    ("render.mjr_readPixels", "~", "<built-in method mujoco._render.mjr_readPixels>"),
+    ("render.mjr_uploadMesh", "~", "<built-in method mujoco._render.mjr_uploadMesh>"),
+    ("render.encode_preview", "embody/render/preview.py", "write_preview"),
+    ("render.png", "embody/render/sheet.py", "png_bytes"),
 ]
 
 
@@ -41,62 +62,68 @@ def main() -> None:
     parser.add_argument("--n", type=int, default=3)
     parser.add_argument("--top", type=int, default=25)
     parser.add_argument("--pstats", type=Path, default=None)
+    parser.add_argument("--store", type=Path, default=None, help="Store folder (default: temp).")
+    parser.add_argument("--reuse", nargs="*", default=[], choices=["collide"],
+                        help="Steps read from --store when already there (not profiled).")
     args = parser.parse_args()
 
-    import numpy as np
-    import torch
-    torch.set_num_threads(1)
-    from embody.body import load_body_model
-    from embody.collision import mitigate
     from embody.config import Config
-    from embody.critic.refine import make_critic, refine
+    from embody.flows.env import configure
     from embody.io import load_dataset
-    from embody.metrics import mean_jerk
-    from embody.render import select_keyframes  # noqa: F401  (the render step's import)
-    from embody.render.record import render_sequence
-    from embody.retarget import build_targets, shape_fit, solve
-    from embody.retarget.validation import validation_counts
-    from embody.robot import load_robot
     from embody.synth import default_dataset
+    from embody.tasks.execute import new_record, run_batch, run_shared
+    from embody.tasks.pipeline import Context
+    from embody.tasks.stages import default_pipeline
 
-    cfg = Config()
-    data = default_dataset(Path(tempfile.mkdtemp(prefix="embody-prof-")))
+    store = args.store or Path(tempfile.mkdtemp(prefix="embody-prof-"))
+    configure(store)
+    cfg = Config.model_validate({"run": {"store": str(store), "name": "profile"}})
+    data = default_dataset(store / "data")
     refs = list(load_dataset(data))[: args.n]
-    body, robot = load_body_model(cfg.body), load_robot(cfg.robot)
-    critic = make_critic(cfg.critic)
+    ctx = Context(cfg=cfg, store_root=str(store), run="profile")
+    pipeline = default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
+    ctx.body, ctx.robot, ctx.critic  # noqa: B018  (per-process resources, built before timing)
+    import embody.retarget  # noqa: F401
+
     t0 = time.perf_counter()
-    fit = shape_fit(robot, body, cfg.ik)
-    print(f"shape_fit (once per run) {time.perf_counter() - t0:.2f} s")
+    shared: dict[str, str] = {}
+    for step in pipeline.shared:
+        rec = run_shared(step, ctx, shared)
+        shared[step.name] = rec["key"]
+    print(f"shared steps (once per run) {time.perf_counter() - t0:.2f} s")
 
     wall: dict[str, float] = defaultdict(float)
-    prof = cProfile.Profile()
-    prof.enable()
-    for ref in refs:
-        t = time.perf_counter()
-        motion = mitigate(ref.load(), body, cfg.collision).motion
-        wall["collide"] += time.perf_counter() - t
-        t = time.perf_counter()
-        targets = build_targets(motion, body, fit, robot)
-        ik = solve(robot, targets, cfg.ik)
-        wall["retarget"] += time.perf_counter() - t
-        t = time.perf_counter()
-        result = refine(motion, body, fit, robot, targets, ik, cfg.critic, cfg.ik, cfg.render,
-                        critic=critic)
-        wall["refine"] += time.perf_counter() - t
-        t = time.perf_counter()
-        render_sequence(motion, body, fit, robot, result.q, result.keyframes, cfg.render, ref.id)
-        wall["render"] += time.perf_counter() - t
-        t = time.perf_counter()
-        q = np.asarray(result.q)
-        mean_jerk(q, ik.fps)
-        validation_counts(robot, q, ik.fps)
-        wall["metrics"] += time.perf_counter() - t
-    prof.disable()
+    cpu: dict[str, float] = defaultdict(float)
+    prof = cProfile.Profile(time.process_time)
+    records = [new_record(r) for r in refs]
+    for step in pipeline.per_sequence:
+        if step.name not in args.reuse:  # recompute: drop what a previous invocation stored
+            for rec in records:
+                if rec["status"] != "ok" or step.name == "source":
+                    continue
+                from embody.tasks.execute import record_key
+                key, _ = record_key(step, ctx, rec, shared)
+                ctx.store.remove(step.name, key)
+        t, c = time.perf_counter(), time.process_time()
+        profiled = step.name not in args.reuse and step.name != "source"
+        if profiled:
+            prof.enable()
+        records = run_batch(step, ctx, records, shared)
+        if profiled:
+            prof.disable()
+        wall[step.name] += time.perf_counter() - t
+        cpu[step.name] += time.process_time() - c
+        for rec in records:
+            if rec["status"] != "ok":
+                raise SystemExit(f"{rec['id']}: {rec['error']}\n{rec.get('traceback', '')}")
 
     n = len(refs)
-    print(f"\nwall seconds per sequence (n={n}, 1 thread):")
-    for step, secs in wall.items():
-        print(f"  {step:10s} {secs / n:7.2f}")
+    for step in ["source", *args.reuse]:
+        wall.pop(step, None)
+        cpu.pop(step, None)
+    print(f"\nseconds per sequence (n={n}, one thread of steps): CPU, wall")
+    for step, secs in cpu.items():
+        print(f"  {step:10s} {secs / n:7.2f} {wall[step] / n:7.2f}")
     stats = pstats.Stats(prof)
     if args.pstats:
         stats.dump_stats(args.pstats)
@@ -107,15 +134,15 @@ def main() -> None:
             if file.endswith(suffix) and func == name:
                 cum[label] = cum.get(label, 0.0) + ct
                 calls[label] = calls.get(label, 0) + ncalls
-    print("\nkernels (cumulative seconds per sequence, calls per sequence):")
+    print("\nkernels (cumulative CPU seconds per sequence, calls per sequence):")
     for label, _, _ in KERNELS:
         if label in cum:
             print(f"  {label:26s} {cum[label] / n:7.2f} s  {calls[label] / n:8.0f} calls")
     print(f"\ntop {args.top} functions by cumulative time:")
     stats.sort_stats("cumulative").print_stats(args.top)
-    total = sum(wall.values()) / n
-    print("RESULT " + " ".join([f"seconds_per_seq_1thread={total:.2f}"]
-                               + [f"{k}_s={v / n:.2f}" for k, v in wall.items()]
+    total = sum(cpu.values()) / n
+    print("RESULT " + " ".join([f"cpu_seconds_per_seq={total:.2f}"]
+                               + [f"{k}_s={v / n:.2f}" for k, v in cpu.items()]
                                + [f"{k}_s={v / n:.2f}" for k, v in cum.items()]))
 
 

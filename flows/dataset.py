@@ -340,7 +340,8 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     ctx = Context(cfg=cfg, store_root=str(store.root), run=run)
     register_server()  # so a later run can stop this one's Prefect server if we are killed
     manifest = start_manifest(store, run, refs, dataset, split, pipeline, cfg)
-    size = cfg.run.batch_size
+    # small runs: at least two batches per worker, so no worker idles while one runs a long batch
+    size = min(cfg.run.batch_size, max(1, -(-len(refs) // (2 * cfg.run.workers))))
     batches = [[new_record(r) for r in refs[i:i + size]] for i in range(0, len(refs), size)]
     bar = Progress([s.name for s in pipeline.per_sequence], len(refs), enabled=progress)
     driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers)

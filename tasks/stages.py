@@ -6,6 +6,9 @@ inside the steps, so defining the pipeline costs nothing and never imports a sta
 
 from __future__ import annotations
 
+import hashlib
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -49,6 +52,42 @@ def _robot_files(cfg: Any) -> list[Path]:
     return files + ([Path(cfg.robot.mjcf_path)] if cfg.robot.mjcf_path else [])
 
 
+#: Targets built in this process, by content (`_targets`); a few batches' worth.
+_TARGETS: OrderedDict[bytes, Any] = OrderedDict()
+_TARGETS_LOCK = threading.Lock()
+_TARGETS_SIZE = 32
+
+
+def _digest(*arrays: Any, text: str = "") -> bytes:
+    h = hashlib.blake2b(text.encode(), digest_size=16)
+    for a in arrays:
+        a = np.ascontiguousarray(a)
+        h.update(str((a.dtype.str, a.shape)).encode())
+        h.update(a.tobytes())
+    return h.digest()
+
+
+def _targets(ctx: Context, motion: Motion, fit: Any, ik: Any) -> Any:
+    """`build_targets`, computed once per process for the same motion, fit and IK config: the
+    refine (and render) steps take the targets the retarget step built, instead of rebuilding
+    them. Keyed by content, so a hit is exactly what a rebuild would give."""
+    from embody.retarget import build_targets
+    transl = np.zeros(0) if motion.transl is None else motion.transl
+    key = _digest(motion.pose, transl, motion.betas, np.asarray(motion.fps),
+                  *(np.asarray(v) for v in fit.to_arrays().values()),
+                  text=ik.model_dump_json() + ctx.cfg.section_json("body") + ctx.cfg.section_json("robot"))
+    with _TARGETS_LOCK:
+        if key in _TARGETS:
+            _TARGETS.move_to_end(key)
+            return _TARGETS[key]
+    targets = build_targets(motion, ctx.body, fit, ctx.robot, ik)
+    with _TARGETS_LOCK:
+        _TARGETS[key] = targets
+        while len(_TARGETS) > _TARGETS_SIZE:
+            _TARGETS.popitem(last=False)
+    return targets
+
+
 def _load_source(ctx: Context, inputs: dict[str, Any]) -> Motion:
     """The sequence with the `io` overrides (fps, up axis, hands) applied and within the `io`
     bounds; `io` is in its key."""
@@ -81,9 +120,8 @@ def _shape_fit_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
 
 
 def _retarget(ctx: Context, inputs: dict[str, Any]) -> Any:
-    from embody.retarget import build_targets
     from embody.retarget.windows import solve_windowed
-    targets = build_targets(inputs["collide"].motion, ctx.body, inputs["shape_fit"], ctx.robot, ctx.cfg.ik)
+    targets = _targets(ctx, inputs["collide"].motion, inputs["shape_fit"], ctx.cfg.ik)
     return solve_windowed(ctx.robot, targets, ctx.cfg.ik)
 
 
@@ -93,11 +131,12 @@ def _ik_solution(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
 
 
 def _refine(ctx: Context, inputs: dict[str, Any]) -> Any:
-    """Critic rounds after IK; the reference targets are rebuilt exactly as `retarget` built them."""
+    """Critic rounds after IK, each re-solve warm-started from the previous round's solution;
+    the reference targets are the retarget step's (`_targets`: reused in this process, else
+    rebuilt identically)."""
     from embody.critic import refine
-    from embody.retarget import build_targets
     motion, fit = inputs["collide"].motion, inputs["shape_fit"]
-    targets = build_targets(motion, ctx.body, fit, ctx.robot, ctx.cfg.ik)
+    targets = _targets(ctx, motion, fit, ctx.cfg.ik)
     return refine(motion, ctx.body, fit, ctx.robot, targets, inputs["retarget"], ctx.cfg.critic,
                   ctx.cfg.ik, ctx.cfg.render, critic=ctx.critic)
 
@@ -116,13 +155,12 @@ def _render(ctx: Context, inputs: dict[str, Any]) -> Any:
     """The final trajectory (refined when the critic ran) beside the reference body."""
     from embody.render import select_keyframes
     from embody.render.record import render_sequence
-    from embody.retarget import build_targets
     motion, fit, refined = inputs["collide"].motion, inputs["shape_fit"], inputs.get("refine")
     if refined is not None:  # the frames the critic saw
         q, keyframes = refined.q, refined.keyframes
     else:
         q = inputs["retarget"].q
-        targets = build_targets(motion, ctx.body, fit, ctx.robot, ctx.cfg.ik)
+        targets = _targets(ctx, motion, fit, ctx.cfg.ik)
         keyframes = select_keyframes(targets.wrist_pos, ctx.cfg.render.keyframes)
     title = f"{motion.meta.get('id', '')}: {'refined' if refined is not None else 'IK only'}"
     return render_sequence(motion, ctx.body, fit, ctx.robot, q, keyframes, ctx.cfg.render, title)
@@ -143,7 +181,7 @@ def _fidelity(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any], dic
     location-preserving targets), `preserving` (the retarget step then) and `refined`."""
     from embody.metrics.embodiments import human_track, robot_track
     from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with
-    from embody.retarget import build_targets, solve
+    from embody.retarget import solve
     from embody.retarget.validation import validation_counts
     motion, ik, cfg = inputs["collide"].motion, inputs["retarget"], ctx.cfg
     human = human_track(motion, ctx.body)
@@ -151,7 +189,7 @@ def _fidelity(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any], dic
     out: dict[str, Any] = {}
     if cfg.ik.location_preserving and cfg.fidelity.baseline:
         plain = cfg.ik.model_copy(update={"location_preserving": False})
-        base = solve(ctx.robot, build_targets(motion, ctx.body, inputs["shape_fit"], ctx.robot, plain), plain)
+        base = solve(ctx.robot, _targets(ctx, motion, inputs["shape_fit"], plain), plain)
         rows["ik"] = base.q
         out.update({f"fidelity.ik.{k}": v for k, v in validation_counts(ctx.robot, base.q, ik.fps).items()})
         out["fidelity.ik.mean_jerk"] = base.metrics["jerk"]
@@ -159,9 +197,15 @@ def _fidelity(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any], dic
     if "refine" in inputs:
         rows["refined"] = np.asarray(inputs["refine"].q)
     frames: dict[str, np.ndarray] = {}
+    scored: list[tuple[np.ndarray, Any]] = []
     for row, q in rows.items():
-        robot = robot_track(ctx.robot, q, ik.fps)
-        per_frame, metrics = compare_with(human, robot, cfg.fidelity)
+        # a row equal to an earlier one (the critic kept the IK solution) is not scored twice
+        same = next((r for p, r in scored if p.shape == q.shape and np.array_equal(p, q)), None)
+        if same is None:
+            robot = robot_track(ctx.robot, q, ik.fps)
+            same = compare_with(human, robot, cfg.fidelity)
+        per_frame, metrics = same
+        scored.append((q, same))
         out.update({f"fidelity.{row}.{k}": v for k, v in metrics.items()})
         frames = {"location_err": per_frame["location_err"], "location_landmark": per_frame["location_landmark"]}
         names = [n for n in LOCATION_LANDMARKS if human.has(n) and robot.has(n)]  # what it indexes
@@ -174,7 +218,6 @@ def _report_tracks(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any]
     wrist tracks (T,2,3, torso frame, m) of the IK's reference, the IK-only and the refined
     trajectory, and the critic's metrics of its IK-only round (`critic_ik.*`)."""
     from embody.critic.refine import robot_wrists
-    from embody.retarget import build_targets
     refined = inputs.get("refine")
     if refined is not None:
         first = refined.ik_only
@@ -184,7 +227,7 @@ def _report_tracks(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any]
                                if isinstance(v, (int, float, bool))}
         out["critic_ik.accepted"] = bool(first.accepted)
     else:
-        targets = build_targets(inputs["collide"].motion, ctx.body, inputs["shape_fit"], ctx.robot, ctx.cfg.ik)
+        targets = _targets(ctx, inputs["collide"].motion, inputs["shape_fit"], ctx.cfg.ik)
         arrays = {"wrist_reference": targets.wrist_pos, "wrist_ik": robot_wrists(ctx.robot, inputs["retarget"].q)[0]}
         out = {}
     return out, {k: np.asarray(v, dtype=np.float32) for k, v in arrays.items()}
@@ -200,9 +243,15 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     from embody.retarget.validation import validation_counts
     ik = inputs["retarget"]
     if "refine" in inputs:
-        q = np.asarray(inputs["refine"].q, dtype=np.float64)
-        q_control = control_trajectory(ctx.robot, q, ik.fps, ik.control_rate_hz,
-                                       ctx.cfg.ik.contact_repair)
+        final = inputs["refine"].final
+        q = np.asarray(final.q, dtype=np.float64)
+        if final.q_control is not None:  # the refine step's solve already made it
+            q_control = np.asarray(final.q_control, dtype=np.float64)
+        elif np.array_equal(q, ik.q):  # the critic kept the IK solution
+            q_control = np.asarray(ik.q_control, dtype=np.float64)
+        else:
+            q_control = control_trajectory(ctx.robot, q, ik.fps, ik.control_rate_hz,
+                                           ctx.cfg.ik.contact_repair)
     else:
         q, q_control = np.asarray(ik.q, dtype=np.float64), np.asarray(ik.q_control, np.float64)
     source = validation_counts(ctx.robot, q, ik.fps)
@@ -227,12 +276,14 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
                  shared=True, files=_robot_files)
 RETARGET = Step("retarget", "2", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
-REFINE = Step("refine", "3", ("body", "robot", "ik", "render", "critic"), _refine,
+# v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
+REFINE = Step("refine", "4", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
-RENDER = Step("render", "1", ("body", "robot", "render"), _render, _render_result,
+# v2: previews at the source frame rate, 480 px high; sheets supersampled.
+RENDER = Step("render", "2", ("body", "robot", "render"), _render, _render_result,
               (COLLIDE, SHAPE_FIT, RETARGET), metrics=_render_metrics, files=_robot_files)
-RENDER_REFINED = Step("render", "1", ("body", "robot", "render"), _render, _render_result,
+RENDER_REFINED = Step("render", "2", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
 # v5: the exported control-rate array (validated), sign fidelity, the report's wrist tracks.

@@ -1,6 +1,10 @@
 """Offscreen rendering: image sizes, the robot and reference where the cameras should see them,
 deterministic bytes, keyframes at extrema, the comparison sheet and the preview."""
 
+import io
+import tempfile
+from pathlib import Path
+
 import numpy as np
 import pytest
 from PIL import Image
@@ -140,3 +144,85 @@ def test_decimated_robot_meshes_keep_the_silhouette(robot, renderer):
     with SceneRenderer(robot, CFG.model_copy(update={"mesh_cell_m": 0.0})) as full_renderer:
         full = _mask(full_renderer.robot_frames(q[None])[0])
     assert (fast & full).sum() / (fast | full).sum() > 0.95
+
+
+# --- the render step: preview at the source frame rate, sheet frames reused, decimated body ---
+
+@pytest.fixture(scope="module")
+def fitted(robot):
+    from embody.body import load_body_model
+    from embody.config.ik import IKConfig
+    from embody.retarget import shape_fit
+    body = load_body_model()
+    return body, shape_fit(robot, body, IKConfig())
+
+
+def _wave(robot, n: int, fps: float):
+    from embody.motion import Motion
+    s = np.linspace(0, 1, n)
+    pose = np.zeros((n, 55, 3), np.float32)
+    pose[:, 16, 2], pose[:, 17, 2] = -1.0 + 0.8 * s, 1.0 - 0.8 * s  # shoulders: arms rise
+    q = np.tile(robot.tpose, (n, 1))
+    q[:, robot.joint_index("left_shoulder_roll_joint")] += 0.8 * s
+    return Motion(pose=pose, transl=np.zeros((n, 3)), betas=np.zeros(10), fps=fps), q
+
+
+def test_preview_plays_every_source_frame_at_480px_and_sheet_reuses_its_frames(robot, fitted):
+    import imageio_ffmpeg
+
+    from embody.render.compare import open_renderer, render_comparison
+    from embody.render.record import SequenceRender, render_sequence
+    body, fit = fitted
+    cfg = RenderConfig(keyframes=3)
+    motion, q = _wave(robot, 14, 24.0)
+    keys = np.array([0, 6, 13])
+    out = render_sequence(motion, body, fit, robot, q, keys, cfg, "t")
+    assert out.preview_suffix == ".mp4"
+    path = Path(tempfile.mkdtemp()) / "p.mp4"
+    path.write_bytes(out.preview)
+    reader = imageio_ffmpeg.read_frames(str(path))
+    meta = next(reader)
+    assert sum(1 for _ in reader) == 14  # every source frame
+    assert meta["fps"] == pytest.approx(24.0)  # played at the source rate
+    assert meta["size"] == (2 * cfg.supersample * cfg.width, cfg.supersample * cfg.height)
+    assert meta["size"][1] >= 480
+    # the sheet (first view taken from the preview's frames) matches one drawn directly
+    sheet = np.asarray(Image.open(io.BytesIO(out.sheet_png)))
+    with open_renderer(robot, body, fit, cfg) as renderer:
+        direct = render_comparison(renderer, cfg, keys, motion.fps, q,
+                                   reference_verts=renderer.skin(motion, keys)).sheet_png("t")
+    diff = np.abs(sheet.astype(int) - np.asarray(Image.open(io.BytesIO(direct))).astype(int))
+    assert diff.shape == sheet.shape and (diff > 2).mean() < 1e-3
+    again = SequenceRender.from_arrays(out.to_arrays(), out.to_attrs())
+    assert again.preview == out.preview and again.sheet_png == out.sheet_png
+
+
+def test_preview_frames_follow_the_source_rate_or_the_configured_one():
+    from embody.render.compare import preview_frames
+    frames, rate = preview_frames(RenderConfig(), 90, 30.0)
+    assert len(frames) == 90 and rate == pytest.approx(30.0)
+    frames, rate = preview_frames(RenderConfig(preview_fps=10.0), 90, 30.0)
+    assert len(frames) == 30 and rate == pytest.approx(10.0)
+    frames, rate = preview_frames(RenderConfig(preview_max_frames=45), 90, 30.0)
+    assert len(frames) == 45 and rate == pytest.approx(15.0)  # still real time
+
+
+def test_decimated_reference_keeps_pieces_apart_and_the_silhouette(robot, fitted):
+    from embody.render.compare import open_renderer
+    from embody.render.scene import cluster_faces
+    # two touching triangles of different pieces/bones never merge, however coarse the grid
+    tri = np.array([[0, 0, 0], [0.2, 0, 0], [0, 0.2, 0]], float)
+    verts = np.concatenate([tri, tri + [0, 0, 1e-3]])  # each vertex 1 mm from its twin
+    faces = np.array([[0, 1, 2], [3, 4, 5]])
+    keep, kept = cluster_faces(verts, faces, 0.05)
+    assert len(keep) == 6 and len(kept) == 2
+    keep, kept = cluster_faces(verts, faces, 0.0)
+    assert np.array_equal(keep, np.arange(6)) and np.array_equal(kept, faces)
+    body, fit = fitted
+    motion, _ = _wave(robot, 2, 30.0)
+    masks = []
+    for cell in (0.0, RenderConfig().reference_cell_m):
+        with open_renderer(robot, body, fit, RenderConfig(reference_cell_m=cell)) as renderer:
+            assert renderer.skin.exact  # skinning only the drawn vertices is exact here
+            masks.append(_mask(renderer.reference_frames(renderer.skin(motion, [1]))[0]))
+    assert (masks[0] & masks[1]).sum() / (masks[0] | masks[1]).sum() > 0.97

@@ -41,3 +41,30 @@ def test_jerk_of_polynomials():
     assert np.allclose(jerk(t**2, fps), 0.0, atol=1e-6)  # quadratic: zero jerk
     assert np.allclose(jerk(t**3, fps), 6.0, atol=1e-6)  # cubic: constant jerk 6
     assert mean_jerk(np.zeros(3), fps) == 0.0
+
+
+def _dtw_cell_loop(a, b):
+    """The textbook O(Ta·Tb) cell loop (ties: diagonal, up, left), as the reference."""
+    a, b = np.asarray(a, float).reshape(len(a), -1), np.asarray(b, float).reshape(len(b), -1)
+    cost = np.sqrt(((a[:, None] - b[None]) ** 2).sum(-1))
+    acc = np.full((len(a) + 1, len(b) + 1), np.inf)
+    steps = np.zeros_like(acc)
+    acc[0, 0] = 0.0
+    for i in range(1, len(a) + 1):
+        for j in range(1, len(b) + 1):
+            choices = (acc[i - 1, j - 1], acc[i - 1, j], acc[i, j - 1])
+            k = int(np.argmin(choices))
+            acc[i, j] = cost[i - 1, j - 1] + choices[k]
+            steps[i, j] = steps[((i - 1, j - 1), (i - 1, j), (i, j - 1))[k]] + 1
+    return acc[-1, -1], acc[-1, -1] / steps[-1, -1]
+
+
+def test_dtw_matches_the_cell_loop_including_ties():
+    rng = np.random.default_rng(3)
+    cases = [(rng.normal(size=(23, 2, 3)), rng.normal(size=(31, 2, 3))),
+             (rng.integers(0, 2, (17, 2)).astype(float), rng.integers(0, 2, (9, 2)).astype(float)),
+             (rng.normal(size=(1, 3)), rng.normal(size=(6, 3)))]
+    for a, b in cases:
+        total, normalised = _dtw_cell_loop(a, b)
+        assert dtw_distance(a, b, normalise=False) == pytest.approx(total, rel=1e-12)
+        assert dtw_distance(a, b) == pytest.approx(normalised, rel=1e-12)

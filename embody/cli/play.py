@@ -78,7 +78,8 @@ def command(file: str, out: str | None, fmt: str | None, viewer: bool,
     if viewer:
         run_viewer(robot, q, traj.dt)
         return 0
-    steps = preview_frames(len(q), traj.dt, cfg.render.preview_fps, cfg.render.preview_max_frames)
+    rate = cfg.render.preview_fps or 1.0 / traj.dt  # null: every step, in real time
+    steps = preview_frames(len(q), traj.dt, rate, cfg.render.preview_max_frames)
     fmt = fmt or (cfg.render.preview_format if cfg.render.preview_format != "none" else "mp4")
     with SceneRenderer(robot, cfg.render, torso_body=robot.spec.torso_body) as renderer:
         frames = renderer.robot_frames(q[steps], cfg.render.views[0])

@@ -12,8 +12,13 @@ View = Literal["front", "side"]
 
 
 class RenderConfig(Section):
+    #: Size of one sheet image (and of what `SceneRenderer` returns).
     width: int = Field(320, ge=16, le=4096)
     height: int = Field(240, ge=16, le=4096)
+    #: Images are drawn at this multiple of width×height without multisampling and box-filtered
+    #: down (antialiasing); the preview uses them as drawn (640×480 per body by default). On
+    #: software GL the 4× multisample resolve costs more than the extra pixels.
+    supersample: int = Field(2, ge=1, le=4)
     #: Keyframes per sequence, picked at motion extrema (holds and extreme wrist positions).
     keyframes: int = Field(8, ge=1, le=64)
     #: Cameras, each a row pair (reference over robot) in the comparison sheet. The side view
@@ -26,6 +31,9 @@ class RenderConfig(Section):
     #: Robot meshes are decimated on a grid of this cell size (m) for rendering only; 0 keeps
     #: them whole. 4 mm is about a pixel at 320×240 and 1.2 m, and makes rendering ~4× faster.
     mesh_cell_m: float = Field(0.004, ge=0.0, le=0.05)
+    #: The reference body mesh is decimated the same way (within each rigid piece and skinning
+    #: bone, so fingers never merge); software GL's cost follows the triangle count. 0 keeps it.
+    reference_cell_m: float = Field(0.006, ge=0.0, le=0.05)
     #: Free-camera look-at point in the robot torso frame (metres) and distance; null (default)
     #: frames both bodies automatically: head, T-pose arms and raised hands inside the frame,
     #: for any robot size (`embody.render.framing`). The same camera sees human and robot.
@@ -40,10 +48,11 @@ class RenderConfig(Section):
     background_rgb: tuple[float, float, float] = (0.62, 0.66, 0.72)
     #: Animated preview: mp4 needs imageio-ffmpeg (falls back to gif), none disables it.
     preview_format: Literal["mp4", "gif", "webp", "none"] = "mp4"
-    #: Preview frames per second of motion (plays in real time).
-    preview_fps: float = Field(10.0, gt=0.0, le=60.0)
-    #: Frames rendered for the preview at most (evenly subsampled); rendering is ~0.1 s/frame.
-    preview_max_frames: int = Field(40, ge=2, le=100_000)
+    #: Preview frames per second of motion (plays in real time); null: the source frame rate.
+    preview_fps: float | None = Field(None, gt=0.0, le=240.0)
+    #: Frames rendered for the preview at most (longer sequences are evenly subsampled, still
+    #: playing in real time); at 30 fps the default covers a minute.
+    preview_max_frames: int = Field(1800, ge=2, le=100_000)
 
     @field_validator("views")
     @classmethod

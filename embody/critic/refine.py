@@ -78,6 +78,9 @@ class RoundRecord:
     renders: dict[str, dict[str, str | None]] = field(default_factory=dict)
     #: The critic's request/response record (VLM), images by hash.
     exchange: dict[str, Any] = field(default_factory=dict)
+    #: The solve's exported control-rate array of `q` (kept so the metrics step need not
+    #: resample and repair it again; stored for the chosen round only).
+    q_control: np.ndarray | None = None
 
     @property
     def accepted(self) -> bool | None:
@@ -110,10 +113,13 @@ class RefineResult:
         return any(r.accepted for r in self.rounds)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
-        return {"q": np.stack([r.q for r in self.rounds]),
-                "target_pos": np.stack([r.target_pos for r in self.rounds]),
-                "target_rot": np.stack([r.target_rot for r in self.rounds]),
-                "keyframes": np.asarray(self.keyframes, dtype=np.int64)}
+        arrays = {"q": np.stack([r.q for r in self.rounds]),
+                  "target_pos": np.stack([r.target_pos for r in self.rounds]),
+                  "target_rot": np.stack([r.target_rot for r in self.rounds]),
+                  "keyframes": np.asarray(self.keyframes, dtype=np.int64)}
+        if self.final.q_control is not None:
+            arrays["final_q_control"] = np.asarray(self.final.q_control, dtype=np.float64)
+        return arrays
 
     def to_attrs(self) -> dict[str, Any]:
         rounds = [{"index": r.index, "metrics": r.metrics, "action": r.action,
@@ -131,8 +137,11 @@ class RefineResult:
                               metrics=dict(a["metrics"]), action=a["action"],
                               renders=dict(a["renders"]), exchange=dict(a["exchange"]))
                   for i, a in enumerate(attrs["rounds"])]
-        return cls(rounds, list(attrs["joint_names"]), np.asarray(arrays["keyframes"]), attrs["critic"],
-                   int(attrs.get("chosen", -1)))
+        result = cls(rounds, list(attrs["joint_names"]), np.asarray(arrays["keyframes"]),
+                     attrs["critic"], int(attrs.get("chosen", -1)))
+        if "final_q_control" in arrays:
+            result.final.q_control = np.asarray(arrays["final_q_control"])
+        return result
 
 
 class _Renders:
@@ -210,7 +219,8 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
             q = np.asarray(solution.q, dtype=np.float64)
             pos, rot = robot_wrists(robot, q)
             record = RoundRecord(index, q, np.asarray(working.wrist_pos), np.asarray(working.wrist_rot),
-                                 wrist_metrics(ref_pos, ref_rot, pos, rot, targets.arm_length))
+                                 wrist_metrics(ref_pos, ref_rot, pos, rot, targets.arm_length),
+                                 q_control=getattr(solution, "q_control", None))
             location_offset, fidelity = judge(q) if judge is not None else (None, {})
             record.metrics.update(fidelity)
             rounds.append(record)
@@ -242,6 +252,9 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
             working = dataclasses.replace(working, wrist_pos=new_pos, wrist_rot=new_rot)
             solution = solve(robot, working, cfg_ik, init=solution)
         chosen = _chosen_round(rounds, cfg_critic)
+        for i, r in enumerate(rounds):  # only the result's control-rate array is kept
+            if i != chosen % len(rounds):
+                r.q_control = None
         if out is not None:
             final = rounds[chosen]
             comp = renders.comparison(final.q)

@@ -14,31 +14,85 @@ import numpy as np
 import torch
 
 from embody.body.base import BodyModel
+from embody.body.kinematics import skin
 from embody.config.render import RenderConfig
 from embody.motion import Motion
-from embody.render.preview import write_preview
-from embody.render.scene import SceneRenderer
+from embody.render.preview import PreviewWriter
+from embody.render.scene import SceneRenderer, downsample
 from embody.render.sheet import comparison_sheet, png_bytes
+
+#: Frames skinned at once for the preview (bounds memory on long sequences).
+_CHUNK = 32
+
+
+def _root_free(motion: Motion, frames: np.ndarray) -> torch.Tensor:
+    pose = torch.as_tensor(np.asarray(motion.pose)[frames], dtype=torch.float64).clone()
+    pose[:, 0] = 0.0
+    return pose
 
 
 def reference_vertices(motion: Motion, body: BodyModel, fit, frames: np.ndarray) -> np.ndarray:
     """Body mesh vertices (N,V,3) at `frames`, in the robot torso frame (as `build_targets`)."""
-    pose = torch.as_tensor(motion.pose[frames], dtype=torch.float64).clone()
-    pose[:, 0] = 0.0
     betas = torch.as_tensor(fit.betas, dtype=torch.float64)
     with torch.no_grad():
-        verts = body.vertices(pose, betas)
+        verts = body.vertices(_root_free(motion, frames), betas)
         return fit.apply(verts).cpu().numpy()
 
 
+class ReferenceSkin:
+    """Vertices of only the drawn (decimated) reference mesh, in the torso frame: linear blend
+    skinning of those vertices in float32 (images need no more), when it reproduces
+    `body.vertices` to 10 µm (checked on the reach poses; a body with pose-dependent shape
+    falls back to skinning every vertex)."""
+
+    def __init__(self, body: BodyModel, fit, keep: np.ndarray, check_poses: torch.Tensor,
+                 check_vertices: torch.Tensor) -> None:
+        self.body, self.fit, self.keep = body, fit, np.asarray(keep)
+        self.betas = torch.as_tensor(fit.betas, dtype=torch.float64)
+        with torch.no_grad():
+            self.rest = body.rest_vertices(self.betas)[self.keep].to(torch.float32)
+            self.bind = body.rest_joints(self.betas).to(torch.float32)
+            self.weights = torch.as_tensor(np.asarray(body.skin_weights)[self.keep], dtype=torch.float32)
+            own = self._skin(body.joint_transforms(check_poses, self.betas))
+            self.exact = bool((own - check_vertices[:, self.keep]).abs().max() < 1e-5)
+
+    def _skin(self, transforms: torch.Tensor) -> torch.Tensor:
+        return skin(transforms.to(torch.float32), self.rest, self.bind, self.weights).to(torch.float64)
+
+    def __call__(self, motion: Motion, frames: np.ndarray) -> np.ndarray:
+        """(N,K,3) torso-frame vertices of the drawn mesh at `frames`."""
+        frames = np.asarray(frames)
+        out = []
+        with torch.no_grad():
+            for start in range(0, len(frames), _CHUNK):
+                pose = _root_free(motion, frames[start:start + _CHUNK])
+                if self.exact:
+                    verts = self._skin(self.body.joint_transforms(pose, self.betas))
+                else:
+                    verts = self.body.vertices(pose, self.betas)[:, self.keep]
+                out.append(self.fit.apply(verts).cpu().numpy())
+        return np.concatenate(out) if out else np.zeros((0, len(self.keep), 3))
+
+
 def open_renderer(robot, body: BodyModel, fit, cfg: RenderConfig) -> SceneRenderer:
-    """A renderer for this robot with the fitted body as reference mesh."""
+    """A renderer for this robot with the fitted body as reference mesh; `renderer.skin`
+    gives the drawn mesh's vertices of a motion's frames (a `ReferenceSkin`)."""
     with torch.no_grad():
         betas = torch.as_tensor(fit.betas, dtype=torch.float64)
         rest = body.rest_vertices(betas)
-        points = fit.apply(body.vertices(reach_poses(), betas)).cpu().numpy().reshape(-1, 3)
-    return SceneRenderer(robot, cfg, np.asarray(body.faces), rest.cpu().numpy(),
-                         torso_body=robot.spec.torso_body, reference_points=points)
+        reach = reach_poses()
+        reach_verts = body.vertices(reach, betas)
+        points = fit.apply(reach_verts).cpu().numpy().reshape(-1, 3)
+    bones = np.asarray(body.skin_weights).argmax(axis=1)
+    renderer = SceneRenderer(robot, cfg, np.asarray(body.faces), rest.cpu().numpy(),
+                             torso_body=robot.spec.torso_body, reference_points=points,
+                             reference_groups=bones)
+    try:
+        renderer.skin = ReferenceSkin(body, fit, renderer.reference_keep, reach, reach_verts)
+    except Exception:
+        renderer.close()
+        raise
+    return renderer
 
 
 def reach_poses() -> torch.Tensor:
@@ -77,28 +131,81 @@ class Comparison:
 
 def render_comparison(renderer: SceneRenderer, cfg: RenderConfig, keyframes: np.ndarray,
                       fps: float, q: np.ndarray, reference: dict[str, np.ndarray] | None = None,
-                      reference_verts: np.ndarray | None = None) -> Comparison:
-    """Render robot keyframes (and the reference ones unless given, from `reference_verts`)."""
-    comp = Comparison(np.asarray(keyframes), fps)
+                      reference_verts: np.ndarray | None = None,
+                      drawn: "PreviewFrames | None" = None) -> Comparison:
+    """Render robot keyframes (and the reference ones unless given, from `reference_verts`).
+    Views and keyframes that `drawn` (the preview's frames) already holds are not drawn again."""
+    keyframes = np.asarray(keyframes)
+    comp = Comparison(keyframes, fps)
     for view in cfg.views:
+        reused = drawn.at(view, keyframes) if drawn is not None else None
+        if reused is not None:
+            comp.reference[view], comp.robot[view] = (downsample(x, cfg.supersample) for x in reused)
+            continue
         comp.robot[view] = renderer.robot_frames(q[keyframes], view)
         comp.reference[view] = (reference[view] if reference is not None
                                 else renderer.reference_frames(reference_verts, view))
     return comp
 
 
+@dataclass
+class PreviewFrames:
+    """Images as drawn (supersampled) of some preview frames, reference and robot, one view."""
+
+    view: str
+    frames: np.ndarray
+    reference: np.ndarray
+    robot: np.ndarray
+
+    def at(self, view: str, keyframes: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """(reference, robot) images of `keyframes` when all were drawn for the preview."""
+        if view != self.view or len(self.frames) == 0:
+            return None
+        where = np.minimum(np.searchsorted(self.frames, keyframes), len(self.frames) - 1)
+        if not np.array_equal(self.frames[where], keyframes):
+            return None
+        return self.reference[where], self.robot[where]
+
+
+def preview_frames(cfg: RenderConfig, num_frames: int, fps: float) -> tuple[np.ndarray, float]:
+    """(source frame indices, playback fps) of the preview: every frame at the source rate
+    (`render.preview_fps` null), evenly subsampled beyond `render.preview_max_frames` or to
+    a lower `preview_fps`; playback is real time either way."""
+    duration = num_frames / fps
+    rate = fps if cfg.preview_fps is None else min(cfg.preview_fps, fps)
+    count = int(np.clip(round(duration * rate), min(2, num_frames),
+                        min(cfg.preview_max_frames, num_frames)))
+    frames = np.unique(np.linspace(0, num_frames - 1, count).round().astype(np.int64))
+    return frames, len(frames) / duration
+
+
+def stream_preview(renderer: SceneRenderer, cfg: RenderConfig, motion: Motion, q: np.ndarray,
+                   path: Path, keep: np.ndarray | None = None) -> tuple[Path | None, PreviewFrames]:
+    """Draw the preview (first view; reference | robot side by side at the drawn size,
+    `render.supersample` × width × height per body: 1280×480 by default) chunk by chunk into
+    the encoder. Returns the file written (None when `preview_format` is none: nothing drawn)
+    and the drawn images of the frames in `keep` that the preview holds (the sheet reuses them)."""
+    view = cfg.views[0]
+    frames, rate = preview_frames(cfg, len(q), motion.fps)
+    keep = np.intersect1d(np.asarray(keep if keep is not None else [], dtype=np.int64), frames)
+    kept: dict[str, list[np.ndarray]] = {"reference": [], "robot": []}
+    if cfg.preview_format == "none":
+        return None, PreviewFrames(view, keep[:0], np.zeros((0,)), np.zeros((0,)))
+    writer = PreviewWriter(path, rate, cfg.preview_format)
+    for start in range(0, len(frames), _CHUNK):
+        chunk = frames[start:start + _CHUNK]
+        ref = renderer.reference_frames(renderer.skin(motion, chunk), view, full=True)
+        rob = renderer.robot_frames(q[chunk], view, full=True)
+        writer.add(np.concatenate([ref, rob], axis=2))
+        hit = np.isin(chunk, keep)
+        kept["reference"].append(ref[hit])
+        kept["robot"].append(rob[hit])
+    out = writer.close()
+    return out, PreviewFrames(view, keep, np.concatenate(kept["reference"]),
+                              np.concatenate(kept["robot"]))
+
+
 def render_preview(renderer: SceneRenderer, cfg: RenderConfig, motion: Motion, body: BodyModel,
                    fit, q: np.ndarray, path: Path) -> Path | None:
-    """Side-by-side reference | robot animation of (subsampled) frames, first view."""
-    if cfg.preview_format == "none":
-        return None
-    num_frames = len(q)
-    duration = num_frames / motion.fps
-    count = int(np.clip(round(duration * cfg.preview_fps), 2, min(cfg.preview_max_frames, num_frames)))
-    frames = np.unique(np.linspace(0, num_frames - 1, count).round().astype(np.int64))
-    view = cfg.views[0]
-    ref = renderer.reference_frames(reference_vertices(motion, body, fit, frames), view)
-    rob = renderer.robot_frames(q[frames], view)
-    # real-time playback of the subsampled frames
-    return write_preview(np.concatenate([ref, rob], axis=2), path, len(frames) / duration,
-                         cfg.preview_format)
+    """Side-by-side reference | robot animation at the source frame rate (`stream_preview`)."""
+    return stream_preview(renderer, cfg, motion, np.asarray(q), path)[0]

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from embody.config.render import RenderConfig
-from embody.render.compare import open_renderer, reference_vertices, render_comparison, render_preview
+from embody.render.compare import open_renderer, render_comparison, stream_preview
 
 
 @dataclass
@@ -48,19 +48,22 @@ class SequenceRender:
 def render_sequence(motion, body, fit, robot, q: np.ndarray, keyframes: np.ndarray,
                     cfg: RenderConfig, title: str = "") -> SequenceRender:
     """Render the final trajectory `q` beside the reference body at `keyframes` (pick them with
-    `select_keyframes` on the reference wrists, as the critic loop does, or take the loop's)."""
+    `select_keyframes` on the reference wrists, as the critic loop does, or take the loop's).
+
+    The preview's frames (every source frame, first view) are drawn first; the sheet's first
+    view takes its keyframes from them, so only the other views are drawn for the sheet."""
     keys = np.asarray(keyframes)
+    q = np.asarray(q)
     renderer = open_renderer(robot, body, fit, cfg)
     try:
-        comp = render_comparison(renderer, cfg, keys, motion.fps, np.asarray(q),
-                                 reference_verts=reference_vertices(motion, body, fit, keys))
-        sheet = comp.sheet_png(title)
         preview = suffix = None
         with tempfile.TemporaryDirectory(prefix="embody-preview-") as tmp:
-            path = render_preview(renderer, cfg, motion, body, fit, np.asarray(q),
-                                  Path(tmp) / "preview")
+            path, drawn = stream_preview(renderer, cfg, motion, q, Path(tmp) / "preview", keys)
             if path is not None:
                 preview, suffix = path.read_bytes(), path.suffix
+        comp = render_comparison(renderer, cfg, keys, motion.fps, q,
+                                 reference_verts=renderer.skin(motion, keys), drawn=drawn)
+        sheet = comp.sheet_png(title)
     finally:
         renderer.close()
     return SequenceRender(keys, sheet, preview, suffix)

@@ -6,15 +6,23 @@ Both are placed in the robot torso frame's world pose at the T-pose and seen thr
 free cameras, so reference and robot line up pixel for pixel; the framing fits both bodies
 (`embody.render.framing`). Shadows, reflections and skybox are off and (by default) the legs are
 hidden: signing is upper-body and this halves the render time. The robot is drawn in one light
-material, and every pixel the depth buffer shows as empty gets the neutral background colour.
+material, and every pixel left at the clear colour (pure black, which no lit surface here
+reaches) gets the neutral background colour.
+
+Software GL (Mesa llvmpipe) pays per triangle and for a multisample resolve, hardly per pixel:
+so both bodies' meshes are decimated for drawing, multisampling is off, and images are drawn at
+`render.supersample` × the configured size and box-filtered down (the preview takes them as
+drawn). Reading back colour only (no depth buffer) saves most of the read-back time.
 """
 
 from __future__ import annotations
 
 import copy
+import threading
 from typing import Protocol
 
 import numpy as np
+import scipy.sparse
 
 from embody.config.render import RenderConfig
 from embody.render.framing import Framing, fit_camera, robot_points
@@ -26,6 +34,10 @@ _OFF_FLAGS = (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION
               mujoco.mjtRndFlag.mjRND_SKYBOX, mujoco.mjtRndFlag.mjRND_FOG,
               mujoco.mjtRndFlag.mjRND_HAZE)
 _HIDDEN_GROUP = 5
+#: Robot models prepared for drawing (decimated, recoloured), per process: preparing G1's takes
+#: about half a second and every sequence's renderer needs the same one. Read-only once built.
+_PREPARED: dict[tuple, tuple[mujoco.MjModel, mujoco.MjModel]] = {}
+_PREPARED_LOCK = threading.Lock()
 
 
 class RenderableRobot(Protocol):
@@ -53,6 +65,41 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     weights = np.repeat(fn, 3, axis=0)
     vn = np.stack([np.bincount(idx, weights[:, c], minlength=len(vertices)) for c in range(3)], 1)
     return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-12)
+
+
+def downsample(images: np.ndarray, factor: int) -> np.ndarray:
+    """Box-filter images (...,H·f,W·f,3) uint8 down by `factor` (rounded, deterministic)."""
+    if factor == 1:
+        return images
+    *lead, h, w, c = images.shape
+    blocks = images.reshape(*lead, h // factor, factor, w // factor, factor, c)
+    total = blocks.sum(axis=(-4, -2), dtype=np.uint32)
+    return ((total + factor * factor // 2) // (factor * factor)).astype(np.uint8)
+
+
+def cluster_faces(vertices: np.ndarray, faces: np.ndarray, cell: float,
+                  groups: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex clustering of a deformable mesh for drawing: (kept vertex indices (K,), faces (F',3)
+    indexing the kept vertices). Vertices merge only within one grid cell of `cell` metres (at
+    the rest shape) and one connected piece of the mesh and one `groups` label (e.g. the dominant
+    skinning bone), so separate pieces, such as fingers, never get bridged when they move apart."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    n = len(vertices)
+    if cell <= 0:
+        return np.arange(n), faces
+    adjacency = scipy.sparse.coo_matrix(
+        (np.ones(faces.size), (faces.ravel(), np.roll(faces, 1, axis=1).ravel())), shape=(n, n))
+    _, piece = scipy.sparse.csgraph.connected_components(adjacency, directed=False)
+    labels = [piece] + ([np.asarray(groups, dtype=np.int64)] if groups is not None else [])
+    key = np.column_stack(labels + [np.floor(vertices / cell).astype(np.int64)])
+    _, first, label = np.unique(key, axis=0, return_index=True, return_inverse=True)
+    rep = first[label.ravel()][faces]
+    rep = rep[(rep[:, 0] != rep[:, 1]) & (rep[:, 1] != rep[:, 2]) & (rep[:, 0] != rep[:, 2])]
+    _, uniq = np.unique(np.sort(rep, axis=1), axis=0, return_index=True)
+    rep = rep[np.sort(uniq)]
+    keep = np.unique(rep)
+    return keep, np.searchsorted(keep, rep)
 
 
 def cluster_mesh(model: mujoco.MjModel, mesh: int, cell: float) -> None:
@@ -90,12 +137,21 @@ class SceneRenderer:
     def __init__(self, robot: RenderableRobot, cfg: RenderConfig,
                  faces: np.ndarray | None = None, rest_vertices: np.ndarray | None = None,
                  torso_body: str = "torso_link",
-                 reference_points: np.ndarray | None = None) -> None:
-        """`reference_points` (N,3), torso frame: reference body points the framing must hold."""
+                 reference_points: np.ndarray | None = None,
+                 reference_groups: np.ndarray | None = None) -> None:
+        """`reference_points` (N,3), torso frame: reference body points the framing must hold.
+        `reference_groups` (V,): labels (the dominant skinning bone) whose vertices may merge
+        when the reference mesh is decimated (`render.reference_cell_m`)."""
         self.cfg = cfg
         self.robot = robot
         self.world_from_torso = np.linalg.inv(np.asarray(robot.torso_from_world, dtype=np.float64))
-        self._ctx = create_context(cfg.width, cfg.height, cfg.gl)
+        #: Drawn image size (width, height): the configured size × `supersample`.
+        self.size = (cfg.width * cfg.supersample, cfg.height * cfg.supersample)
+        #: Indices of the reference mesh's vertices that are drawn (all unless decimated).
+        self.reference_keep: np.ndarray | None = None
+        #: Vertices of the drawn reference mesh per motion frame (`compare.open_renderer` sets it).
+        self.skin = None
+        self._ctx = create_context(*self.size, cfg.gl)
         self._contexts: list[mujoco.MjrContext] = []
         try:
             self._model = self._robot_model(robot.model, torso_body)
@@ -105,22 +161,43 @@ class SceneRenderer:
             self._scene = mujoco.MjvScene(self._model, maxgeom=self._model.ngeom + 100)
             self._mesh: _MeshModel | None = None
             if faces is not None and rest_vertices is not None:
-                self._mesh = _MeshModel(faces, rest_vertices, cfg, self._model.vis.global_.fovy)
+                keep, kept_faces = cluster_faces(rest_vertices, faces, cfg.reference_cell_m,
+                                                 reference_groups)
+                self.reference_keep = keep
+                self._reference_count = len(rest_vertices)
+                self._mesh = _MeshModel(kept_faces, np.asarray(rest_vertices)[keep], cfg,
+                                        self._model.vis.global_.fovy, self.size)
                 self._mesh_ctx = self._context(self._mesh.model)
                 self._mesh_scene = mujoco.MjvScene(self._mesh.model, maxgeom=16)
         except Exception:
             self.close()
             raise
-        self._rect = mujoco.MjrRect(0, 0, cfg.width, cfg.height)
+        self._rect = mujoco.MjrRect(0, 0, *self.size)
         self._background = np.round(np.asarray(cfg.background_rgb) * 255).astype(np.uint8)
         self._option = mujoco.MjvOption()  # groups 0-2 visible: robot visuals, no collision meshes
 
     # --- setup ----------------------------------------------------------------------------
 
     def _robot_model(self, model: mujoco.MjModel, torso_body: str) -> mujoco.MjModel:
+        cfg = self.cfg
+        key = (id(model), torso_body, self.size, cfg.upper_body, cfg.mesh_cell_m,
+               tuple(cfg.robot_rgba))
+        with _PREPARED_LOCK:
+            source, prepared = _PREPARED.get(key, (None, None))
+            if source is model:  # the entry holds its source, so its id cannot be reused
+                return prepared
+        prepared = self._prepare(model, torso_body)
+        with _PREPARED_LOCK:
+            if len(_PREPARED) >= 8:
+                _PREPARED.clear()
+            _PREPARED[key] = (model, prepared)
+        return prepared
+
+    def _prepare(self, model: mujoco.MjModel, torso_body: str) -> mujoco.MjModel:
         model = copy.copy(model)  # private: we change offscreen size and geom groups
-        model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.cfg.width)
-        model.vis.global_.offheight = max(model.vis.global_.offheight, self.cfg.height)
+        model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.size[0])
+        model.vis.global_.offheight = max(model.vis.global_.offheight, self.size[1])
+        model.vis.quality.offsamples = 0  # supersampled instead (see the module docstring)
         if self.cfg.upper_body:
             upper = _subtree_mask(model, model.body(torso_body).id)
             model.geom_group[~upper] = _HIDDEN_GROUP
@@ -181,17 +258,22 @@ class SceneRenderer:
                                mujoco.mjtCatBit.mjCAT_ALL, scene)
         for flag in _OFF_FLAGS:
             scene.flags[flag] = 0
-        out = np.empty((self.cfg.height, self.cfg.width, 3), dtype=np.uint8)
-        depth = np.empty((self.cfg.height, self.cfg.width), dtype=np.float32)
+        out = np.empty((self.size[1], self.size[0], 3), dtype=np.uint8)
         # each MjrContext owns a framebuffer; bind this one's (the last created is bound)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, ctx)
         mujoco.mjr_render(self._rect, scene, ctx)
-        mujoco.mjr_readPixels(out, depth, self._rect, ctx)
-        out[depth >= 1.0] = self._background  # nothing drawn there: the far plane
-        return np.flipud(out)
+        mujoco.mjr_readPixels(out, None, self._rect, ctx)
+        flat = out.reshape(-1, 3)
+        flat[(flat[:, 0] | flat[:, 1] | flat[:, 2]) == 0] = self._background  # still the clear colour
+        return out[::-1]
 
-    def robot_frames(self, q: np.ndarray, view: str = "front") -> np.ndarray:
-        """Images (N,H,W,3) of joint configurations q (N,n) in the robot's joint order."""
+    def _finish(self, frames: list[np.ndarray], full: bool) -> np.ndarray:
+        images = np.stack(frames)
+        return images if full else downsample(images, self.cfg.supersample)
+
+    def robot_frames(self, q: np.ndarray, view: str = "front", full: bool = False) -> np.ndarray:
+        """Images (N,H,W,3) of joint configurations q (N,n) in the robot's joint order; at the
+        configured size, or as drawn (`self.size`, supersampled) with `full`."""
         self._ctx.make_current()
         cam = self.camera(view)
         frames = []
@@ -199,12 +281,20 @@ class SceneRenderer:
             self._data.qpos[:] = self.robot.qpos(np.asarray(qi, dtype=np.float64))
             mujoco.mj_kinematics(self._model, self._data)
             frames.append(self._draw(self._model, self._data, self._scene, self._robot_ctx, cam))
-        return np.stack(frames)
+        return self._finish(frames, full)
 
-    def reference_frames(self, vertices: np.ndarray, view: str = "front") -> np.ndarray:
-        """Images (N,H,W,3) of reference meshes given as (N,V,3) vertices in the torso frame."""
+    def reference_frames(self, vertices: np.ndarray, view: str = "front",
+                         full: bool = False) -> np.ndarray:
+        """Images (N,H,W,3) of reference meshes given as (N,V,3) vertices in the torso frame:
+        every vertex of the mesh, or only the drawn ones (`reference_keep`)."""
         if self._mesh is None:
             raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
+        vertices = np.asarray(vertices)
+        if vertices.shape[1] != len(self.reference_keep):
+            if vertices.shape[1] != self._reference_count:
+                raise ValueError(f"reference vertices: expected {self._reference_count} or "
+                                 f"{len(self.reference_keep)} per frame, got {vertices.shape[1]}")
+            vertices = vertices[:, self.reference_keep]
         self._ctx.make_current()
         cam = self.camera(view)
         rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
@@ -213,7 +303,7 @@ class SceneRenderer:
             self._mesh.set_vertices(verts @ rot.T + pos, self._mesh_ctx)
             frames.append(self._draw(self._mesh.model, self._mesh.data, self._mesh_scene,
                                      self._mesh_ctx, cam))
-        return np.stack(frames)
+        return self._finish(frames, full)
 
     def close(self) -> None:
         """Free GL resources now: EGL teardown at interpreter exit prints errors otherwise."""
@@ -237,10 +327,10 @@ class _MeshModel:
     """A model holding one visual mesh at the world origin whose vertices we overwrite."""
 
     def __init__(self, faces: np.ndarray, rest_vertices: np.ndarray, cfg: RenderConfig,
-                 fovy: float) -> None:
+                 fovy: float, size: tuple[int, int]) -> None:
         spec = mujoco.MjSpec()
-        spec.visual.global_.offwidth = cfg.width
-        spec.visual.global_.offheight = cfg.height
+        spec.visual.global_.offwidth, spec.visual.global_.offheight = size
+        spec.visual.quality.offsamples = 0
         spec.visual.global_.fovy = fovy
         spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
         spec.visual.headlight.ambient = [0.1, 0.1, 0.1]
@@ -248,6 +338,10 @@ class _MeshModel:
         mesh = spec.add_mesh(name="reference")
         mesh.uservert = np.asarray(rest_vertices, dtype=np.float64).ravel().tolist()
         mesh.userface = np.asarray(faces, dtype=np.int64).ravel().tolist()
+        # one normal per vertex, indexed like the vertices: each frame writes them as one block
+        mesh.usernormal = vertex_normals(np.asarray(rest_vertices, dtype=np.float64),
+                                         np.asarray(faces, dtype=np.int64)).ravel().tolist()
+        mesh.userfacenormal = mesh.userface
         spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_MESH, meshname="reference",
                                 contype=0, conaffinity=0, rgba=list(cfg.reference_rgba))
         self.model = spec.compile()
@@ -262,6 +356,14 @@ class _MeshModel:
         self._face_normal = self.model.mesh_facenormal[fadr:fadr + fnum]
         self._face = self.model.mesh_face[fadr:fadr + fnum]
         self._nadr = self.model.mesh_normaladr[mid]
+        # Normals are indexed like the vertices (as written above) unless the compiler chose
+        # otherwise; then each frame scatters them through the face-normal indices.
+        self._aligned = bool(self.model.mesh_normalnum[mid] == num
+                             and np.array_equal(self._face_normal, self._face))
+        # vertex normal = Σ adjacent face normals (area-weighted), one sparse product a frame
+        f = self._face.astype(np.int64)
+        self._incidence = scipy.sparse.csr_matrix(
+            (np.ones(f.size), (f.ravel(), np.repeat(np.arange(len(f)), 3))), shape=(num, len(f)))
         # The compiler recentres meshes and compensates in the geom pose; we write world
         # coordinates, so put the geom back at the origin.
         self.model.geom_pos[0] = 0.0
@@ -270,8 +372,13 @@ class _MeshModel:
         mujoco.mj_kinematics(self.model, self.data)
 
     def set_vertices(self, world_vertices: np.ndarray, ctx: mujoco.MjrContext) -> None:
-        normals = vertex_normals(world_vertices, self._face)
-        self.model.mesh_vert[self._verts] = world_vertices
-        idx = self._nadr + self._face_normal.ravel()
-        self.model.mesh_normal[idx] = normals[self._face.ravel()]
+        v = np.asarray(world_vertices, dtype=np.float64)
+        f = self._face
+        normals = self._incidence @ np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+        normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-12)
+        self.model.mesh_vert[self._verts] = v
+        if self._aligned:
+            self.model.mesh_normal[self._nadr:self._nadr + len(v)] = normals
+        else:
+            self.model.mesh_normal[self._nadr + self._face_normal.ravel()] = normals[f.ravel()]
         mujoco.mjr_uploadMesh(self.model, ctx, self.mesh_id)

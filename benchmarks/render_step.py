@@ -1,0 +1,86 @@
+"""The render step alone: `render_sequence` (comparison sheet + preview) on the default set.
+
+Renders the first N sequences of the default synthetic set (the source motion as reference, the
+robot at a slowly waving T-pose: the cost hardly depends on the pose) exactly as the pipeline's
+render step does, and reports wall and CPU seconds per sequence (CPU time, encoder included, is the steadier figure
+on a shared machine), the preview's frame count, rate, size and bytes. Run it on two checkouts
+back to back (`PYTHONPATH=<checkout>`) to compare.
+
+    python benchmarks/render_step.py [--n 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import os
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _preview_shape(blob: bytes, suffix: str) -> tuple[int, int, int]:
+    """(frames, height, width) of a stored preview."""
+    if suffix == ".mp4":
+        import imageio_ffmpeg
+        with tempfile.NamedTemporaryFile(suffix=".mp4") as f:
+            f.write(blob)
+            f.flush()
+            reader = imageio_ffmpeg.read_frames(f.name)
+            meta = next(reader)
+            frames = sum(1 for _ in reader)
+            w, h = meta["size"]
+            return frames, h, w
+    from PIL import Image
+    img = Image.open(io.BytesIO(blob))
+    return img.n_frames, img.size[1], img.size[0]
+
+
+def _cpu() -> float:
+    """CPU seconds of this process and its finished children (the ffmpeg encoder)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--n", type=int, default=3)
+    args = parser.parse_args()
+    import torch
+    torch.set_num_threads(1)
+    from embody.body import load_body_model
+    from embody.config import Config
+    from embody.io import load_dataset
+    from embody.render.record import render_sequence
+    from embody.retarget import shape_fit
+    from embody.robot import load_robot
+    from embody.synth import default_dataset
+
+    cfg = Config()
+    data = default_dataset(Path(tempfile.mkdtemp(prefix="embody-render-")))
+    motions = [r.load() for r in list(load_dataset(data))[: args.n]]
+    body, robot = load_body_model(cfg.body), load_robot(cfg.robot)
+    fit = shape_fit(robot, body, cfg.ik)
+    roll = robot.joint_index("left_shoulder_roll_joint")
+    walls, cpus = [], []
+    for motion in motions:
+        t = motion.num_frames
+        q = np.tile(robot.tpose, (t, 1))
+        q[:, roll] += 0.5 * np.sin(np.linspace(0, 2 * np.pi, t))
+        keys = np.linspace(0, t - 1, cfg.render.keyframes).round().astype(np.int64)
+        w0, c0 = time.perf_counter(), _cpu()
+        out = render_sequence(motion, body, fit, robot, q, keys, cfg.render, "bench")
+        walls.append(time.perf_counter() - w0)
+        cpus.append(_cpu() - c0)
+        shape = _preview_shape(out.preview, out.preview_suffix) if out.preview else (0, 0, 0)
+        print(f"frames={t} fps={motion.fps:g} wall_s={walls[-1]:.2f} cpu_s={cpus[-1]:.2f} "
+              f"preview_frames={shape[0]} preview_hw={shape[1]}x{shape[2]} "
+              f"preview_kb={len(out.preview or b'') / 1024:.0f} sheet_kb={len(out.sheet_png) / 1024:.0f}")
+    print(f"RESULT render_s={np.mean(walls):.2f} render_cpu_s={np.mean(cpus):.2f} "
+          f"preview_frames={shape[0]} preview_height={shape[1]} sequences={len(motions)}")
+
+
+if __name__ == "__main__":
+    main()
