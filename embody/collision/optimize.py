@@ -9,7 +9,10 @@ frames far from any penetration are x0 bit for bit and the correction blends in 
 constraint; the optimiser does not stop while any frame penetrates beyond `tolerance`.
 Penetration is tested on every vertex (`contact_stride`), the broad phase skipping the points
 far from contact. The optimised L_col also counts points within `clearance` outside a part, so
-the closeness pull settles with the surfaces apart rather than at residual depth.
+the closeness pull settles with the surfaces apart rather than at residual depth. Arms that
+have passed right through each other (crossed forearms) are a saddle of the point energy (the
+points on either side push opposite ways); the limb core capsules (`capsules`, weight
+`capsule_weight`) add one separating direction there.
 
 The paper's energy columns (before/after) use the `vertex_stride` subsample, for comparison;
 the independent judge is `depth` (mesh penetration depth, every vertex and triangle), whose
