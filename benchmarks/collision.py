@@ -80,6 +80,7 @@ def result_line(df: pd.DataFrame) -> str:
                f" frames_over_2mm_after={int(df['frames_over_2mm_after'].sum())}"
                f" max_depth_mm_before={df['max_depth_mm_before'].max():.1f}"
                f" max_depth_mm_after={df['max_depth_mm_after'].max():.2f}"
+               f" depth_check_seconds_per_seq_mean={df['depth_s'].mean():.2f}"
                if "max_depth_mm_after" in df else ""))
 
 

@@ -93,3 +93,27 @@ def test_blend_weights_fade_smoothly_to_zero():
     assert (w[:11] == 0).all() and (w[31:] == 0).all()
     assert np.all(np.diff(w[10:21]) > 0) and np.all(np.diff(w[21:32]) < 0)
     assert np.abs(np.diff(w, 2)).max() < 0.05  # no kinks: the ramp is a cosine
+
+
+def test_forearms_passed_through_each_other_come_apart(body):
+    """The synthetic set's crossed-hands artifact (seq_000, frames 64-87): the forearm axes
+    cross (1-2 mm apart), where the point energy alone cancels and stalled at ~35 mm deep; the
+    limb core capsules separate them, and the mesh judge measures the result."""
+    from embody.collision.capsules import arm_capsules, capsule_energies
+    from embody.synth import generate_sequence
+
+    src = generate_sequence(0, 0)
+    motion = Motion(pose=src.pose[64:88], transl=np.zeros((24, 3)), betas=src.betas, fps=src.fps)
+    caps = arm_capsules(body, motion.betas)
+    import torch
+    with torch.no_grad():
+        tr = body.joint_transforms(torch.as_tensor(motion.pose), torch.as_tensor(motion.betas))
+        assert (capsule_energies(caps, tr) > 0).sum() >= 10  # the cores overlap: crossed
+    r = mitigate(motion, body, CollisionConfig())
+    m = r.metrics
+    assert m["max_depth_mm_before"] > 30.0 and m["frames_over_5mm_before"] >= 15
+    assert m["max_depth_mm_after"] < 3.0 and m["frames_over_5mm_after"] == 0
+    stalled = mitigate(motion, body, CollisionConfig(capsule_weight=0.0, depth_metrics=False,
+                                                     steps=150))
+    after = motion_depths(body, stalled.motion.pose, motion.betas)
+    assert after.max() > 0.01  # without the capsules the forearms stay crossed

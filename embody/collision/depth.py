@@ -294,14 +294,6 @@ def _crossing(va: np.ndarray, fa: np.ndarray, vb: np.ndarray,
     return ia, ib
 
 
-def _in_box(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    return ((x >= lo) & (x <= hi)).all(-1)
-
-
-def _faces_in_box(tri: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    return ((tri.max(1) >= lo) & (tri.min(1) <= hi)).all(-1)
-
-
 def _checked_comp_pairs(mesh: DepthMesh) -> list[tuple[int, int]]:
     groups = [np.unique(mesh.vertex_group[c.vertices]) for c in mesh.components]
     pairs = []
@@ -345,11 +337,19 @@ def frame_depth(mesh: DepthMesh, v: np.ndarray,
     comps = mesh.components
     box = np.stack([np.stack([v[c.vertices].min(0), v[c.vertices].max(0)]) for c in comps])
     cache: dict[int, tuple] = {}
+    fbox: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
     def normals(i: int) -> tuple:
         if i not in cache:
             cache[i] = _normals(v[comps[i].vertices], comps[i])
         return cache[i]
+
+    def faces_in_box(i: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        if i not in fbox:  # each component's face boxes once per frame, not once per pair
+            tri = v[comps[i].vertices][comps[i].faces]
+            fbox[i] = (tri.min(1), tri.max(1))
+        fmin, fmax = fbox[i]
+        return np.flatnonzero(((fmax >= lo) & (fmin <= hi)).all(-1))
 
     best = 0.0
     for i, j in pairs:
@@ -358,8 +358,7 @@ def frame_depth(mesh: DepthMesh, v: np.ndarray,
             continue
         ci, cj = comps[i], comps[j]
         vi, vj = v[ci.vertices], v[cj.vertices]
-        si = np.flatnonzero(_faces_in_box(vi[ci.faces], lo, hi))
-        sj = np.flatnonzero(_faces_in_box(vj[cj.faces], lo, hi))
+        si, sj = faces_in_box(i, lo, hi), faces_in_box(j, lo, hi)
         # only faces of a group checked against some face of the other side can matter
         si = si[mesh.checked[ci.face_group[si]][:, np.unique(cj.face_group[sj])].any(1)]
         sj = sj[mesh.checked[cj.face_group[sj]][:, np.unique(ci.face_group[si])].any(1)]

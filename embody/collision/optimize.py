@@ -9,7 +9,10 @@ frames far from any penetration are x0 bit for bit and the correction blends in 
 constraint; the optimiser does not stop while any frame penetrates beyond `tolerance`.
 Penetration is tested on every vertex (`contact_stride`), the broad phase skipping the points
 far from contact. The optimised L_col also counts points within `clearance` outside a part, so
-the closeness pull settles with the surfaces apart rather than at residual depth.
+the closeness pull settles with the surfaces apart rather than at residual depth. Arms that
+have passed right through each other (crossed forearms) are a saddle of the point energy (the
+points on either side push opposite ways); the limb core capsules (`capsules`, weight
+`capsule_weight`) add one separating direction there.
 
 The paper's energy columns (before/after) use the `vertex_stride` subsample, for comparison;
 the independent judge is `depth` (mesh penetration depth, every vertex and triangle), whose
@@ -28,6 +31,7 @@ import numpy as np
 import torch
 
 from embody.body.base import BodyModel
+from embody.collision.capsules import arm_capsules, capsule_energies
 from embody.collision.depth import depth_metrics, motion_depths
 from embody.collision.energy import CollisionModel, collision_model, contacts, frame_energies
 from embody.collision.masks import mask_joints
@@ -201,6 +205,7 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
     u = torch.zeros(t, len(idx), 3, requires_grad=True)
     opt = torch.optim.Adam([u], lr=cfg.lr)
     lam = torch.full((t,), float(cfg.lambda_col))
+    caps = arm_capsules(body, motion.betas, cfg.allow_pairs) if cfg.capsule_weight > 0 else None
     best_key = (float("inf"), float("inf"))
     best = torch.zeros_like(x0)
     clear_since, near, step = None, None, 0
@@ -217,6 +222,8 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
             pen = exact > 0
             lam = torch.where(pen, torch.clamp(lam * cfg.lambda_growth, max=cfg.lambda_max), lam)
         e = frame_energies(model, transforms, cfg.tolerance - cfg.clearance, near) * live
+        if caps is not None:  # crossed limbs: the point energy alone sits at a saddle
+            e = e + cfg.capsule_weight * capsule_energies(caps, transforms) * live
         close = (delta ** 2).sum() / t
         smooth = (_second_diff(x) ** 2).sum() / t
         obj = (lam * e).sum() / t + cfg.lambda_close * close + cfg.lambda_smooth * smooth

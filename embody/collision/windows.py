@@ -16,8 +16,10 @@ from dataclasses import replace
 import numpy as np
 
 from embody.body.base import BodyModel
+from embody.collision.depth import depth_metrics
 from embody.collision.metrics import sequence_metrics
-from embody.collision.optimize import CollisionResult, frame_collision_energies, mitigate
+from embody.collision.optimize import (CollisionResult, _depths, frame_collision_energies,
+                                       mitigate)
 from embody.config.collision import CollisionConfig
 from embody.motion import Motion
 
@@ -47,6 +49,8 @@ def mitigate_windowed(motion: Motion, body: BodyModel,
     if len(spans) == 1:
         return mitigate(motion, body, cfg)
     start_time = time.perf_counter()
+    judge = cfg.depth_metrics  # judged once on the blended whole, not per window
+    cfg = cfg.model_copy(update={"depth_metrics": False})
     x0 = motion.pose
     pose = x0.copy()
     before = np.zeros(motion.num_frames)
@@ -75,5 +79,9 @@ def mitigate_windowed(motion: Motion, body: BodyModel,
     metrics = sequence_metrics(x0, fixed.pose, float(before.mean()), float(after.mean()),
                                time.perf_counter() - start_time, steps)
     metrics.update(mask=cfg.mask, windows=len(spans))
+    if judge:
+        t_depth = time.perf_counter()
+        metrics.update(depth_metrics(*_depths(body, motion, fixed.pose, cfg)))
+        metrics["depth_s"] = time.perf_counter() - t_depth
     return CollisionResult(fixed, metrics, before, after,
                            np.asarray(idx if idx is not None else [], dtype=np.int64))

@@ -70,6 +70,9 @@ class CollisionConfig(Section):
     #: it still penetrates, up to `lambda_max`.
     lambda_growth: float = Field(1.5, ge=1, le=100)
     lambda_max: float = Field(1e5, gt=0)
+    #: Weight of the limb core-capsule term (`embody.collision.capsules`) that separates arms
+    #: passed through each other (the point energy alone cancels there); 0 turns it off.
+    capsule_weight: float = Field(10.0, ge=0)
     #: Measure the mesh penetration depth before/after (`embody.collision.depth`) into the
     #: metrics (frames over 2 / 5 mm, max and median depth).
     depth_metrics: bool = True
