@@ -239,7 +239,7 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
                 continue  # invalid or empty: no action this round, the solution stands
             new_pos, new_rot = apply_primitives(working.wrist_pos, working.wrist_rot,
                                                 action.primitives, blend)
-            working = dataclasses.replace(working, wrist_pos=new_pos, wrist_rot=new_rot)
+            working = working.with_wrists(new_pos, new_rot)  # hand-point targets move along
             solution = solve(robot, working, cfg_ik, init=solution)
         chosen = _chosen_round(rounds, cfg_critic)
         if out is not None:
