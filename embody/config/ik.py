@@ -57,7 +57,13 @@ class IKConfig(Section):
     #: Position residual on the anchored robot hand points (palm centre, finger tips;
     #: embody/retarget/hand_points.py), times each point's anchoring weight: the point that carries
     #: the sign (a fingertip at the chin) lands on the robot's landmark, not only the wrist. 0: off.
-    w_hand_points: float = Field(20.0, ge=0)
+    w_hand_points: float = Field(40.0, ge=0)
+    #: Its weight where a point is anchored but not touching (within `anchor_far`, beyond
+    #: `touch_radius`): the wrist target already carries the location there.
+    w_hand_points_near: float = Field(2.0, ge=0)
+    #: A hand point within this many body scales of a landmark touches it: full `w_hand_points`,
+    #: and the wrist pose terms released by `touch_release` (smoothstep to 0 at this distance).
+    touch_radius: float = Field(0.15, gt=0.0, le=1.0)
     #: Softness (body scales) of the share between hand points: a point this much further from
     #: the body than the nearest one gets e⁻¹ of its weight (the touching point dominates; the
     #: robot's other finger proportions must not pull it off the landmark).

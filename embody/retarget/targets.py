@@ -148,6 +148,8 @@ class Anchored:
     point_names: list[str]
     point_pos: np.ndarray
     point_weight: np.ndarray
+    #: (T,P) how much each point touches its landmark (within `ik.touch_radius`), times its share
+    point_touch: np.ndarray
 
 
 def _smoothstep(x: np.ndarray) -> np.ndarray:
@@ -161,15 +163,18 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
     """Landmark-anchored wrist and hand-point targets (see the module docstring).
 
     Hand points: each robot hand point's target is the soft-min over landmarks of (robot landmark
-    + rescaled human offset), its offset lengthened to at least `cfg.collision_margin` (a touch
-    ends at the clearance the collision term keeps, see `hand_points`). Its weight is the
-    anchoring smoothstep of that point's own distance times exp(−(its distance − the nearest
-    point's) / `cfg.hand_point_softness`): the point nearest the body (the touching fingertip) dominates, so the
-    robot's other hand proportions do not pull it off."""
+    + rescaled human offset), its offset lengthened to at least `cfg.touch_clearance` (a touch
+    ends at the clearance the collision term keeps, see `hand_points`). Its share is
+    exp(−(its distance − the nearest point's) / `cfg.hand_point_softness`): the point nearest the
+    body (the touching fingertip) dominates, so the robot's other hand proportions do not pull it
+    off. Its weight (relative to `w_hand_points`) is share × (`w_hand_points_near` / `w_hand_points`
+    × the anchoring smoothstep + the rest × a touch smoothstep within `touch_radius`): a gentle pull
+    near the body, the full one at a touch, where the wrist terms are released instead."""
     t = motion.num_frames
     lm_names = [n for n in ANCHOR_LANDMARKS if n in robot.spec.landmarks]
     if not lm_names:
-        return Anchored(np.zeros((t, 2, 3)), np.zeros((t, 2)), [], np.zeros((t, 0, 3)), np.zeros((t, 0)))
+        return Anchored(np.zeros((t, 2, 3)), np.zeros((t, 2)), [], np.zeros((t, 0, 3)), np.zeros((t, 0)),
+                        np.zeros((t, 0)))
     # the human, on its own shape, relative to its pelvis (root rotation removed as above)
     pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
     pose[:, 0] = 0.0
@@ -195,6 +200,7 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
     p_names: list[str] = []
     p_pos: list[np.ndarray] = []
     p_weight: list[np.ndarray] = []
+    p_touch: list[np.ndarray] = []
     for k, side in enumerate(("left", "right")):
         points = [n for n in HAND_POINTS if f"{side}_{n}" in robot.spec.landmarks]
         # each hand point's offset from the wrist link point, in the wrist link's frame (finger FK)
@@ -221,10 +227,14 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
         beta /= beta.sum(2, keepdims=True)
         p_pos.append(np.einsum("tpl,tpla->tpa", beta, r_lm[:, None] + offset))
         dp = dist.min(2)  # (T,P)
-        p_weight.append(_smoothstep((cfg.anchor_far - dp) / span)
-                        * np.exp(-(dp - dmin[:, None]) / cfg.hand_point_softness))
+        share = np.exp(-(dp - dmin[:, None]) / cfg.hand_point_softness)
+        touch = share * _smoothstep((cfg.touch_radius - dp) / cfg.touch_radius)
+        near = cfg.w_hand_points_near / max(cfg.w_hand_points, 1e-12)
+        p_weight.append(_smoothstep((cfg.anchor_far - dp) / span) * share * near + (1.0 - near) * touch)
+        p_touch.append(touch)
         p_names += [f"{side}_{n}" for n in points]
-    return Anchored(out, weight, p_names, np.concatenate(p_pos, 1), np.concatenate(p_weight, 1))
+    return Anchored(out, weight, p_names, np.concatenate(p_pos, 1), np.concatenate(p_weight, 1),
+                    np.concatenate(p_touch, 1))
 
 
 def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
@@ -260,7 +270,7 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
         for k, side in enumerate(("left", "right")):
             cols = [i for i, n in enumerate(anchored.point_names) if n.startswith(f"{side}_")]
             if cols and cfg.w_hand_points > 0:
-                release[:, k] -= cfg.touch_release * anchored.point_weight[:, cols].max(1)
+                release[:, k] -= cfg.touch_release * anchored.point_touch[:, cols].max(1)
         points = dict(point_pos=anchored.point_pos, point_weight=anchored.point_weight,
                       point_names=anchored.point_names, wrist_weight=release)
     else:
