@@ -167,9 +167,10 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
     ends at the clearance the collision term keeps, see `hand_points`). Its share is
     exp(−(its distance − the nearest point's) / `cfg.hand_point_softness`): the point nearest the
     body (the touching fingertip) dominates, so the robot's other hand proportions do not pull it
-    off. Its weight (relative to `w_hand_points`) is share × (`w_hand_points_near` / `w_hand_points`
-    × the anchoring smoothstep + the rest × a touch smoothstep within `touch_radius`): a gentle pull
-    near the body, the full one at a touch, where the wrist terms are released instead."""
+    off. Its weight (relative to `w_hand_points`) is share × a touch smoothstep within
+    `touch_radius` (the full pull at a touch, where the wrist terms are released instead), plus,
+    for the palm, `w_hand_points_near` / `w_hand_points` × the anchoring smoothstep: the palm
+    carries the sign's location (and anchors the wrist target), the other points its contacts."""
     t = motion.num_frames
     lm_names = [n for n in ANCHOR_LANDMARKS if n in robot.spec.landmarks]
     if not lm_names:
@@ -215,9 +216,13 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
         target_point = r_lm[:, None] + np.einsum("tab,tplb->tpla", torso_rot, rel_local)
         wrist = target_point - np.einsum("tab,tpb->tpa", wrist_rot[:, k], local)[:, :, None]
         dmin = dist.reshape(t, -1).min(1)
-        alpha = np.exp(-(dist - dmin[:, None, None]) / cfg.anchor_softness)
+        # the wrist is anchored by the palm (a sign's location is the palm's; other hand points
+        # carry touches, below): the robot's thumb sits elsewhere on its palm than a human's
+        loc = [points.index("palm")] if "palm" in points else list(range(len(points)))
+        dloc = dist[:, loc].reshape(t, -1).min(1)
+        alpha = np.exp(-(dist[:, loc] - dloc[:, None, None]) / cfg.anchor_softness)
         alpha /= alpha.sum((1, 2), keepdims=True)
-        out[:, k] = np.einsum("tpl,tpla->ta", alpha, wrist)
+        out[:, k] = np.einsum("tpl,tpla->ta", alpha, wrist[:, loc])
         weight[:, k] = _smoothstep((cfg.anchor_far - dmin) / span)
         # hand points: a touch ends at the collision margin from the landmark, not inside it
         offset = np.einsum("tab,tplb->tpla", torso_rot, rel_local)
@@ -230,7 +235,10 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
         share = np.exp(-(dp - dmin[:, None]) / cfg.hand_point_softness)
         touch = share * _smoothstep((cfg.touch_radius - dp) / cfg.touch_radius)
         near = cfg.w_hand_points_near / max(cfg.w_hand_points, 1e-12)
-        p_weight.append(_smoothstep((cfg.anchor_far - dp) / span) * share * near + (1.0 - near) * touch)
+        is_loc = np.isin(np.arange(len(points)), loc)[None]
+        held = 1.0 - cfg.touch_release * touch.max(1, keepdims=True)  # a touch decides, not the palm
+        p_weight.append(np.where(is_loc, _smoothstep((cfg.anchor_far - dp) / span) * near * held, 0.0)
+                        + (1.0 - near) * touch)
         p_touch.append(touch)
         p_names += [f"{side}_{n}" for n in points]
     return Anchored(out, weight, p_names, np.concatenate(p_pos, 1), np.concatenate(p_weight, 1),
