@@ -63,7 +63,7 @@ class IKConfig(Section):
     w_hand_points_near: float = Field(2.0, ge=0)
     #: A hand point within this many body scales of a landmark touches it: full `w_hand_points`,
     #: and the wrist pose terms released by `touch_release` (smoothstep to 0 at this distance).
-    touch_radius: float = Field(0.15, gt=0.0, le=1.0)
+    touch_radius: float = Field(0.2, gt=0.0, le=1.0)
     #: Softness (body scales) of the share between hand points: a point this much further from
     #: the body than the nearest one gets e⁻¹ of its weight (the touching point dominates; the
     #: robot's other finger proportions must not pull it off the landmark).
