@@ -1,7 +1,8 @@
 """IK tasks as weighted residuals with analytic Jacobians, for every frame at once (NumPy).
 
 One residual vector per frame, r_t = [√w·(p − p*) for wrists and elbows, √w·log(R R*ᵀ) for the
-wrists (and torso/head when weighted), √w·relu(margin − clearance) for near proxy pairs]. The
+wrists (and torso/head when weighted), √w·relu(margin − clearance) for near proxy pairs,
+√w·(p − a) for anchored hand points (`hand_points.py`)]; wrist weights are per frame. The
 posture prior and the Δ²q smoothness are linear and handled by the solver. Jacobians are
 geometric: for a hinge j with torso-frame axis z and pivot o, ∂p/∂q_j = z × (p − o) and the
 rotation error moves by z (exact at zero error, which is where Gauss-Newton needs it), for
