@@ -110,6 +110,7 @@ def main() -> None:
               + f" agree={m[f'{final}.location_agree_pct']:.1f} palm={m[f'{final}.palm_deg']:.1f}"
               f" hand={m[f'{final}.handshape_err']:.3f} self_coll={m[f'{final}.self_collision_frames']:.0f}"
               f" vel={m[f'{final}.velocity_violations']:.0f} {seconds[-1]:.0f}s", flush=True)
+    checks: list[tuple[str, bool, str]] = []  # (issue target, met, measured)
     if not args.no_locations:
         seen = set()
         for j, sign in enumerate(LEXICON):
@@ -122,6 +123,7 @@ def main() -> None:
                 cm_ik = dict(hold_offsets(tracks, "ik"))[loc]
                 print(f"location {loc:18s} ({sign.gloss}): hold offset error ik={cm_ik:.1f} cm "
                       f"preserving={cm:.1f} cm")
+                checks.append((f"hold offset at {loc} <= 3 cm", cm <= 3.0, f"{cm:.1f} cm"))
 
     def mean(key: str) -> float:
         return float(np.nanmean([r[key] for r in rows]))
@@ -132,6 +134,21 @@ def main() -> None:
                    f"contact_f1={pooled_f1(rows, f'{row}.'):.3f}"
                    for row in ("ik", "preserving", *([] if args.no_refine else ["refined"]))))
     refined = mean("refined.location_err") if not args.no_refine else float("nan")
+    total = lambda key: sum(r[f"{final}.{key}"] for r in rows)  # noqa: E731
+    f1, agree = pooled_f1(rows, f"{final}."), mean(f"{final}.location_agree_pct")
+    checks += [
+        ("location agreement >= 90 %", agree >= 90.0, f"{agree:.1f} %"),
+        ("contact F1 >= 0.9", f1 >= 0.9, f"{f1:.3f}"),
+        ("0 robot penetration frames", total("penetration_frames") == 0, f"{total('penetration_frames'):.0f}"),
+        ("refined location err <= 0.7 x IK-only", refined <= 0.7 * mean("ik.location_err"),
+         f"{refined:.3f} vs {mean('ik.location_err'):.3f}"),
+        ("0 joint-limit violations", total("joint_limit_violations") == 0, f"{total('joint_limit_violations'):.0f}"),
+        ("0 velocity violations", total("velocity_violations") == 0, f"{total('velocity_violations'):.0f}"),
+        (f"self-collision frames <= 9 (24 seqs; here {len(rows)})", total("self_collision_frames") <= 9,
+         f"{total('self_collision_frames'):.0f}"),
+    ]
+    for name, ok, value in checks:
+        print(f"TARGET {'PASS' if ok else 'FAIL'} {name}: {value}")
     print(f"RESULT location_err_ik={mean('ik.location_err'):.3f} "
           f"location_err_preserving={mean('preserving.location_err'):.3f} "
           f"location_err_refined={refined:.3f} "

@@ -116,6 +116,8 @@ def main(name: str) -> None:
         z = top[2] - frac * (top[2] - chin[2])
         d2 = np.asarray(RULES[lname].direction, dtype=np.float64) * [1, 1, 0]
         score = (face - face.mean(0)) @ (d2 / np.linalg.norm(d2)) - 4.0 * np.abs(face[:, 2] - z)
+        if RULES[lname].direction[1] == 0.0:  # a midline landmark stays on the midline (a visor
+            score = np.where(np.abs(face[:, 1]) < 0.01, score, -np.inf)  # bump is not a forehead)
         i = int(np.argmax(score))
         put(lname, face[i], int(fo[i]))
     body_pts, bo = surface(m, d, spec["torso"] + spec["face"], torso)

@@ -175,34 +175,40 @@ def _render_metrics(result: Any) -> dict[str, Any]:
     return {"keyframes": int(len(result.keyframes)), "preview": result.preview_suffix or ""}
 
 
-def _fidelity(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any], dict[str, np.ndarray], list[str]]:
+def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
+              ) -> tuple[dict[str, Any], dict[str, np.ndarray], list[str]]:
     """Sign fidelity against the human that IK retargets (after collision mitigation), per row of
     Table III: `ik` (shape-fit targets only; solved here as the baseline when the run used
-    location-preserving targets), `preserving` (the retarget step then) and `refined`."""
+    location-preserving targets), `preserving` (the retarget step then) and `refined`.
+
+    Each row is measured on its exported array (the control-rate `q_control`; the final row's is
+    `final_control`, the array stored and exported), against the human track resampled to the same
+    times (`resample_track`): the robot a user receives, not the source-rate solve."""
     from embody.metrics.embodiments import human_track, robot_track
-    from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with
+    from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with, resample_track
     from embody.retarget import solve
     from embody.retarget.validation import validation_counts
     motion, ik, cfg = inputs["collide"].motion, inputs["retarget"], ctx.cfg
-    human = human_track(motion, ctx.body)
+    human = resample_track(human_track(motion, ctx.body), ik.control_rate_hz)
     rows: dict[str, np.ndarray] = {}
     out: dict[str, Any] = {}
     if cfg.ik.location_preserving and cfg.fidelity.baseline:
         plain = cfg.ik.model_copy(update={"location_preserving": False})
         base = solve(ctx.robot, _targets(ctx, motion, inputs["shape_fit"], plain), plain)
-        rows["ik"] = base.q
+        rows["ik"] = base.q_control
         out.update({f"fidelity.ik.{k}": v for k, v in validation_counts(ctx.robot, base.q, ik.fps).items()})
         out["fidelity.ik.mean_jerk"] = base.metrics["jerk"]
-    rows["preserving" if cfg.ik.location_preserving else "ik"] = np.asarray(ik.q)
+    rows["preserving" if cfg.ik.location_preserving else "ik"] = np.asarray(ik.q_control)
     if "refine" in inputs:
         rows["refined"] = np.asarray(inputs["refine"].q)
+    rows[list(rows)[-1]] = final_control
     frames: dict[str, np.ndarray] = {}
     scored: list[tuple[np.ndarray, Any]] = []
     for row, q in rows.items():
         # a row equal to an earlier one (the critic kept the IK solution) is not scored twice
         same = next((r for p, r in scored if p.shape == q.shape and np.array_equal(p, q)), None)
         if same is None:
-            robot = robot_track(ctx.robot, q, ik.fps)
+            robot = robot_track(ctx.robot, q, ik.control_rate_hz)
             same = compare_with(human, robot, cfg.fidelity)
         per_frame, metrics = same
         scored.append((q, same))
@@ -210,6 +216,7 @@ def _fidelity(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any], dic
         frames = {"location_err": per_frame["location_err"], "location_landmark": per_frame["location_landmark"]}
         names = [n for n in LOCATION_LANDMARKS if human.has(n) and robot.has(n)]  # what it indexes
     out["fidelity.final"] = list(rows)[-1]
+    out["fidelity.rate_hz"] = float(ik.control_rate_hz)  # per-frame fidelity arrays are at this rate
     return out, frames, names
 
 
@@ -255,7 +262,7 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     else:
         q, q_control = np.asarray(ik.q, dtype=np.float64), np.asarray(ik.q_control, np.float64)
     source = validation_counts(ctx.robot, q, ik.fps)
-    fidelity, frames, names = _fidelity(ctx, inputs)
+    fidelity, frames, names = _fidelity(ctx, inputs, q_control)
     tracked, tracks = _report_tracks(ctx, inputs)
     return Metrics({"frames": int(q.shape[0]), "joints": int(q.shape[-1]),
                     "duration_s": float(q.shape[0] / ik.fps), "mean_jerk": mean_jerk(q, ik.fps),
@@ -287,7 +294,7 @@ RENDER = Step("render", "2", ("body", "robot", "render"), _render, _render_resul
 RENDER_REFINED = Step("render", "2", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
-# v5: the exported control-rate array (validated), sign fidelity, the report's wrist tracks.
+# v5: the exported control-rate array (validated), sign fidelity on that array, the report's wrist tracks.
 METRICS = Step("metrics", "5", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
 METRICS_REFINED = Step("metrics", "5", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,

@@ -89,3 +89,30 @@ def test_handshape_flexion_error():
     from embody.metrics.fidelity import flexion
     expected = np.abs(flexion(h, "right", "index") - 0.5).mean() / 6  # 1 of 6 finger slots
     assert m["handshape_err"] == pytest.approx(expected, abs=1e-9)
+
+
+def test_resampled_track_lies_on_the_exported_control_grid():
+    """The human side of a comparison with the exported array: same sample count and times as
+    `control_trajectory`'s resampling, linear paths reproduced exactly, rotations kept rotations."""
+    from embody.metrics.fidelity import resample_track
+    from embody.retarget.limits import resample
+
+    h = _track(t=31)
+    h.fps = 30.0
+    spin = np.linspace(0.0, 1.0, 31)  # torso turning 1 rad over the second
+    c, s = np.cos(spin), np.sin(spin)
+    h.torso = np.stack([np.stack([c, -s, 0 * c], -1), np.stack([s, c, 0 * c], -1),
+                        np.stack([0 * c, 0 * c, 1 + 0 * c], -1)], 1)
+    chin = LANDMARKS.index("chin")
+    h.points[:, chin] = np.linspace(0.0, 0.3, 31)[:, None] * [1.0, 0.0, 0.0]
+    h.contact[:, 2] = np.linspace(0.0, 0.03, 31)
+    r = resample_track(h, 50.0)
+    grid = resample(np.zeros((31, 1)), 30.0, 50.0)
+    assert len(r.points) == len(grid) == 51 and r.fps == 50.0
+    t = np.arange(51) / 50.0
+    np.testing.assert_allclose(r.points[:, chin, 0], 0.3 * t, atol=1e-12)
+    np.testing.assert_allclose(r.contact[:, 2], 0.03 * t, atol=1e-12)
+    np.testing.assert_allclose(r.torso @ np.swapaxes(r.torso, 1, 2), np.tile(np.eye(3), (51, 1, 1)), atol=1e-12)
+    angle = np.arctan2(r.torso[:, 1, 0], r.torso[:, 0, 0])
+    np.testing.assert_allclose(angle, t, atol=2e-4)  # chord interpolation of a 1/30 rad step
+    np.testing.assert_allclose(np.linalg.norm(r.normals, axis=-1), 1.0)

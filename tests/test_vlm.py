@@ -212,3 +212,23 @@ def test_key_echoed_by_a_server_is_scrubbed(server, key):
     action = VLMCritic(_cfg(server)).critique(ctx)
     assert action.accepted and "***" in action.reason
     _no_sentinel(json.dumps(ctx.record), json.dumps(action.to_json()), action.raw)
+
+
+def test_fidelity_numbers_reach_the_prompt(server, key):
+    """The measured location error per hand, its nearest landmark and the palm angle are sent."""
+    server.reply(VALID)
+    ctx = _context()
+    ctx.hand_fidelity = {
+        "left": {"landmark": "belly", "share": 0.5, "location_err": 0.1, "location_cm": 3.0, "palm_deg": 12.0},
+        "right": {"landmark": "chin", "share": 0.75, "location_err": 0.25, "location_cm": 7.4, "palm_deg": 31.5}}
+    VLMCritic(_cfg(server)).critique(ctx)
+    (req,) = server.requests
+    text = " ".join(p["text"] for p in req["body"]["messages"][1]["content"] if p["type"] == "text")
+    assert ("Measured right hand: nearest body landmark chin (75% of frames); palm location error 7.4 cm "
+            "(0.25 body scales)") in text
+    assert "palm orientation error 31.5 deg" in text and "nearest body landmark belly (50%" in text
+    # without measurements nothing is claimed
+    server.requests.clear()
+    server.reply(VALID)
+    VLMCritic(_cfg(server)).critique(_context())
+    assert "Measured" not in json.dumps(server.requests[0]["body"])

@@ -54,6 +54,27 @@ class IKConfig(Section):
     #: Softness (body scales) of the soft-min over (hand point, landmark) anchors: targets stay
     #: smooth when the nearest landmark changes.
     anchor_softness: float = Field(0.15, gt=0.0, le=1.0)
+    #: Position residual on the anchored robot hand points (palm centre, finger tips;
+    #: embody/retarget/hand_points.py), times each point's anchoring weight: the point that carries
+    #: the sign (a fingertip at the chin) lands on the robot's landmark, not only the wrist. 0: off.
+    w_hand_points: float = Field(40.0, ge=0)
+    #: Its weight where a point is anchored but not touching (within `anchor_far`, beyond
+    #: `touch_radius`): the wrist target already carries the location there.
+    w_hand_points_near: float = Field(2.0, ge=0)
+    #: A hand point within this many body scales of a landmark touches it: full `w_hand_points`,
+    #: and the wrist pose terms released by `touch_release` (smoothstep to 0 at this distance).
+    touch_radius: float = Field(0.2, gt=0.0, le=1.0)
+    #: Softness (body scales) of the share between hand points: a point this much further from
+    #: the body than the nearest one gets e⁻¹ of its weight (the touching point dominates; the
+    #: robot's other finger proportions must not pull it off the landmark).
+    hand_point_softness: float = Field(0.05, gt=0.0, le=1.0)
+    #: A touching hand point is aimed this far (m) from its landmark, along the human's offset:
+    #: the touch ends where the self-collision term stops it (`collision_margin` between the
+    #: proxies, which are larger than MuJoCo's meshes), never inside (see hand_points.py).
+    touch_clearance: float = Field(0.015, ge=0.0, le=0.1)
+    #: Share of the wrist pose terms released where a hand point is fully anchored: the robot's
+    #: hand differs, so the human's wrist pose and the anchored point conflict; the point wins.
+    touch_release: float = Field(1.0, ge=0.0, le=1.0)
     # --- solver (Levenberg-Marquardt over the banded whole-sequence system) ---
     #: FK backend of the solver's residuals and geometric Jacobians: the pytorch-kinematics chain
     #: (cut down to the bodies the costs use, all frames in one batched call per iteration) or the

@@ -41,6 +41,11 @@ class CritiqueContext:
     fidelity: dict[str, float] = field(default_factory=dict)
     #: Robot body scale (m): location thresholds are in body scales.
     body_scale: float = 0.0
+    #: Per hand ("left", "right"): `landmark` (the human palm's most frequent nearest landmark),
+    #: `share` of frames it is nearest, `location_err` (body scales) and `location_cm` (robot cm)
+    #: of the palm's offset from it, `palm_deg` (palm-normal angle error): the numbers a VLM
+    #: critic reads next to the images.
+    hand_fidelity: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: Filled by the critic: request/response record for this round (JSON-able).
     record: dict[str, Any] = field(default_factory=dict)
 

@@ -230,7 +230,8 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
             context = CritiqueContext(index, targets.fps, targets.arm_length, ref_pos, ref_rot,
                                       pos, rot, limits, keyframes=keyframes.tolist(),
                                       text=str(motion.meta.get("text", "")), location_offset=location_offset,
-                                      fidelity=fidelity, body_scale=robot.body_scale if judge else 0.0)
+                                      fidelity=fidelity, body_scale=robot.body_scale if judge else 0.0,
+                                      hand_fidelity=judge.hands if judge is not None else {})
             if critic.needs_images:
                 comp = renders.comparison(q)
                 context.sheet_png = comp.sheet_png(f"round {index}")
@@ -249,7 +250,7 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
                 continue  # invalid or empty: no action this round, the solution stands
             new_pos, new_rot = apply_primitives(working.wrist_pos, working.wrist_rot,
                                                 action.primitives, blend)
-            working = dataclasses.replace(working, wrist_pos=new_pos, wrist_rot=new_rot)
+            working = working.with_wrists(new_pos, new_rot)  # hand-point targets move along
             solution = solve(robot, working, cfg_ik, init=solution)
         chosen = _chosen_round(rounds, cfg_critic)
         for i, r in enumerate(rounds):  # only the result's control-rate array is kept
@@ -290,14 +291,22 @@ class _HumanJudge:
 
         self.robot, self.fps = robot, fps
         self.human = human_track(motion, body, with_contacts=False)
+        self.hands: dict[str, dict] = {}
 
     def __call__(self, q: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
         from embody.metrics.embodiments import robot_track
         from embody.metrics.fidelity import LOCATION_LANDMARKS, compare, nearest_landmark, relative_location
 
         robot = robot_track(self.robot, q, self.fps, with_contacts=False)
-        _, m = compare(self.human, robot)
+        frames, m = compare(self.human, robot)
         names = [n for n in LOCATION_LANDMARKS if self.human.has(n) and robot.has(n)]
+        self.hands = {}  # per hand, for the VLM prompt
+        for s, side in enumerate(("left", "right")):
+            counts = np.bincount(frames["location_landmark"][:, s], minlength=len(names))
+            err = float(frames["location_err"][:, s].mean())
+            self.hands[side] = {"landmark": names[int(counts.argmax())], "share": float(counts.max() / len(q)),
+                                "location_err": err, "location_cm": err * robot.scale * 100.0,
+                                "palm_deg": float(frames["palm_deg"][:, s].mean())}
         hips = [i for i, n in enumerate(names) if n.endswith("_hip")]
         offset = np.zeros((len(q), 2, 3))
         for s, side in enumerate(("left", "right")):

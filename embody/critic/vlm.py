@@ -203,6 +203,17 @@ def redact_images(payload: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
+def _fidelity_facts(context: CritiqueContext) -> str:
+    """The measured sign fidelity of this round, as sentences (empty when not measured)."""
+    out = ""
+    for side, h in context.hand_fidelity.items():
+        out += (f" Measured {side} hand: nearest body landmark {h['landmark']} "
+                f"({100 * h['share']:.0f}% of frames); palm location error {h['location_cm']:.1f} cm "
+                f"({h['location_err']:.2f} body scales) from where the human's palm sits relative to it; "
+                f"palm orientation error {h['palm_deg']:.1f} deg.")
+    return out
+
+
 class VLMCritic(Critic):
     """Sends the critique prompt, the comparison sheet and keyframes; parses the JSON action."""
 
@@ -226,6 +237,7 @@ class VLMCritic(Critic):
                  f"0..{context.num_frames - 1}.")
         if context.text:
             facts += f" Sign text: {context.text!r}."
+        facts += _fidelity_facts(context)
         content: list[dict[str, Any]] = [{"type": "text", "text": facts}]
         if context.sheet_png is not None:
             content += [{"type": "text", "text": "Comparison sheet (top: human reference, bottom: robot):"},

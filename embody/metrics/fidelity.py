@@ -247,3 +247,29 @@ def compare_with(human: Track, robot: Track, cfg) -> tuple[dict[str, np.ndarray]
     """`compare` with the thresholds of a `FidelityConfig`."""
     return compare(human, robot, radius=cfg.location_radius, eps=cfg.contact_eps,
                    penetration=cfg.penetration_tol, robot_eps=cfg.robot_contact_eps)
+
+
+def resample_track(track: Track, rate: float) -> Track:
+    """`track` at `rate` Hz on the exported control-rate grid (`embody.retarget.limits.resample`:
+    t = k / rate over the same duration): the human side of a comparison with the exported array.
+    Landmarks, palm normals (renormalised), contact distances and per-frame extras are linearly
+    interpolated; torso rotations too, then projected back onto SO(3) (SVD): frames are close."""
+    t_src = np.arange(len(track.points)) / track.fps
+    n = int(np.floor(t_src[-1] * rate + 1e-9)) + 1
+    t_dst = np.arange(n) / rate
+
+    def lerp(a: np.ndarray) -> np.ndarray:
+        a = np.asarray(a, dtype=np.float64)
+        flat = a.reshape(len(a), -1)
+        return np.stack([np.interp(t_dst, t_src, flat[:, j]) for j in range(flat.shape[1])], 1
+                        ).reshape((n,) + a.shape[1:])
+
+    normals = lerp(track.normals)
+    normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
+    u, _, vt = np.linalg.svd(lerp(track.torso))
+    torso = u @ vt
+    torso = np.where((np.linalg.det(torso) < 0)[:, None, None], u @ np.diag([1.0, 1.0, -1.0]) @ vt, torso)
+    extra = {k: lerp(v) for k, v in track.extra.items() if np.ndim(v) and len(v) == len(track.points)}
+    return Track(names=track.names, points=lerp(track.points), normals=normals, torso=torso,
+                 scale=track.scale, rest=track.rest,
+                 contact=None if track.contact is None else lerp(track.contact), fps=float(rate), extra=extra)

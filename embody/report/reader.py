@@ -184,9 +184,11 @@ def collect(store_root: str | Path, run: str, *, max_figures: int | None = 24,
         data.wrists[sid] = tracks
         data.wrist_fps[sid] = fps[sid]
         if "location_err" in arrays and "location_landmark" in labels:
+            # per-frame fidelity is measured on the exported array, at `fidelity.rate_hz`
+            rate = seqs[sid].get("metrics", {}).get(METRICS, {}).get("fidelity.rate_hz") or fps[sid]
             data.locations[sid] = {"err": np.asarray(arrays["location_err"]),
                                    "landmark": np.asarray(arrays["location_landmark"]),
-                                   "names": list(labels["location_landmark"]), "fps": fps[sid]}
+                                   "names": list(labels["location_landmark"]), "fps": float(rate)}
     if missing:
         data.figure_rule += (f" {len(missing)} sequences have no stored wrist tracks (a run made "
                              "before the metrics step stored them: rerun `embody run` to add them).")

@@ -1,7 +1,8 @@
 """IK tasks as weighted residuals with analytic Jacobians, for every frame at once (NumPy).
 
 One residual vector per frame, r_t = [√w·(p − p*) for wrists and elbows, √w·log(R R*ᵀ) for the
-wrists (and torso/head when weighted), √w·relu(margin − clearance) for near proxy pairs]. The
+wrists (and torso/head when weighted), √w·relu(margin − clearance) for near proxy pairs,
+√w·(p − a) for anchored hand points (`hand_points.py`)]; wrist weights are per frame. The
 posture prior and the Δ²q smoothness are linear and handled by the solver. Jacobians are
 geometric: for a hinge j with torso-frame axis z and pivot o, ∂p/∂q_j = z × (p − o) and the
 rotation error moves by z (exact at zero error, which is where Gauss-Newton needs it), for
@@ -16,6 +17,7 @@ from collections.abc import Callable
 import numpy as np
 
 from embody.config.ik import IKConfig
+from embody.retarget.hand_points import hand_point_term
 from embody.retarget.targets import Targets
 from embody.robot import Robot
 from embody.robot.proxies import robot_proxies
@@ -47,9 +49,11 @@ class Residuals:
         refs = [robot.spec.links[n] for n in links]
         self.link_offset = np.array([r.offset for r in refs])
         self.rot_cols = [0, 1] + list(range(4, 4 + len(self.rot_links)))
-        key = (id(robot), tuple(links), self.proxies is not None, cfg.kinematics)
+        self.points = hand_point_term(robot, targets, cfg.w_hand_points)  # anchored hand points
+        extra = sorted(set(self.points.bodies)) if self.points is not None else []
+        key = (id(robot), tuple(links), self.proxies is not None, cfg.kinematics, tuple(extra))
         if key not in _GEOMETRY:  # the static part, once per robot and task set
-            _GEOMETRY[key] = self._geometry(robot, [r.body for r in refs], cfg.kinematics)
+            _GEOMETRY[key] = self._geometry(robot, [r.body for r in refs], cfg.kinematics, extra)
         for name, value in _GEOMETRY[key].items():
             setattr(self, name, value)
         if self.proxies is not None:
@@ -69,6 +73,10 @@ class Residuals:
         self.w_pos = np.array([s(cfg.w_wrist_pos)] * 2 + [s(cfg.w_elbow_pos)] * 2)
         self.w_rot = np.array([s(cfg.w_wrist_rot)] * 2 + [s(cfg.w_torso_rot if n == "spine3" else cfg.w_head_rot)
                                                           for n in self.rot_links])
+        # per frame (T,·): the wrist terms let go where an anchored hand point carries the sign
+        keep = np.sqrt(np.asarray(targets.wrist_weight, dtype=np.float64))  # (T,2)
+        self.w_pos = self.w_pos * np.concatenate([keep, np.ones_like(keep)], 1)
+        self.w_rot = self.w_rot * np.concatenate([keep, np.ones((len(keep), len(self.rot_links)))], 1)
         self.w_col = float(s(cfg.w_collision))
 
     def __call__(self, q: np.ndarray, jacobian: bool = False,
@@ -82,17 +90,21 @@ class Residuals:
         rot, pos = self.fk.forward(q)
         r_link = rot[:, self.link_body]
         p_link = pos[:, self.link_body] + np.einsum("tlab,lb->tla", r_link, self.link_offset)
-        e_pos = (p_link[:, :4] - self.target_pos) * self.w_pos[:, None]
+        e_pos = (p_link[:, :4] - self.target_pos) * self.w_pos[..., None]
         r_rot = r_link[:, self.rot_cols]
-        e_rot = rotation_log(r_rot @ np.swapaxes(self.target_rot, -1, -2)) * self.w_rot[:, None]
+        e_rot = rotation_log(r_rot @ np.swapaxes(self.target_rot, -1, -2)) * self.w_rot[..., None]
         res = [e_pos.reshape(len(q), -1), e_rot.reshape(len(q), -1)]
         col = self._collision(rot, pos, float(collision)) if self.proxies is not None and collision else None
         if col is not None:
             res.append(col[0])
-        return np.concatenate(res, 1), lambda: self._jacobian(q, rot, pos, p_link, r_rot, col)
+        pts = self.points.residual(rot, pos, self.fk.index) if self.points is not None else None
+        if pts is not None:
+            res.append(pts[0])
+        return np.concatenate(res, 1), lambda: self._jacobian(q, rot, pos, p_link, r_rot, col, pts)
 
     def _jacobian(self, q: np.ndarray, rot: np.ndarray, pos: np.ndarray, p_link: np.ndarray,
-                  r_rot: np.ndarray, col: tuple[np.ndarray, Callable] | None) -> np.ndarray:
+                  r_rot: np.ndarray, col: tuple[np.ndarray, Callable] | None,
+                  pts: tuple[np.ndarray, Callable] | None = None) -> np.ndarray:
         z, o = self.fk.joint_frames(rot, pos, list(self.ik))  # (T,J,3) each
 
         def point_jac(p: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -100,22 +112,25 @@ class Residuals:
             return np.cross(z[:, None], p[:, :, None] - o[:, None]).transpose(0, 1, 3, 2) * m.T[None, :, None]
 
         lm = self.mask[:, self.link_body]  # (J,L)
-        jp = point_jac(p_link[:, :4], lm[:, :4]) * self.w_pos[None, :, None, None]
+        jp = point_jac(p_link[:, :4], lm[:, :4]) * self.w_pos[:, :, None, None]
         jr = (z[:, None] * lm[:, self.rot_cols].T[None, :, :, None]).transpose(0, 1, 3, 2)
-        jr = jr * self.w_rot[None, :, None, None]
+        jr = jr * self.w_rot[:, :, None, None]
         blocks = [jp.reshape(len(q), -1, len(self.ik)), jr.reshape(len(q), -1, len(self.ik))]
         if col is not None:
             blocks.append(col[1](z, o))
+        if pts is not None:
+            blocks.append(pts[1](z, o, self.mask))
         return np.concatenate(blocks, 1)
 
-    def _geometry(self, robot: Robot, link_bodies: list[str], backend: str) -> dict[str, object]:
+    def _geometry(self, robot: Robot, link_bodies: list[str], backend: str,
+                  extra: list[str] | None = None) -> dict[str, object]:
         """FK backend, joint masks and the proxy broad-phase tables (no targets involved).
 
         Sphere/hull pairs are grouped by (sphere body, hull) with a bounding sphere per sphere
         body: a cheap first broad phase, so per-point tests run only where a part is near a hull."""
         px = self.proxies
         proxy_bodies = px.bodies if px is not None else []
-        fk = robot.fk(link_bodies + proxy_bodies, backend)
+        fk = robot.fk(link_bodies + proxy_bodies + (extra or []), backend)
         out: dict[str, object] = {"fk": fk, "link_body": [fk.index[b] for b in link_bodies],
                                   "mask": fk.moves(list(self.ik))}  # mask (J, bodies)
         if px is None:

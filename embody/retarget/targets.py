@@ -31,7 +31,7 @@ margin, and the fidelity measure counts a robot contact within `fidelity.robot_c
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -45,13 +45,18 @@ from embody.retarget.hands import retarget_hands
 from embody.retarget.shape_fit import ShapeFit
 from embody.robot import Robot
 
-_ARRAYS = ("wrist_pos", "wrist_rot", "elbow_pos", "torso_rot", "head_rot", "hand_q")
+_ARRAYS = ("wrist_pos", "wrist_rot", "elbow_pos", "torso_rot", "head_rot", "hand_q", "point_pos", "point_weight",
+           "wrist_weight")
 
 
 @dataclass
 class Targets:
     """wrist_pos (T,2,3) [left, right], wrist_rot (T,2,3,3), elbow_pos (T,2,3),
-    torso_rot / head_rot (T,3,3), hand_q (T,H) for `hand_joints`, all in the robot torso frame."""
+    torso_rot / head_rot (T,3,3), hand_q (T,H) for `hand_joints`, all in the robot torso frame;
+    point_pos (T,P,3) / point_weight (T,P): anchored targets of the robot hand landmarks
+    `point_names` (`embody.retarget.hand_points`; P = 0 without location preservation);
+    wrist_weight (T,2): share of the wrist pose terms kept (1 − the anchored point weight ×
+    `ik.touch_release`: at a touch the touching point, not the human's wrist pose, decides)."""
 
     wrist_pos: np.ndarray
     wrist_rot: np.ndarray
@@ -63,6 +68,19 @@ class Targets:
     fps: float
     #: Robot shoulder→elbow→wrist length (m), to normalise errors.
     arm_length: float
+    point_pos: np.ndarray | None = None
+    point_weight: np.ndarray | None = None
+    point_names: list[str] = field(default_factory=list)
+    wrist_weight: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        t = len(self.wrist_pos)
+        if self.point_pos is None:
+            self.point_pos = np.zeros((t, len(self.point_names), 3))
+        if self.point_weight is None:
+            self.point_weight = np.zeros((t, len(self.point_names)))
+        if self.wrist_weight is None:
+            self.wrist_weight = np.ones((t, 2))
 
     @property
     def num_frames(self) -> int:
@@ -72,12 +90,26 @@ class Targets:
         return {k: getattr(self, k) for k in _ARRAYS}
 
     def to_attrs(self) -> dict[str, Any]:
-        return {"hand_joints": list(self.hand_joints), "fps": self.fps, "arm_length": self.arm_length}
+        return {"hand_joints": list(self.hand_joints), "fps": self.fps, "arm_length": self.arm_length,
+                "point_names": list(self.point_names)}
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> "Targets":
-        return cls(**{k: np.asarray(arrays[k]) for k in _ARRAYS}, hand_joints=list(attrs["hand_joints"]),
-                   fps=float(attrs["fps"]), arm_length=float(attrs["arm_length"]))
+        return cls(**{k: np.asarray(arrays[k]) if k in arrays else None for k in _ARRAYS},
+                   hand_joints=list(attrs["hand_joints"]), fps=float(attrs["fps"]),
+                   arm_length=float(attrs["arm_length"]), point_names=list(attrs.get("point_names", [])))
+
+    def with_wrists(self, wrist_pos: np.ndarray, wrist_rot: np.ndarray) -> "Targets":
+        """These targets with new wrist poses; the hand-point targets move rigidly with their wrist
+        (a critic's "move the right hand up" moves the anchored fingertip up too)."""
+        point_pos = np.array(self.point_pos, dtype=np.float64, copy=True)
+        for k, side in enumerate(("left", "right")):
+            cols = [i for i, n in enumerate(self.point_names) if n.startswith(f"{side}_")]
+            if cols:
+                turn = np.asarray(wrist_rot)[:, k] @ np.swapaxes(np.asarray(self.wrist_rot)[:, k], -1, -2)
+                rel = point_pos[:, cols] - np.asarray(self.wrist_pos)[:, k, None]
+                point_pos[:, cols] = np.asarray(wrist_pos)[:, k, None] + np.einsum("tab,tpb->tpa", turn, rel)
+        return replace(self, wrist_pos=np.asarray(wrist_pos), wrist_rot=np.asarray(wrist_rot), point_pos=point_pos)
 
 
 def robot_arm_length(robot: Robot) -> float:
@@ -106,14 +138,44 @@ def _torso_descendants(robot: Robot) -> set[str]:
     return {robot.model.body(b).name for b in ids}
 
 
-def anchored_wrists(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot, wrist_rot: np.ndarray,
-                    torso_rot: np.ndarray, hand_q: np.ndarray, hand_joints: list[str],
-                    cfg: IKConfig) -> tuple[np.ndarray, np.ndarray]:
-    """Landmark-anchored wrist positions (T,2,3) in the torso frame and their blend weights (T,2)."""
+@dataclass
+class Anchored:
+    """Landmark-anchored targets in the torso frame: wrists (T,2,3) with blend weights (T,2), and
+    the robot hand points `point_names` (T,P,3) with their weights (T,P) for `hand_points`."""
+
+    wrist: np.ndarray
+    weight: np.ndarray
+    point_names: list[str]
+    point_pos: np.ndarray
+    point_weight: np.ndarray
+    #: (T,P) how much each point touches its landmark (within `ik.touch_radius`), times its share
+    point_touch: np.ndarray
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)  # no kink where anchoring starts
+
+
+def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot, wrist_rot: np.ndarray,
+                     torso_rot: np.ndarray, hand_q: np.ndarray, hand_joints: list[str],
+                     cfg: IKConfig) -> Anchored:
+    """Landmark-anchored wrist and hand-point targets (see the module docstring).
+
+    Hand points: each robot hand point's target is the soft-min over landmarks of (robot landmark
+    + rescaled human offset), its offset lengthened to at least `cfg.touch_clearance` (a touch
+    ends at the clearance the collision term keeps, see `hand_points`). Its share is
+    exp(−(its distance − the nearest point's) / `cfg.hand_point_softness`): the point nearest the
+    body (the touching fingertip) dominates, so the robot's other hand proportions do not pull it
+    off. Its weight (relative to `w_hand_points`) is share × a touch smoothstep within
+    `touch_radius` (the full pull at a touch, where the wrist terms are released instead), plus,
+    for the palm, `w_hand_points_near` / `w_hand_points` × the anchoring smoothstep: the palm
+    carries the sign's location (and anchors the wrist target), the other points its contacts."""
     t = motion.num_frames
     lm_names = [n for n in ANCHOR_LANDMARKS if n in robot.spec.landmarks]
     if not lm_names:
-        return np.zeros((t, 2, 3)), np.zeros((t, 2))
+        return Anchored(np.zeros((t, 2, 3)), np.zeros((t, 2)), [], np.zeros((t, 0, 3)), np.zeros((t, 0)),
+                        np.zeros((t, 0)))
     # the human, on its own shape, relative to its pelvis (root rotation removed as above)
     pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
     pose[:, 0] = 0.0
@@ -135,6 +197,11 @@ def anchored_wrists(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot
                     np.einsum("tab,kb->tka", torso_rot, rp[0]), rp[0][None])
     out, weight = np.zeros((t, 2, 3)), np.zeros((t, 2))
     s_h, s_r = hl.scale, robot.body_scale
+    span = max(cfg.anchor_far - cfg.anchor_near, 1e-9)
+    p_names: list[str] = []
+    p_pos: list[np.ndarray] = []
+    p_weight: list[np.ndarray] = []
+    p_touch: list[np.ndarray] = []
     for k, side in enumerate(("left", "right")):
         points = [n for n in HAND_POINTS if f"{side}_{n}" in robot.spec.landmarks]
         # each hand point's offset from the wrist link point, in the wrist link's frame (finger FK)
@@ -149,13 +216,33 @@ def anchored_wrists(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot
         target_point = r_lm[:, None] + np.einsum("tab,tplb->tpla", torso_rot, rel_local)
         wrist = target_point - np.einsum("tab,tpb->tpa", wrist_rot[:, k], local)[:, :, None]
         dmin = dist.reshape(t, -1).min(1)
-        alpha = np.exp(-(dist - dmin[:, None, None]) / cfg.anchor_softness)
+        # the wrist is anchored by the palm (a sign's location is the palm's; other hand points
+        # carry touches, below): the robot's thumb sits elsewhere on its palm than a human's
+        loc = [points.index("palm")] if "palm" in points else list(range(len(points)))
+        dloc = dist[:, loc].reshape(t, -1).min(1)
+        alpha = np.exp(-(dist[:, loc] - dloc[:, None, None]) / cfg.anchor_softness)
         alpha /= alpha.sum((1, 2), keepdims=True)
-        out[:, k] = np.einsum("tpl,tpla->ta", alpha, wrist)
-        span = max(cfg.anchor_far - cfg.anchor_near, 1e-9)
-        x = np.clip((cfg.anchor_far - dmin) / span, 0.0, 1.0)
-        weight[:, k] = x * x * (3.0 - 2.0 * x)  # smoothstep: no kink where anchoring starts
-    return out, weight
+        out[:, k] = np.einsum("tpl,tpla->ta", alpha, wrist[:, loc])
+        weight[:, k] = _smoothstep((cfg.anchor_far - dmin) / span)
+        # hand points: a touch ends at the collision margin from the landmark, not inside it
+        offset = np.einsum("tab,tplb->tpla", torso_rot, rel_local)
+        length = np.linalg.norm(offset, axis=-1, keepdims=True)
+        offset = offset * np.where(length > 1e-9, np.maximum(length, cfg.touch_clearance) / np.maximum(length, 1e-12), 1.0)
+        beta = np.exp(-(dist - dist.min(2, keepdims=True)) / cfg.anchor_softness)
+        beta /= beta.sum(2, keepdims=True)
+        p_pos.append(np.einsum("tpl,tpla->tpa", beta, r_lm[:, None] + offset))
+        dp = dist.min(2)  # (T,P)
+        share = np.exp(-(dp - dmin[:, None]) / cfg.hand_point_softness)
+        touch = share * _smoothstep((cfg.touch_radius - dp) / cfg.touch_radius)
+        near = cfg.w_hand_points_near / max(cfg.w_hand_points, 1e-12)
+        is_loc = np.isin(np.arange(len(points)), loc)[None]
+        held = 1.0 - cfg.touch_release * touch.max(1, keepdims=True)  # a touch decides, not the palm
+        p_weight.append(np.where(is_loc, _smoothstep((cfg.anchor_far - dp) / span) * near * held, 0.0)
+                        + (1.0 - near) * touch)
+        p_touch.append(touch)
+        p_names += [f"{side}_{n}" for n in points]
+    return Anchored(out, weight, p_names, np.concatenate(p_pos, 1), np.concatenate(p_weight, 1),
+                    np.concatenate(p_touch, 1))
 
 
 def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
@@ -185,9 +272,17 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
     wrist_rot = np.stack([mapped_rot(f"{s}_wrist", f"{s}_wrist") for s in sides], axis=1)
     torso_rot = mapped_rot("spine3", "spine3") if "spine3" in robot.spec.links else identity
     if cfg is not None and cfg.location_preserving and robot.spec.landmarks:
-        anchored, weight = anchored_wrists(motion, body, fit, robot, wrist_rot, torso_rot, hand_q,
-                                           hand_joints, cfg)
-        wrist_pos = wrist_pos + weight[..., None] * (anchored - wrist_pos)
+        anchored = anchored_targets(motion, body, fit, robot, wrist_rot, torso_rot, hand_q, hand_joints, cfg)
+        wrist_pos = wrist_pos + anchored.weight[..., None] * (anchored.wrist - wrist_pos)
+        release = np.ones((motion.num_frames, 2))
+        for k, side in enumerate(("left", "right")):
+            cols = [i for i, n in enumerate(anchored.point_names) if n.startswith(f"{side}_")]
+            if cols and cfg.w_hand_points > 0:
+                release[:, k] -= cfg.touch_release * anchored.point_touch[:, cols].max(1)
+        points = dict(point_pos=anchored.point_pos, point_weight=anchored.point_weight,
+                      point_names=anchored.point_names, wrist_weight=release)
+    else:
+        points = {}
     return Targets(
         wrist_pos=wrist_pos,
         wrist_rot=wrist_rot,
@@ -195,4 +290,5 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
         torso_rot=torso_rot,
         head_rot=mapped_rot("head", "head") if "head" in robot.spec.links else identity,
         hand_q=hand_q, hand_joints=hand_joints, fps=motion.fps, arm_length=robot_arm_length(robot),
+        **points,
     )
