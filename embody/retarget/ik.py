@@ -27,7 +27,7 @@ from embody.config.ik import IKConfig
 from embody.metrics.trajectory import mean_jerk, position_error, rotation_error_deg
 from embody.retarget.banded import block_pentadiagonal_solve
 from embody.retarget.costs import WRIST_ELBOW, Residuals
-from embody.retarget.control import control_trajectory, separate
+from embody.retarget.control import control_trajectory_checked, separate_checked
 from embody.retarget.limits import clamp_velocity, limit_violations, velocity_violations
 from embody.retarget.targets import Targets
 from embody.retarget.validation import validation_counts
@@ -191,15 +191,17 @@ class _Problem:
         return qi
 
 
-def evaluate(robot: Robot, q: np.ndarray, targets: Targets) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-    """Per-frame tracking metrics of q against targets, their aggregates, and MuJoCo's verdict."""
+def evaluate(robot: Robot, q: np.ndarray, targets: Targets,
+             contacts: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Per-frame tracking metrics of q against targets, their aggregates, and MuJoCo's verdict
+    (`contacts` (T,): MuJoCo's per-frame contact counts of exactly this q, when already known)."""
     pos, rot = robot.link_poses(q, WRIST_ELBOW)
     wrist = position_error(pos[:, :2], targets.wrist_pos) * 1000.0
     frames = {
         "wrist_pos_err_mm": wrist,
         "wrist_rot_err_deg": rotation_error_deg(rot[:, :2], targets.wrist_rot),
         "elbow_pos_err_mm": position_error(pos[:, 2:4], targets.elbow_pos) * 1000.0,
-        "self_contacts": self_collision_contacts(robot, q),
+        "self_contacts": self_collision_contacts(robot, q) if contacts is None else np.asarray(contacts),
     }
     fps = targets.fps
     limits = float(limit_violations(q, robot.lower, robot.upper))
@@ -239,11 +241,13 @@ def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
     if cfg.enforce_velocity_limits:
         q = clamp_velocity(q, robot.velocity_limits, targets.fps)
     # MuJoCo has the last word at both rates: every written sample is collision-free
+    clear = False
     if cfg.contact_repair:
-        q = separate(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits)
-    frames, metrics = evaluate(robot, q, targets)
-    q_control = control_trajectory(robot, q, targets.fps, cfg.control_rate_hz, cfg.contact_repair)
-    metrics.update({f"control_{k}": v for k, v in
-                    validation_counts(robot, q_control, cfg.control_rate_hz).items()})
+        q, clear = separate_checked(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits)
+    frames, metrics = evaluate(robot, q, targets, np.zeros(len(q), np.int64) if clear else None)
+    q_control, clear = control_trajectory_checked(robot, q, targets.fps, cfg.control_rate_hz,
+                                                  cfg.contact_repair)
+    metrics.update({f"control_{k}": v for k, v in validation_counts(
+        robot, q_control, cfg.control_rate_hz, np.zeros(len(q_control), np.int64) if clear else None).items()})
     return IKSolution(q=q, joint_names=list(robot.joint_names), fps=targets.fps, q_control=q_control,
                       control_rate_hz=cfg.control_rate_hz, frame_metrics=frames, metrics=metrics)

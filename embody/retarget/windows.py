@@ -16,7 +16,8 @@ import numpy as np
 
 from embody.collision.windows import windows
 from embody.config.ik import IKConfig
-from embody.retarget.control import control_trajectory, separate
+from embody.retarget.control import control_trajectory_checked, separate_checked
+from embody.retarget.validation import validation_counts
 from embody.retarget.ik import IKSolution, evaluate, solve
 from embody.retarget.limits import clamp_velocity
 from embody.retarget.targets import _ARRAYS, Targets
@@ -52,11 +53,14 @@ def solve_windowed(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
     q = robot.clip(q)
     if cfg.enforce_velocity_limits:
         q = clamp_velocity(q, robot.velocity_limits, targets.fps)
+    clear = False
     if cfg.contact_repair:  # a cross-fade of two collision-free windows can collide
-        q = separate(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits)
-    frames, metrics = evaluate(robot, q, targets)
+        q, clear = separate_checked(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits)
+    frames, metrics = evaluate(robot, q, targets, np.zeros(len(q), np.int64) if clear else None)
     metrics["windows"] = float(len(spans))
-    return IKSolution(q=q, joint_names=list(robot.joint_names), fps=targets.fps,
-                      q_control=control_trajectory(robot, q, targets.fps, cfg.control_rate_hz,
-                                                cfg.contact_repair),
+    q_control, clear = control_trajectory_checked(robot, q, targets.fps, cfg.control_rate_hz,
+                                                  cfg.contact_repair)
+    metrics.update({f"control_{k}": v for k, v in validation_counts(
+        robot, q_control, cfg.control_rate_hz, np.zeros(len(q_control), np.int64) if clear else None).items()})
+    return IKSolution(q=q, joint_names=list(robot.joint_names), fps=targets.fps, q_control=q_control,
                       control_rate_hz=cfg.control_rate_hz, frame_metrics=frames, metrics=metrics)
