@@ -29,6 +29,9 @@ class IKConfig(Section):
     #: Second differences of q (rad²): smoothness over the whole sequence. Redundant motion
     #: (elbow swivel, waist) is smoothed for free; tracking barely pays at this weight.
     w_smooth: float = Field(0.02, ge=0)
+    #: Third differences of q (rad², jerk, what the jerk metric measures): frequency-aware
+    #: smoothness, penalising slow signing motion less than Δ² does for the same jerk.
+    w_jerk: float = Field(0.0, ge=0)
     #: Pull of the arm joints towards the robot's `rest` pose: resolves redundancy gently.
     w_posture: float = Field(1e-5, ge=0)
     #: Pull of the waist joints towards rest: the torso stays upright unless the arms need it.

@@ -4,8 +4,9 @@ The solver holds per-frame Jacobians and normal blocks for every frame at once (
 2,000 frames on G1 with hands). Frames couple only through the smoothness and velocity terms,
 so windows of `ik.window_frames` sharing `ik.window_overlap` frames, cross-faded linearly over
 the overlap, keep memory bounded. The blended trajectory is clipped, velocity-clamped and
-evaluated as a whole, exactly as `solve` does for one window, and contact-repaired again
-(a cross-fade of two collision-free windows can collide).
+evaluated as a whole, exactly as `solve` does for one window, and contact-repaired once on the
+blend (the windows are raw optimiser output, `solve_joints`: a per-window repair and MuJoCo check
+would be redone on the blend anyway).
 """
 
 from __future__ import annotations
@@ -18,7 +19,7 @@ from embody.collision.windows import windows
 from embody.config.ik import IKConfig
 from embody.retarget.control import control_trajectory_checked, separate_checked
 from embody.retarget.validation import validation_counts
-from embody.retarget.ik import IKSolution, evaluate, solve
+from embody.retarget.ik import IKSolution, evaluate, solve, solve_joints
 from embody.retarget.limits import clamp_velocity
 from embody.retarget.targets import _ARRAYS, Targets
 from embody.robot import Robot
@@ -42,13 +43,14 @@ def solve_windowed(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
     q = np.zeros((t, robot.n_joints))
     prev_end = 0
     for start, end in spans:
-        part = solve(robot, _part(targets, start, end), cfg,
-                     None if q0 is None else np.asarray(q0)[start:end])
+        # the optimiser only: the clamp, repair and MuJoCo verification run once, on the blend
+        part = solve_joints(robot, _part(targets, start, end), cfg,
+                            None if q0 is None else np.asarray(q0)[start:end])
         shared = max(0, prev_end - start)
         if shared:
             w = ((np.arange(shared) + 1) / (shared + 1))[:, None]
-            q[start:start + shared] = (1 - w) * q[start:start + shared] + w * part.q[:shared]
-        q[start + shared:end] = part.q[shared:]
+            q[start:start + shared] = (1 - w) * q[start:start + shared] + w * part[:shared]
+        q[start + shared:end] = part[shared:]
         prev_end = end
     q = robot.clip(q)
     if cfg.enforce_velocity_limits:
