@@ -105,6 +105,8 @@ class Residuals:
             half = (px.hull_box[:, 1] - px.hull_box[:, 0]) / 2
             radii = np.where(self.group_members >= 0, px.radii[px.hull_pairs[self.group_members, 0]], -np.inf)
             self.member_reach = half[self.group_hull][:, None] + (cfg.collision_margin + radii)[..., None]
+            self.box_half = half
+            self.group_box_reach = self.part_radius[self.group_part] + cfg.collision_margin
         self.target_pos = np.concatenate([targets.wrist_pos, targets.elbow_pos], 1).astype(np.float64)
         rots = [np.asarray(targets.wrist_rot, dtype=np.float64)]
         rots += [np.asarray(targets.torso_rot if n == "spine3" else targets.head_rot, dtype=np.float64)[:, None]
@@ -221,11 +223,17 @@ class Residuals:
         hc = pos[:, hb] + (rot[:, hb] @ px.hull_centre[..., None])[..., 0]
         gv = pc[:, self.group_part] - hc[:, self.group_hull]
         tg, gg = np.nonzero(np.einsum("tga,tga->tg", gv, gv) < self.group_reach**2)
-        # ... then per point against the hull's box, in the hull body's frame ...
+        # ... then the part's bounding sphere against the hull's box, in the hull body's frame ...
         h_of = self.group_hull[gg]
         r_h, p_h = rot[tg, hb[h_of]], pos[tg, hb[h_of]]
-        gb = pb[self.group_part[gg]]
         r_ht = np.swapaxes(r_h, 1, 2)
+        centre_l = np.einsum("gba,gb->ga", r_h, pc[tg, self.group_part[gg]] - p_h)
+        out = np.maximum(np.abs(centre_l - self.box_mid[h_of]) - self.box_half[h_of], 0.0)
+        # per axis, so exactly the groups with no member passing the per-point test below go
+        keep = out.max(1) < self.group_box_reach[gg]
+        tg, gg, h_of, r_h, p_h, r_ht = tg[keep], gg[keep], h_of[keep], r_h[keep], p_h[keep], r_ht[keep]
+        # ... then per point against the hull's box ...
+        gb = pb[self.group_part[gg]]
         r_rel = r_ht @ rot[tg, gb]
         p_rel = (r_ht @ (pos[tg, gb] - p_h)[..., None])[..., 0]
         members = self.group_members[gg]  # (G,M), −1 = padding
