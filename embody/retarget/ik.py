@@ -3,10 +3,10 @@
 Cost (summed over frames, see `costs.py`): wrist position + orientation, soft elbow position,
 optional torso/head orientation, the proxy self-collision penalty, a posture prior towards the
 robot's rest pose (stronger on the waist: the torso stays upright unless the arms need it), a
-hinge on joint speeds past the velocity limits, plus Δ²q smoothness coupling the frames.
+hinge on joint speeds past the velocity limits, plus Δ²q (and optionally Δ³q, `w_jerk`) smoothness coupling the frames.
 
 Frames couple only through the smoothness and velocity terms, so the normal matrix is banded and
-one LAPACK call (`banded.block_pentadiagonal_solve`) solves all frames jointly in O(T·n³). Steps
+one LAPACK call (`banded.block_banded_solve`) solves all frames jointly in O(T·n³). Steps
 are clamped to the joint box, so limits are never violated. Residuals are NumPy with geometric
 Jacobians from one batched FK pass per iteration (`cfg.kinematics`: pytorch-kinematics or the
 NumPy tree), computed only for accepted steps. A final clamp (`limits.clamp_velocity`) removes
@@ -74,7 +74,6 @@ def _difference_normal(t: int, order: int = 2) -> np.ndarray:
         for k in range(order + 1 - a):
             np.add.at(out[k], rows + a, c[a] * c[a + k])
     return out
-
 
 
 #: Initial Marquardt damping, carried across phases: the first Gauss-Newton step from the rest
