@@ -15,6 +15,13 @@ PostureTask, `solve_ik(..., solver="daqp", limits=[ConfigurationLimit, VelocityL
 10 iterations per frame. The robot base is fixed for both (mink gets the MJCF without its free
 joint), legs are pinned, and fingers take the same retargeted hand values, so contacts compare.
 
+The strongest mink (`mink_collision`, `mink_col` in the table) is the same plus mink's own
+`CollisionAvoidanceLimit` (gain 0.85, 5 mm minimum distance, 10 mm detection distance) in
+`limits=`, on the geom pairs our proxies guard (`proxy_pairs` of the robot YAML: hands, forearms
+and upper arms against each other, the torso shell, the head, pelvis and thighs), restricted to the
+pairs MuJoCo's verdict counts (`counted_geom_pairs`). Its clean/feasible frames are its own; the
+`feasible` keys of ours and mink's stay on the plain mink's feasible frames.
+
 Usage: python benchmarks/ik_vs_mink.py [--sequences 4] [--seed 0]
 """
 
@@ -22,6 +29,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import fnmatch
 import time
 import xml.etree.ElementTree as ET
 from collections import Counter
@@ -42,7 +50,7 @@ from embody.retarget import build_targets, shape_fit, solve  # noqa: E402
 from embody.retarget.ik import evaluate  # noqa: E402
 from embody.retarget.targets import Targets  # noqa: E402
 from embody.robot import Robot, load_robot  # noqa: E402
-from embody.robot.contacts import contact_pairs  # noqa: E402
+from embody.robot.contacts import contact_pairs, counted_geom_pairs  # noqa: E402
 from embody.synth import generate_sequence  # noqa: E402
 
 
@@ -68,7 +76,27 @@ def fixed_base_model(robot: Robot) -> mujoco.MjModel:
     return model
 
 
-def run_mink(robot: Robot, model: mujoco.MjModel, targets: Targets, iterations: int = 10) -> np.ndarray:
+def proxy_geom_pairs(robot: Robot, model: mujoco.MjModel) -> list[tuple[list[int], list[int]]]:
+    """Collision geom pairs (one per pair, for `CollisionAvoidanceLimit`) between the bodies of
+    each of the robot's `proxy_pairs`, kept only where MuJoCo's self-collision verdict counts them."""
+    groups = set(robot.spec.collision.geom_groups)
+    names = [model.body(b).name for b in range(model.nbody)]
+
+    def geoms(proxy: str) -> list[int]:
+        pats = robot.spec.proxies[proxy].bodies
+        return [g for g in range(model.ngeom) if model.geom_group[g] in groups
+                and any(fnmatch.fnmatchcase(names[model.geom_bodyid[g]], p) for p in pats)]
+
+    counted = counted_geom_pairs(robot)  # same geom ids: removing the free joint keeps geoms
+    assert model.ngeom == robot.model.ngeom
+    out = set()
+    for a, b in robot.spec.proxy_pairs:
+        out.update((min(i, j), max(i, j)) for i in geoms(a) for j in geoms(b) if i != j and counted[i, j])
+    return [([i], [j]) for i, j in sorted(out)]
+
+
+def run_mink(robot: Robot, model: mujoco.MjModel, targets: Targets, iterations: int = 10,
+             collision_pairs: list | None = None) -> np.ndarray:
     world_from_torso = np.linalg.inv(robot.torso_from_world)
     conf = mink.Configuration(model, q=robot.rest.copy())
     cfg = IKConfig()
@@ -84,9 +112,20 @@ def run_mink(robot: Robot, model: mujoco.MjModel, targets: Targets, iterations: 
     limits = [mink.ConfigurationLimit(model),
               mink.VelocityLimit(model, {n: float(v) for n, v, m in
                                          zip(robot.joint_names, robot.velocity_limits, robot.ik_mask) if m})]
+    if collision_pairs:
+        limits.append(mink.CollisionAvoidanceLimit(model, geom_pairs=collision_pairs, gain=0.85,
+                                                   minimum_distance_from_collisions=0.005,
+                                                   collision_detection_distance=0.01))
     dt = 1.0 / targets.fps
     out = np.zeros((targets.num_frames, robot.n_joints))
+    cols = [robot.joint_index(n) for n in targets.hand_joints] if targets.hand_joints else []
+    hand_q = np.clip(targets.hand_q, robot.lower[cols], robot.upper[cols]) if cols else None
     for t in range(targets.num_frames):
+        if cols:  # the fingers are where ours are at every frame (pinned), so contacts compare
+            limits[0].lower[cols], limits[0].upper[cols] = hand_q[t] - 1e-6, hand_q[t] + 1e-6
+            q = conf.q.copy()
+            q[cols] = hand_q[t]
+            conf.update(q=q)
         for k, task in enumerate(wrists):
             pose = np.eye(4)
             pose[:3, :3] = targets.wrist_rot[t, k]
@@ -100,9 +139,8 @@ def run_mink(robot: Robot, model: mujoco.MjModel, targets: Targets, iterations: 
             vel = mink.solve_ik(conf, tasks, dt, solver="daqp", damping=1e-3, limits=limits)
             conf.integrate_inplace(vel, dt)
         out[t] = conf.q
-    if targets.hand_joints:  # same fingers as ours
-        cols = [robot.joint_index(n) for n in targets.hand_joints]
-        out[:, cols] = targets.hand_q
+    if cols:  # exactly the same fingers as ours
+        out[:, cols] = hand_q
     return out
 
 
@@ -124,12 +162,16 @@ def main() -> None:
     all_targets = [build_targets(m, body, fit, robot) for m in seqs]
     for c in (cfg, cfg_other):  # warm-up (proxies, caches, pk chains)
         solve(robot, all_targets[0], c.model_copy(update={"iterations": 1}))
+    geom_pairs = proxy_geom_pairs(robot, model)
+    print(f"mink_col: CollisionAvoidanceLimit on {len(geom_pairs)} geom pairs")
     run_mink(robot, model, all_targets[0], iterations=1)
-    totals = {k: 0.0 for k in ("ours_t", "other_t", "mink_t", "frames")}
+    run_mink(robot, model, all_targets[0], iterations=1, collision_pairs=geom_pairs)
+    totals = {k: 0.0 for k in ("ours_t", "other_t", "mink_t", "mink_col_t", "frames")}
     max_dq = 0.0
-    rows: dict[str, list[dict]] = {"ours": [], "mink": []}
-    errs: dict[str, dict[str, list[np.ndarray]]] = {n: {"all": [], "clean": [], "feasible": []} for n in rows}
-    pairs = {"ours": Counter(), "mink": Counter()}
+    rows: dict[str, list[dict]] = {"ours": [], "mink": [], "mink_col": []}
+    errs: dict[str, dict[str, list[np.ndarray]]] = {
+        n: {"all": [], "clean": [], "feasible": [], "feasible_col": []} for n in rows}
+    pairs = {n: Counter() for n in rows}
     print(f"{'seq':>4} {'frames':>6} {'solver':>6} {'fps':>8} {'wrist_mm':>9} {'rot_deg':>8} {'jerk':>9} "
           f"{'vel_viol':>8} {'coll_frames':>11} {'clean_mm':>9}")
     for i, targets in enumerate(all_targets):
@@ -140,23 +182,35 @@ def main() -> None:
         t2 = time.perf_counter()
         again = solve(robot, targets, cfg_other)
         t3 = time.perf_counter()
+        theirs_col = run_mink(robot, model, targets, collision_pairs=geom_pairs)
+        t4 = time.perf_counter()
         totals["ours_t"] += t1 - t0
         totals["mink_t"] += t2 - t1
         totals["other_t"] += t3 - t2
+        totals["mink_col_t"] += t4 - t3
         max_dq = max(max_dq, float(np.abs(again.q - ours.q).max()))
         totals["frames"] += targets.num_frames
         frames_m, m_mink = evaluate(robot, theirs, targets)
+        frames_c, m_col = evaluate(robot, theirs_col, targets)
         results = {"ours": (ours.q, ours.frame_metrics, ours.metrics, t1 - t0),
-                   "mink": (theirs, frames_m, m_mink, t2 - t1)}
+                   "mink": (theirs, frames_m, m_mink, t2 - t1),
+                   "mink_col": (theirs_col, frames_c, m_col, t4 - t3)}
+
+        def feasible_of(q: np.ndarray, frames: dict) -> np.ndarray:
+            """Frames free of MuJoCo contacts, reached within the velocity limits."""
+            step_ok = np.ones(len(q), dtype=bool)
+            step_ok[1:] = (np.abs(np.diff(q, axis=0)) * targets.fps <= robot.velocity_limits * (1 + 1e-9)).all(1)
+            return (frames["self_contacts"] == 0) & step_ok
+
         clean = frames_m["self_contacts"] == 0
-        step_ok = np.ones(len(theirs), dtype=bool)
-        step_ok[1:] = (np.abs(np.diff(theirs, axis=0)) * targets.fps <= robot.velocity_limits * (1 + 1e-9)).all(1)
-        feasible = clean & step_ok
+        feasible = feasible_of(theirs, frames_m)
+        feasible_col = feasible_of(theirs_col, frames_c)
         for name, (q, frames, m, dt) in results.items():
             rows[name].append(m)
             pairs[name].update(contact_pairs(robot, q))
             wrist = frames["wrist_pos_err_mm"].mean(1)
-            for key, sel in (("all", slice(None)), ("clean", clean), ("feasible", feasible)):
+            for key, sel in (("all", slice(None)), ("clean", clean), ("feasible", feasible),
+                             ("feasible_col", feasible_col)):
                 errs[name][key].append(wrist[sel])
             print(f"{i:>4} {targets.num_frames:>6} {name:>6} {targets.num_frames / dt:>8.1f} "
                   f"{m['wrist_pos_err_mm']:>9.2f} {m['wrist_rot_err_deg']:>8.2f} {m['jerk']:>9.1f} "
@@ -177,10 +231,14 @@ def main() -> None:
     for name in pairs:
         print(f"contact frames by body pair ({name}):",
               ", ".join(f"{a}/{b}={n}" for (a, b), n in pairs[name].most_common(6)) or "none")
-    n_clean, n_feasible = (len(np.concatenate(errs["ours"][k])) for k in ("clean", "feasible"))
-    print(f"clean frames {n_clean}, feasible frames {n_feasible} of {int(totals['frames'])}")
+    n_clean, n_feasible, n_col = (len(np.concatenate(errs["ours"][k])) for k in ("clean", "feasible", "feasible_col"))
+    print(f"clean frames {n_clean}, feasible frames {n_feasible} (mink), {n_col} (mink_col) "
+          f"of {int(totals['frames'])}")
     ours_fps = totals["frames"] / totals["ours_t"]
     mink_fps = totals["frames"] / totals["mink_t"]
+    col_fps = totals["frames"] / totals["mink_col_t"]
+    print(f"mink_col {col_fps:.1f} fps, wrist {mean('mink_col', 'wrist_pos_err_mm'):.2f} mm, "
+          f"ours on its feasible frames {frames_mean('ours', 'feasible_col'):.2f} mm")
     other_fps = totals["frames"] / totals["other_t"]
     print(f"ours ({cfg.kinematics}) {ours_fps:.1f} fps, ours ({other}) {other_fps:.1f} fps, "
           f"max |dq| between them {max_dq:.2e} rad")
@@ -195,7 +253,13 @@ def main() -> None:
           f"mink_feasible_wrist_mm={frames_mean('mink', 'feasible'):.2f} "
           f"ours_vel_viol={mean('ours', 'velocity_violations'):.1f} "
           f"mink_vel_viol={mean('mink', 'velocity_violations'):.1f} "
-          f"ours_{other_key}_fps={other_fps:.1f} backend_max_dq={max_dq:.2e}")
+          f"ours_{other_key}_fps={other_fps:.1f} backend_max_dq={max_dq:.2e} "
+          f"mink_collision_fps={col_fps:.1f} fps_ratio_mink_collision={ours_fps / col_fps:.3f} "
+          f"mink_collision_wrist_mm={mean('mink_col', 'wrist_pos_err_mm'):.2f} "
+          f"mink_collision_frames_with_limit={coll['mink_col']} "
+          f"mink_collision_feasible_wrist_mm={frames_mean('mink_col', 'feasible_col'):.2f} "
+          f"ours_collision_feasible_wrist_mm={frames_mean('ours', 'feasible_col'):.2f} "
+          f"mink_collision_vel_viol={mean('mink_col', 'velocity_violations'):.1f}")
 
 
 if __name__ == "__main__":

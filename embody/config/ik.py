@@ -29,6 +29,13 @@ class IKConfig(Section):
     #: Second differences of q (rad²): smoothness over the whole sequence. Redundant motion
     #: (elbow swivel, waist) is smoothed for free; tracking barely pays at this weight.
     w_smooth: float = Field(0.02, ge=0)
+    #: Third differences of q (rad², jerk, what the jerk metric measures): frequency-aware
+    #: smoothness, penalising slow signing motion less than Δ² does for the same jerk. Off by
+    #: default: on benchmarks/ik_vs_mink.py's 4 sequences w_smooth 0 + w_jerk 0.05 halves the jerk
+    #: (1291 → 640) at the same all-frame wrist error (4.97 → 4.98 mm) but raises it on frames
+    #: mink reaches cleanly (1.41 → 1.78 mm); smoothness is not what costs accuracy there (the
+    #: velocity limits, the collision margin and the cold start's basin are).
+    w_jerk: float = Field(0.0, ge=0)
     #: Pull of the arm joints towards the robot's `rest` pose: resolves redundancy gently.
     w_posture: float = Field(1e-5, ge=0)
     #: Pull of the waist joints towards rest: the torso stays upright unless the arms need it.

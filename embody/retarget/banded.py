@@ -18,11 +18,17 @@ def block_pentadiagonal_solve(diag: np.ndarray, off1: np.ndarray, off2: np.ndarr
 
     Shapes: diag (T,n,n), off1 (T-1,n), off2 (T-2,n), rhs (T,n) → x (T,n).
     """
+    return block_banded_solve(diag, [off1, off2], rhs)
+
+
+def block_banded_solve(diag: np.ndarray, offs: list[np.ndarray], rhs: np.ndarray) -> np.ndarray:
+    """`block_pentadiagonal_solve` with any number of diagonal off-blocks: A[t,t+k] = Diag(offs[k-1][t])
+    (offs[k-1] (T-k,n)); a third difference (jerk) term needs three."""
     t, n, _ = diag.shape
-    ab = np.zeros((min(2 * n + 1, t * n), t * n))  # lower form: ab[d, j] = A[j + d, j]
+    ab = np.zeros((min(len(offs) * n + 1, t * n), t * n))  # lower form: ab[d, j] = A[j + d, j]
     for d in range(min(n, len(ab))):  # inside the diagonal blocks: A[sn + c + d, sn + c]
         ab[d].reshape(t, n)[:, : n - d] = np.diagonal(diag, offset=-d, axis1=1, axis2=2)
-    for k, off in ((1, off1), (2, off2)):
+    for k, off in enumerate(offs, 1):
         if k * n < len(ab) and len(off):
             ab[k * n, : len(off) * n] = off.reshape(-1)
     return solveh_banded(ab, rhs.reshape(-1), lower=True, check_finite=False).reshape(t, n)

@@ -56,17 +56,22 @@ class _Separator:
         self.jacp = np.zeros((3, self.model.nv))
         self.jac2 = np.zeros((3, self.model.nv))
 
-    def contacts(self, q: np.ndarray) -> list[int]:
-        """Indices (into data.contact) of counted penetrating contacts at joint values q."""
+    def contacts(self, q: np.ndarray, jacobians: bool = True) -> list[int]:
+        """Indices (into data.contact) of counted penetrating contacts at joint values q
+        (`jacobians`: also prepare `mj_jac`, which needs `mj_comPos`)."""
         d = self.data
         d.qpos[:] = self.model.qpos0
         d.qpos[self.robot.qpos_adr] = q
         mujoco.mj_kinematics(self.model, d)
-        mujoco.mj_comPos(self.model, d)
+        if jacobians:
+            mujoco.mj_comPos(self.model, d)
         mujoco.mj_collision(self.model, d)
-        geom = d.contact.geom[: d.ncon]
-        return [i for i in range(d.ncon)
-                if d.contact.dist[i] < 0 and self.counted[geom[i, 0], geom[i, 1]]]
+        n = d.ncon
+        if not n:
+            return []
+        geom = d.contact.geom[:n]
+        hit = (d.contact.dist[:n] < 0) & self.counted[geom[:, 0], geom[:, 1]]
+        return np.flatnonzero(hit).tolist()
 
     def frame(self, q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
               iterations: int = 40) -> np.ndarray:
@@ -114,6 +119,16 @@ def separate(robot: Robot, q: np.ndarray, fps: float, *, passes: int = 12, blend
              clearance: float = CLEARANCE, enforce_velocity: bool = True) -> np.ndarray:
     """q (T,n) with every sample's penetrating self-contacts removed (MuJoCo's verdict), inside
     the joint box (shrunk by `box_margin`) and the velocity limits (× (1 − velocity_margin))."""
+    return separate_checked(robot, q, fps, passes=passes, blend_s=blend_s, box_margin=box_margin,
+                            velocity_margin=velocity_margin, clearance=clearance,
+                            enforce_velocity=enforce_velocity)[0]
+
+
+def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = 12, blend_s: float = 0.1,
+                     box_margin: float = 0.0, velocity_margin: float = 0.0, clearance: float = CLEARANCE,
+                     enforce_velocity: bool = True) -> tuple[np.ndarray, bool]:
+    """`separate`, and whether MuJoCo checked every returned sample clear (False only when the
+    passes ran out): a caller then need not run the same collision check again."""
     q = np.array(q, dtype=np.float64)
     lower, upper = robot.lower + box_margin, robot.upper - box_margin
     vmax = robot.velocity_limits * (1.0 - velocity_margin)
@@ -121,9 +136,9 @@ def separate(robot: Robot, q: np.ndarray, fps: float, *, passes: int = 12, blend
     half = max(int(round(blend_s * fps)), 0)
     check = np.ones(len(q), dtype=bool)  # samples whose verdict is unknown (unchanged ones keep theirs)
     for _ in range(passes):
-        bad = [t for t in np.flatnonzero(check) if sep.contacts(q[t])]
+        bad = [t for t in np.flatnonzero(check) if sep.contacts(q[t], jacobians=False)]
         if not bad:
-            break
+            return q, True
         delta = np.zeros_like(q)
         for t in bad:
             delta[t] = sep.frame(q[t], lower, upper) - q[t]
@@ -135,17 +150,24 @@ def separate(robot: Robot, q: np.ndarray, fps: float, *, passes: int = 12, blend
         if enforce_velocity:
             new = clamp_velocity(new, vmax, fps)
         check = np.any(new != q, axis=1)
+        check[bad] = True  # a repair undone by the clip/clamp leaves its verdict unknown
         q = new
-    return q
+    return q, False
 
 
 def control_trajectory(robot: Robot, q: np.ndarray, fps: float, rate: float,
                        repair: bool = True) -> np.ndarray:
     """The exported control-rate trajectory (float64): q resampled to `rate` Hz, then every
     sample made collision-free and kept strictly inside the joint and velocity limits."""
+    return control_trajectory_checked(robot, q, fps, rate, repair)[0]
+
+
+def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: float,
+                               repair: bool = True) -> tuple[np.ndarray, bool]:
+    """`control_trajectory`, and whether MuJoCo found every returned sample clear."""
     qc = resample(np.asarray(q, dtype=np.float64), fps, rate)
     qc = np.clip(qc, robot.lower + BOX_MARGIN, robot.upper - BOX_MARGIN)
     qc = clamp_velocity(qc, robot.velocity_limits * (1.0 - VELOCITY_MARGIN), rate)
     if not repair:
-        return qc
-    return separate(robot, qc, rate, box_margin=BOX_MARGIN, velocity_margin=VELOCITY_MARGIN)
+        return qc, False
+    return separate_checked(robot, qc, rate, box_margin=BOX_MARGIN, velocity_margin=VELOCITY_MARGIN)

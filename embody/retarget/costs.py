@@ -8,11 +8,16 @@ geometric: for a hinge j with torso-frame axis z and pivot o, ∂p/∂q_j = z ×
 rotation error moves by z (exact at zero error, which is where Gauss-Newton needs it), for
 every point or frame downstream of j. One FK pass (`cfg.kinematics`: pytorch-kinematics or
 the NumPy tree, `embody.robot.fk`) feeds everything.
+
+More tasks slot in as `ResidualTerm`s (a list: `Residuals(..., terms=[...])`, or every solve
+through `extra_terms`): each names the bodies it reads, gets the FK pass, and returns its rows and
+their Jacobian from the joint axes and pivots, appended after the built-in rows.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -24,6 +29,45 @@ from embody.robot.proxies import robot_proxies
 
 WRIST_ELBOW = ["left_wrist", "right_wrist", "left_elbow", "right_elbow"]
 _GEOMETRY: dict[tuple, dict[str, object]] = {}
+
+
+@dataclass
+class Pose:
+    """One FK pass of every frame: torso-frame rotations (T,B,3,3) and positions (T,B,3) of the
+    FK bodies (`index[name]` → B column) and which IK joint moves which body (`mask` (J,B))."""
+
+    rot: np.ndarray
+    pos: np.ndarray
+    index: dict[str, int]
+    mask: np.ndarray
+
+
+#: Jacobian of a term's rows from the IK joints' world axes z and pivots o (both (T,J,3)) → (T,m,J).
+TermJacobian = Callable[[np.ndarray, np.ndarray], np.ndarray]
+
+
+class ResidualTerm:
+    """A block of per-frame residual rows for the IK (subclass it; see the module docstring)."""
+
+    #: MuJoCo body names whose transforms `rows` reads (added to the FK pass).
+    bodies: list[str] = []
+
+    def rows(self, pose: Pose, scale: float) -> tuple[np.ndarray, TermJacobian] | None:
+        """Residuals (T,m) and their Jacobian; `scale` is the solver's collision phase factor
+        (1 in the full phase), which a term may ignore. None: no rows this time."""
+        raise NotImplementedError
+
+
+def point_jacobian(z: np.ndarray, o: np.ndarray, p: np.ndarray, moves: np.ndarray) -> np.ndarray:
+    """∂p/∂q (T,P,3,J) of points p (T,P,3) rigidly attached to bodies moved per `moves` (J,P)."""
+    return np.cross(z[:, None], p[:, :, None] - o[:, None]).transpose(0, 1, 3, 2) * moves.T[None, :, None]
+
+
+def extra_terms(robot: Robot, targets: Targets, cfg: IKConfig) -> list[ResidualTerm]:
+    """Residual terms every solve adds to the built-in ones (the hook for new IK tasks): the
+    anchored hand points of location-preserving targets (`hand_points.py`)."""
+    points = hand_point_term(robot, targets, cfg.w_hand_points)
+    return [points] if points is not None else []
 
 
 def rotation_log(r: np.ndarray) -> np.ndarray:
@@ -39,9 +83,12 @@ def rotation_log(r: np.ndarray) -> np.ndarray:
 class Residuals:
     """r(q) (T,m) and J = ∂r/∂q_ik (T,m,n_ik) for a sequence's targets."""
 
-    def __init__(self, robot: Robot, targets: Targets, cfg: IKConfig) -> None:
+    def __init__(self, robot: Robot, targets: Targets, cfg: IKConfig,
+                 terms: list[ResidualTerm] | None = None) -> None:
         self.robot, self.cfg = robot, cfg
         self.ik = np.flatnonzero(robot.ik_mask)
+        self.terms = list(terms or []) + extra_terms(robot, targets, cfg)
+        term_bodies = sorted({b for term in self.terms for b in term.bodies})
         self.rot_links = [n for n, w in (("spine3", cfg.w_torso_rot), ("head", cfg.w_head_rot))
                           if n in robot.spec.links and w > 0]
         links = WRIST_ELBOW + self.rot_links
@@ -49,11 +96,9 @@ class Residuals:
         refs = [robot.spec.links[n] for n in links]
         self.link_offset = np.array([r.offset for r in refs])
         self.rot_cols = [0, 1] + list(range(4, 4 + len(self.rot_links)))
-        self.points = hand_point_term(robot, targets, cfg.w_hand_points)  # anchored hand points
-        extra = sorted(set(self.points.bodies)) if self.points is not None else []
-        key = (id(robot), tuple(links), self.proxies is not None, cfg.kinematics, tuple(extra))
+        key = (id(robot), tuple(links), tuple(term_bodies), self.proxies is not None, cfg.kinematics)
         if key not in _GEOMETRY:  # the static part, once per robot and task set
-            _GEOMETRY[key] = self._geometry(robot, [r.body for r in refs], cfg.kinematics, extra)
+            _GEOMETRY[key] = self._geometry(robot, [r.body for r in refs], cfg.kinematics, term_bodies)
         for name, value in _GEOMETRY[key].items():
             setattr(self, name, value)
         if self.proxies is not None:
@@ -64,6 +109,8 @@ class Residuals:
             half = (px.hull_box[:, 1] - px.hull_box[:, 0]) / 2
             radii = np.where(self.group_members >= 0, px.radii[px.hull_pairs[self.group_members, 0]], -np.inf)
             self.member_reach = half[self.group_hull][:, None] + (cfg.collision_margin + radii)[..., None]
+            self.box_half = half
+            self.group_box_reach = self.part_radius[self.group_part] + cfg.collision_margin
         self.target_pos = np.concatenate([targets.wrist_pos, targets.elbow_pos], 1).astype(np.float64)
         rots = [np.asarray(targets.wrist_rot, dtype=np.float64)]
         rots += [np.asarray(targets.torso_rot if n == "spine3" else targets.head_rot, dtype=np.float64)[:, None]
@@ -97,14 +144,16 @@ class Residuals:
         col = self._collision(rot, pos, float(collision)) if self.proxies is not None and collision else None
         if col is not None:
             res.append(col[0])
-        pts = self.points.residual(rot, pos, self.fk.index) if self.points is not None else None
-        if pts is not None:
-            res.append(pts[0])
-        return np.concatenate(res, 1), lambda: self._jacobian(q, rot, pos, p_link, r_rot, col, pts)
+        extra = []
+        if self.terms:
+            pose = Pose(rot, pos, self.fk.index, self.mask)
+            extra = [out for out in (term.rows(pose, float(collision)) for term in self.terms) if out is not None]
+            res += [r for r, _ in extra]
+        return np.concatenate(res, 1), lambda: self._jacobian(q, rot, pos, p_link, r_rot, col, extra)
 
     def _jacobian(self, q: np.ndarray, rot: np.ndarray, pos: np.ndarray, p_link: np.ndarray,
                   r_rot: np.ndarray, col: tuple[np.ndarray, Callable] | None,
-                  pts: tuple[np.ndarray, Callable] | None = None) -> np.ndarray:
+                  extra: list[tuple[np.ndarray, TermJacobian]] = ()) -> np.ndarray:
         z, o = self.fk.joint_frames(rot, pos, list(self.ik))  # (T,J,3) each
 
         def point_jac(p: np.ndarray, m: np.ndarray) -> np.ndarray:
@@ -118,19 +167,18 @@ class Residuals:
         blocks = [jp.reshape(len(q), -1, len(self.ik)), jr.reshape(len(q), -1, len(self.ik))]
         if col is not None:
             blocks.append(col[1](z, o))
-        if pts is not None:
-            blocks.append(pts[1](z, o, self.mask))
+        blocks += [jac(z, o) for _, jac in extra]
         return np.concatenate(blocks, 1)
 
     def _geometry(self, robot: Robot, link_bodies: list[str], backend: str,
-                  extra: list[str] | None = None) -> dict[str, object]:
+                  term_bodies: list[str] = ()) -> dict[str, object]:
         """FK backend, joint masks and the proxy broad-phase tables (no targets involved).
 
         Sphere/hull pairs are grouped by (sphere body, hull) with a bounding sphere per sphere
         body: a cheap first broad phase, so per-point tests run only where a part is near a hull."""
         px = self.proxies
         proxy_bodies = px.bodies if px is not None else []
-        fk = robot.fk(link_bodies + proxy_bodies + (extra or []), backend)
+        fk = robot.fk(link_bodies + proxy_bodies + [b for b in term_bodies if b not in link_bodies], backend)
         out: dict[str, object] = {"fk": fk, "link_body": [fk.index[b] for b in link_bodies],
                                   "mask": fk.moves(list(self.ik))}  # mask (J, bodies)
         if px is None:
@@ -183,11 +231,17 @@ class Residuals:
         hc = pos[:, hb] + (rot[:, hb] @ px.hull_centre[..., None])[..., 0]
         gv = pc[:, self.group_part] - hc[:, self.group_hull]
         tg, gg = np.nonzero(np.einsum("tga,tga->tg", gv, gv) < self.group_reach**2)
-        # ... then per point against the hull's box, in the hull body's frame ...
+        # ... then the part's bounding sphere against the hull's box, in the hull body's frame ...
         h_of = self.group_hull[gg]
         r_h, p_h = rot[tg, hb[h_of]], pos[tg, hb[h_of]]
-        gb = pb[self.group_part[gg]]
         r_ht = np.swapaxes(r_h, 1, 2)
+        centre_l = np.einsum("gba,gb->ga", r_h, pc[tg, self.group_part[gg]] - p_h)
+        out = np.maximum(np.abs(centre_l - self.box_mid[h_of]) - self.box_half[h_of], 0.0)
+        # per axis, so exactly the groups with no member passing the per-point test below go
+        keep = out.max(1) < self.group_box_reach[gg]
+        tg, gg, h_of, r_h, p_h, r_ht = tg[keep], gg[keep], h_of[keep], r_h[keep], p_h[keep], r_ht[keep]
+        # ... then per point against the hull's box ...
+        gb = pb[self.group_part[gg]]
         r_rel = r_ht @ rot[tg, gb]
         p_rel = (r_ht @ (pos[tg, gb] - p_h)[..., None])[..., 0]
         members = self.group_members[gg]  # (G,M), −1 = padding

@@ -64,6 +64,12 @@ class HandPointTerm:
 
         return r, jacobian
 
+    def rows(self, pose, scale: float) -> tuple[np.ndarray, Callable[[np.ndarray, np.ndarray], np.ndarray]]:
+        """The IK's `ResidualTerm` protocol (`costs.py`): rows from one FK pass `pose`; the
+        collision phase factor `scale` does not apply to hand points."""
+        r, jacobian = self.residual(pose.rot, pose.pos, pose.index)
+        return r, lambda z, o: jacobian(z, o, pose.mask)
+
 
 def hand_point_term(robot: Robot, targets, w: float) -> HandPointTerm | None:
     """The term for `targets` (None when it has no anchored hand points or `w` is 0)."""

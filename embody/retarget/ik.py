@@ -3,10 +3,10 @@
 Cost (summed over frames, see `costs.py`): wrist position + orientation, soft elbow position,
 optional torso/head orientation, the proxy self-collision penalty, a posture prior towards the
 robot's rest pose (stronger on the waist: the torso stays upright unless the arms need it), a
-hinge on joint speeds past the velocity limits, plus Δ²q smoothness coupling the frames.
+hinge on joint speeds past the velocity limits, plus Δ²q (and optionally Δ³q, `w_jerk`) smoothness coupling the frames.
 
 Frames couple only through the smoothness and velocity terms, so the normal matrix is banded and
-one LAPACK call (`banded.block_pentadiagonal_solve`) solves all frames jointly in O(T·n³). Steps
+one LAPACK call (`banded.block_banded_solve`) solves all frames jointly in O(T·n³). Steps
 are clamped to the joint box, so limits are never violated. Residuals are NumPy with geometric
 Jacobians from one batched FK pass per iteration (`cfg.kinematics`: pytorch-kinematics or the
 NumPy tree), computed only for accepted steps. A final clamp (`limits.clamp_velocity`) removes
@@ -25,9 +25,9 @@ import numpy as np
 
 from embody.config.ik import IKConfig
 from embody.metrics.trajectory import mean_jerk, position_error, rotation_error_deg
-from embody.retarget.banded import block_pentadiagonal_solve
+from embody.retarget.banded import block_banded_solve
 from embody.retarget.costs import WRIST_ELBOW, Residuals
-from embody.retarget.control import control_trajectory, separate
+from embody.retarget.control import control_trajectory_checked, separate_checked
 from embody.retarget.limits import clamp_velocity, limit_violations, velocity_violations
 from embody.retarget.targets import Targets
 from embody.retarget.validation import validation_counts
@@ -63,13 +63,15 @@ class IKSolution:
                    frame_metrics=frames, metrics=dict(attrs["metrics"]))
 
 
-def _second_difference_normal(t: int) -> np.ndarray:
-    """Diagonals (3, t) of DᵀD for the second-difference operator D ((t-2)×t), zero-padded."""
-    out = np.zeros((3, t))
-    rows = np.arange(max(t - 2, 0))
-    c = (1.0, -2.0, 1.0)
-    for a in range(3):  # row i of D has c at columns i, i+1, i+2
-        for k in range(3 - a):
+def _difference_normal(t: int, order: int = 2) -> np.ndarray:
+    """Diagonals (order+1, t) of DᵀD for the `order`-th difference operator D ((t-order)×t), zero-padded."""
+    c = np.array([1.0])
+    for _ in range(order):
+        c = np.convolve(c, [1.0, -1.0])
+    out = np.zeros((order + 1, t))
+    rows = np.arange(max(t - order, 0))
+    for a in range(order + 1):  # row i of D has c at columns i … i+order
+        for k in range(order + 1 - a):
             np.add.at(out[k], rows + a, c[a] * c[a + k])
     return out
 
@@ -80,7 +82,8 @@ LAMBDA0 = 1.0
 
 
 class _Problem:
-    """½‖r(q)‖² + ½Σ w_post·(q − q_rest)² + ½·w_smooth‖Δ²q‖² over the IK joints of every frame."""
+    """½‖r(q)‖² + ½Σ w_post·(q − q_rest)² + ½·w_smooth‖Δ²q‖² + ½·w_jerk‖Δ³q‖² over the IK joints
+    of every frame."""
 
     def __init__(self, robot: Robot, targets: Targets, cfg: IKConfig) -> None:
         self.robot, self.cfg = robot, cfg
@@ -95,7 +98,10 @@ class _Problem:
         self.rest = robot.rest[self.ik]
         waist = np.array([robot.joint_names[j] in robot.waist_joint_names for j in self.ik])
         self.w_post = np.where(waist, cfg.w_waist_posture, cfg.w_posture)
-        self.dtd = _second_difference_normal(t) * cfg.w_smooth
+        # Δ²q (acceleration) and Δ³q (jerk, what `mean_jerk` measures) penalties, one band
+        self.dtd = np.zeros((4, t))
+        self.dtd[:3] += _difference_normal(t, 2) * cfg.w_smooth
+        self.dtd += _difference_normal(t, 3) * cfg.w_jerk
         #: per-step joint change allowed by the velocity limits, with a little headroom
         self.step_limit = robot.velocity_limits[self.ik] / targets.fps * (1.0 - cfg.velocity_headroom)
 
@@ -107,7 +113,7 @@ class _Problem:
     def _smooth_grad(self, qi: np.ndarray) -> np.ndarray:
         """(w_s·DᵀD) qi, from the band's diagonals."""
         g = self.dtd[0][:, None] * qi
-        for k in (1, 2):
+        for k in (1, 2, 3):
             if len(qi) > k:
                 g[:-k] += self.dtd[k, : len(qi) - k, None] * qi[k:]
                 g[k:] += self.dtd[k, : len(qi) - k, None] * qi[:-k]
@@ -145,9 +151,11 @@ class _Problem:
         t, n, _ = jtj.shape
         eye = np.eye(n)
         diag = jtj + (self.w_post + vdiag + lam * self.damping(h) + self.dtd[0][:, None])[:, :, None] * eye
-        off1 = self.dtd[1, : t - 1, None] + voff
-        off2 = np.repeat(self.dtd[2, : max(t - 2, 0), None], n, 1)
-        return -block_pentadiagonal_solve(diag, off1, off2, g)
+        offs = [self.dtd[1, : t - 1, None] + voff]
+        offs += [np.repeat(self.dtd[k, : max(t - k, 0), None], n, 1) for k in (2, 3)]
+        if not self.cfg.w_jerk:
+            offs.pop()  # pentadiagonal: a narrower band
+        return -block_banded_solve(diag, offs, g)
 
     def damping(self, h: tuple[np.ndarray, ...]) -> np.ndarray:
         """Marquardt's scaling: the diagonal of the Gauss-Newton matrix (T,n)."""
@@ -191,15 +199,17 @@ class _Problem:
         return qi
 
 
-def evaluate(robot: Robot, q: np.ndarray, targets: Targets) -> tuple[dict[str, np.ndarray], dict[str, float]]:
-    """Per-frame tracking metrics of q against targets, their aggregates, and MuJoCo's verdict."""
+def evaluate(robot: Robot, q: np.ndarray, targets: Targets,
+             contacts: np.ndarray | None = None) -> tuple[dict[str, np.ndarray], dict[str, float]]:
+    """Per-frame tracking metrics of q against targets, their aggregates, and MuJoCo's verdict
+    (`contacts` (T,): MuJoCo's per-frame contact counts of exactly this q, when already known)."""
     pos, rot = robot.link_poses(q, WRIST_ELBOW)
     wrist = position_error(pos[:, :2], targets.wrist_pos) * 1000.0
     frames = {
         "wrist_pos_err_mm": wrist,
         "wrist_rot_err_deg": rotation_error_deg(rot[:, :2], targets.wrist_rot),
         "elbow_pos_err_mm": position_error(pos[:, 2:4], targets.elbow_pos) * 1000.0,
-        "self_contacts": self_collision_contacts(robot, q),
+        "self_contacts": self_collision_contacts(robot, q) if contacts is None else np.asarray(contacts),
     }
     fps = targets.fps
     limits = float(limit_violations(q, robot.lower, robot.upper))
@@ -224,10 +234,10 @@ def evaluate(robot: Robot, q: np.ndarray, targets: Targets) -> tuple[dict[str, n
     return frames, metrics
 
 
-def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
-          init: IKSolution | np.ndarray | None = None) -> IKSolution:
-    """Solve all frames jointly; `init` (previous solution or (T,n) q) warm-starts the solver."""
-    cfg = cfg or IKConfig()
+def solve_joints(robot: Robot, targets: Targets, cfg: IKConfig,
+                 init: IKSolution | np.ndarray | None = None) -> np.ndarray:
+    """The optimiser alone: joint trajectory (T, n_joints) inside the joint box, before the
+    velocity clamp, the MuJoCo repair and the verification that `solve` adds."""
     problem = _Problem(robot, targets, cfg)
     t = targets.num_frames
     q0 = init.q if isinstance(init, IKSolution) else init
@@ -235,15 +245,24 @@ def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
         qi = problem.solve(np.asarray(q0, dtype=np.float64)[:, problem.ik], cold=False)
     else:
         qi = problem.solve(np.tile(robot.rest[problem.ik], (t, 1)), cold=True)
-    q = robot.clip(problem.q_full(qi))
+    return robot.clip(problem.q_full(qi))
+
+
+def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
+          init: IKSolution | np.ndarray | None = None) -> IKSolution:
+    """Solve all frames jointly; `init` (previous solution or (T,n) q) warm-starts the solver."""
+    cfg = cfg or IKConfig()
+    q = solve_joints(robot, targets, cfg, init)
     if cfg.enforce_velocity_limits:
         q = clamp_velocity(q, robot.velocity_limits, targets.fps)
     # MuJoCo has the last word at both rates: every written sample is collision-free
+    clear = False
     if cfg.contact_repair:
-        q = separate(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits)
-    frames, metrics = evaluate(robot, q, targets)
-    q_control = control_trajectory(robot, q, targets.fps, cfg.control_rate_hz, cfg.contact_repair)
-    metrics.update({f"control_{k}": v for k, v in
-                    validation_counts(robot, q_control, cfg.control_rate_hz).items()})
+        q, clear = separate_checked(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits)
+    frames, metrics = evaluate(robot, q, targets, np.zeros(len(q), np.int64) if clear else None)
+    q_control, clear = control_trajectory_checked(robot, q, targets.fps, cfg.control_rate_hz,
+                                                  cfg.contact_repair)
+    metrics.update({f"control_{k}": v for k, v in validation_counts(
+        robot, q_control, cfg.control_rate_hz, np.zeros(len(q_control), np.int64) if clear else None).items()})
     return IKSolution(q=q, joint_names=list(robot.joint_names), fps=targets.fps, q_control=q_control,
                       control_rate_hz=cfg.control_rate_hz, frame_metrics=frames, metrics=metrics)

@@ -16,13 +16,15 @@ import numpy as np
 from embody.verdicts import VALIDATION_KEYS  # noqa: E402  (the export rule lives there)
 
 
-def validation_counts(robot: Any, q: np.ndarray, fps: float) -> dict[str, float]:
-    """Counts of limit violations, velocity violations and MuJoCo self-collision frames of q (T,n)."""
+def validation_counts(robot: Any, q: np.ndarray, fps: float,
+                      contacts: np.ndarray | None = None) -> dict[str, float]:
+    """Counts of limit violations, velocity violations and MuJoCo self-collision frames of q (T,n).
+    `contacts` (T,): MuJoCo's per-sample contact counts of exactly this q, when already known."""
     from embody.retarget.limits import limit_violations, velocity_violations
     from embody.robot.contacts import self_collision_contacts
 
     q = np.asarray(q, dtype=np.float64)
-    contacts = self_collision_contacts(robot, q)
+    contacts = self_collision_contacts(robot, q) if contacts is None else contacts
     return {"joint_limit_violations": float(limit_violations(q, robot.lower, robot.upper)),
             "velocity_violations": float(velocity_violations(q, robot.velocity_limits, fps)),
             "self_collision_frames": float((np.asarray(contacts) > 0).sum())}

@@ -50,9 +50,13 @@ class BodyFK(ABC):
 
     def joint_frames(self, rot: np.ndarray, pos: np.ndarray, joints: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """World axes (T,J,3) and pivots (T,J,3) of robot joints `joints` (pivots are body origins)."""
-        where = {j: (i, axis) for i, hinges in enumerate(self.joints) for j, axis in hinges}
-        body = [where[j][0] for j in joints]
-        axes = np.array([where[j][1] for j in joints])
+        key = tuple(joints)
+        cache = self.__dict__.setdefault("_frames_of", {})
+        if key not in cache:  # the lookup tables, once per joint set (every IK Jacobian asks)
+            where = {j: (i, axis) for i, hinges in enumerate(self.joints) for j, axis in hinges}
+            cache[key] = (np.array([where[j][0] for j in joints], dtype=np.int64),
+                          np.array([where[j][1] for j in joints]))
+        body, axes = cache[key]
         return np.einsum("tjab,jb->tja", rot[:, body], axes), pos[:, body]
 
     def moves(self, joints: list[int]) -> np.ndarray:
