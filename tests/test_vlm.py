@@ -231,4 +231,5 @@ def test_fidelity_numbers_reach_the_prompt(server, key):
     server.requests.clear()
     server.reply(VALID)
     VLMCritic(_cfg(server)).critique(_context())
-    assert "Measured" not in json.dumps(server.requests[0]["body"])
+    user = server.requests[0]["body"]["messages"][1]["content"]
+    assert "Measured" not in " ".join(p["text"] for p in user if p["type"] == "text")
