@@ -199,9 +199,8 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
         out.update({f"fidelity.ik.{k}": v for k, v in validation_counts(ctx.robot, base.q, ik.fps).items()})
         out["fidelity.ik.mean_jerk"] = base.metrics["jerk"]
     rows["preserving" if cfg.ik.location_preserving else "ik"] = np.asarray(ik.q_control)
-    if "refine" in inputs:
-        rows["refined"] = np.asarray(inputs["refine"].q)
-    rows[list(rows)[-1]] = final_control
+    # the final row is the array stored and exported
+    rows["refined" if "refine" in inputs else list(rows)[-1]] = final_control
     frames: dict[str, np.ndarray] = {}
     scored: list[tuple[np.ndarray, Any]] = []
     for row, q in rows.items():

@@ -252,7 +252,14 @@ def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
           init: IKSolution | np.ndarray | None = None) -> IKSolution:
     """Solve all frames jointly; `init` (previous solution or (T,n) q) warm-starts the solver."""
     cfg = cfg or IKConfig()
-    q = solve_joints(robot, targets, cfg, init)
+    return finish_solution(robot, solve_joints(robot, targets, cfg, init), targets, cfg)
+
+
+def finish_solution(robot: Robot, q: np.ndarray, targets: Targets, cfg: IKConfig,
+                    extra: dict[str, float] | None = None) -> IKSolution:
+    """A solved trajectory (T,n) inside the joint box made into the solution every solve returns
+    (whole or windowed): velocity clamp, MuJoCo contact repair, evaluation (with `extra` metrics)
+    and the verified control-rate array."""
     if cfg.enforce_velocity_limits:
         q = clamp_velocity(q, robot.velocity_limits, targets.fps)
     # MuJoCo has the last word at both rates: every written sample is collision-free
@@ -260,6 +267,7 @@ def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
     if cfg.contact_repair:
         q, clear = separate_checked(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits)
     frames, metrics = evaluate(robot, q, targets, np.zeros(len(q), np.int64) if clear else None)
+    metrics.update(extra or {})
     q_control, clear = control_trajectory_checked(robot, q, targets.fps, cfg.control_rate_hz,
                                                   cfg.contact_repair)
     metrics.update({f"control_{k}": v for k, v in validation_counts(

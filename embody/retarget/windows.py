@@ -17,10 +17,7 @@ import numpy as np
 
 from embody.collision.windows import windows
 from embody.config.ik import IKConfig
-from embody.retarget.control import control_trajectory_checked, separate_checked
-from embody.retarget.validation import validation_counts
-from embody.retarget.ik import IKSolution, evaluate, solve, solve_joints
-from embody.retarget.limits import clamp_velocity
+from embody.retarget.ik import IKSolution, finish_solution, solve, solve_joints
 from embody.retarget.targets import _ARRAYS, Targets
 from embody.robot import Robot
 
@@ -52,17 +49,5 @@ def solve_windowed(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
             q[start:start + shared] = (1 - w) * q[start:start + shared] + w * part[:shared]
         q[start + shared:end] = part[shared:]
         prev_end = end
-    q = robot.clip(q)
-    if cfg.enforce_velocity_limits:
-        q = clamp_velocity(q, robot.velocity_limits, targets.fps)
-    clear = False
-    if cfg.contact_repair:  # a cross-fade of two collision-free windows can collide
-        q, clear = separate_checked(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits)
-    frames, metrics = evaluate(robot, q, targets, np.zeros(len(q), np.int64) if clear else None)
-    metrics["windows"] = float(len(spans))
-    q_control, clear = control_trajectory_checked(robot, q, targets.fps, cfg.control_rate_hz,
-                                                  cfg.contact_repair)
-    metrics.update({f"control_{k}": v for k, v in validation_counts(
-        robot, q_control, cfg.control_rate_hz, np.zeros(len(q_control), np.int64) if clear else None).items()})
-    return IKSolution(q=q, joint_names=list(robot.joint_names), fps=targets.fps, q_control=q_control,
-                      control_rate_hz=cfg.control_rate_hz, frame_metrics=frames, metrics=metrics)
+    # a cross-fade of two collision-free windows can collide: the repair runs on the blend
+    return finish_solution(robot, robot.clip(q), targets, cfg, {"windows": float(len(spans))})
