@@ -23,7 +23,9 @@ from embody.robot import load_robot
 #: palm geoms and fingertips (name → (proximal geom, distal geom)); head/torso split height.
 ROBOTS = {
     "unitree_g1_dex3": {
-        "face": [38], "torso": [35], "neck_z": 0.285,
+        # the head mesh includes its neck mount (narrowest near z 0.33, a wide base at 0.28):
+        # the face is the head above the neck, the throat on the neck's front
+        "face": [38], "face_above": 0.335, "torso": [35], "neck_z": 0.32,
         "shoulder": {"left": ["left_shoulder_pitch_link", "left_shoulder_roll_link"],
                      "right": ["right_shoulder_pitch_link", "right_shoulder_roll_link"]},
         "hip": {"left": ["pelvis", "left_hip_pitch_link", "left_hip_roll_link"],
@@ -76,6 +78,35 @@ def surface(model: mujoco.MjModel, data: mujoco.MjData, geoms: list[int], torso:
     return np.concatenate(pts), np.concatenate(owner)
 
 
+def _human_face() -> dict[str, np.ndarray]:
+    """The rest body's face landmarks (torso frame: forward, left, up) and its body scale."""
+    from embody.body import load_body_model
+    from embody.body.landmarks import body_landmarks
+    from embody.config import Config
+    from embody.metrics.embodiments import BODY_TO_FLU
+    import torch
+    body = load_body_model(Config().body)
+    lm = body_landmarks(body, np.zeros(10))
+    with torch.no_grad():
+        rest = body.joint_transforms(torch.zeros(1, 55, 3, dtype=torch.float64),
+                                     torch.zeros(10, dtype=torch.float64)).numpy()
+    pts, _ = lm.positions(rest)
+    out = {n: pts[0, lm.index(n)] @ BODY_TO_FLU.T for n in ("head_top", "chin", *FACE_HEIGHTS)}
+    out["scale"] = lm.scale
+    return out
+
+
+def _shoulder_width(m, d, spec, torso, geoms_of, bpose, support) -> float:
+    """Distance between the two shoulder landmarks (the body scale), as found below."""
+    tops = []
+    for side in ("left", "right"):
+        _, sj = bpose(spec["shoulder"][side][1])
+        pts, _ = surface(m, d, geoms_of(spec["shoulder"][side]), torso)
+        sel = np.abs(pts[:, 1] - sj[1]) < 0.02
+        tops.append(pts[np.flatnonzero(sel)[support(pts[sel], (0, 0, 1))]])
+    return float(np.linalg.norm(tops[0] - tops[1]))
+
+
 def main(name: str) -> None:
     spec = ROBOTS[name]
     robot = load_robot(RobotConfig(name=name))
@@ -112,13 +143,18 @@ def main(name: str) -> None:
     chin = face[support(face, RULES["chin"].direction)]
     put("head_top", top, int(fo[support(face, (0, 0, 1))]))
     put("chin", chin, int(fo[support(face, RULES["chin"].direction)]))
-    for lname, frac in FACE_HEIGHTS.items():  # the front surface at the human's relative height
-        z = top[2] - frac * (top[2] - chin[2])
-        d2 = np.asarray(RULES[lname].direction, dtype=np.float64) * [1, 1, 0]
-        score = (face - face.mean(0)) @ (d2 / np.linalg.norm(d2)) - 4.0 * np.abs(face[:, 2] - z)
-        if RULES[lname].direction[1] == 0.0:  # a midline landmark stays on the midline (a visor
-            score = np.where(np.abs(face[:, 1]) < 0.01, score, -np.inf)  # bump is not a forehead)
-        i = int(np.argmax(score))
+    # the rest of the face: the human's layout (relative to the chin, per body scale; heights
+    # per chin-to-top height) carried onto this head, then put on its front surface there,
+    # so each landmark sits where the human's would (a support point per direction lands on
+    # whatever this head's shape sticks out most: cheeks beside the nose, a nose in a visor slot)
+    human = _human_face()
+    scale_r = _shoulder_width(m, d, spec, torso, geoms_of, bpose, support)
+    k = np.array([scale_r / human["scale"]] * 2 + [(top[2] - chin[2]) / (human["head_top"][2] - human["chin"][2])])
+    for lname in FACE_HEIGHTS:
+        want = chin + k * (human[lname] - human["chin"])
+        # the front surface at the wanted (left, up): heads differ most in depth
+        lateral = np.linalg.norm(face[:, 1:] - want[1:], axis=1)
+        i = int(np.argmax(face[:, 0] - 1e3 * np.maximum(lateral - lateral.min() - 0.004, 0.0)))
         put(lname, face[i], int(fo[i]))
     body_pts, bo = surface(m, d, spec["torso"] + spec["face"], torso)
     mid = np.abs(body_pts[:, 1]) < 0.02

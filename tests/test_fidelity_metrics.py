@@ -116,3 +116,36 @@ def test_resampled_track_lies_on_the_exported_control_grid():
     angle = np.arctan2(r.torso[:, 1, 0], r.torso[:, 0, 0])
     np.testing.assert_allclose(angle, t, atol=2e-4)  # chord interpolation of a 1/30 rad step
     np.testing.assert_allclose(np.linalg.norm(r.normals, axis=-1), 1.0)
+
+
+def _two_landmark_track(palm: np.ndarray, scale: float = 0.3) -> Track:
+    """Mouth at (0,0,0), chin 3 cm below, every other landmark far away; both palms at `palm`."""
+    t = len(palm)
+    rest = np.tile(np.array([5.0, 5.0, 5.0]), (len(LANDMARKS), 1)) + np.arange(len(LANDMARKS))[:, None]
+    rest[LANDMARKS.index("mouth")] = 0.0
+    rest[LANDMARKS.index("chin")] = (0.0, 0.0, -0.03)
+    points = np.repeat(rest[None], t, 0).copy()
+    for side in ("left", "right"):
+        points[:, LANDMARKS.index(f"{side}_palm")] = palm
+    normals = np.repeat(np.array([[0, 0, -1.0], [0, 0, -1.0]])[None], t, 0)
+    return Track(names=LANDMARKS, points=points, normals=normals, torso=np.repeat(np.eye(3)[None], t, 0),
+                 scale=scale, rest=rest)
+
+
+def test_location_agreement_counts_ties_between_close_landmarks_only():
+    # the human palm 8 cm in front of mouth and chin, a hair nearer the mouth
+    h = _two_landmark_track(np.tile([0.08, 0.0, -0.014], (4, 1)))
+    # the robot palm a hair nearer the chin: a tie, not a different location
+    r = _two_landmark_track(np.tile([0.08, 0.0, -0.016], (4, 1)))
+    _, m = compare(h, r, radius=0.5, tie=0.05)
+    assert m["location_agree_pct"] == 100.0 and m["location_agree_exact_pct"] == 0.0
+    # the human palm 1 cm above the mouth, the robot's 1 cm below the chin: no tie
+    h = _two_landmark_track(np.tile([0.0, 0.0, 0.01], (4, 1)))
+    r = _two_landmark_track(np.tile([0.0, 0.0, -0.04], (4, 1)))
+    frames, m = compare(h, r, radius=0.5, tie=0.05)
+    assert m["location_agree_pct"] == 0.0 and not frames["location_agree"].any()
+    # without a tolerance the near-tie disagrees too
+    h = _two_landmark_track(np.tile([0.08, 0.0, -0.014], (4, 1)))
+    r = _two_landmark_track(np.tile([0.08, 0.0, -0.016], (4, 1)))
+    _, m = compare(h, r, radius=0.5, tie=0.0)
+    assert m["location_agree_pct"] == 0.0

@@ -120,10 +120,12 @@ class Residuals:
         self.w_pos = np.array([s(cfg.w_wrist_pos)] * 2 + [s(cfg.w_elbow_pos)] * 2)
         self.w_rot = np.array([s(cfg.w_wrist_rot)] * 2 + [s(cfg.w_torso_rot if n == "spine3" else cfg.w_head_rot)
                                                           for n in self.rot_links])
-        # per frame (T,·): the wrist terms let go where an anchored hand point carries the sign
+        # per frame (T,·): the wrist position lets go where an anchored hand point carries the
+        # sign; its rotation does not (any point target is reachable at the human's palm
+        # orientation by moving the wrist, and releasing it flipped palms at touches)
         keep = np.sqrt(np.asarray(targets.wrist_weight, dtype=np.float64))  # (T,2)
         self.w_pos = self.w_pos * np.concatenate([keep, np.ones_like(keep)], 1)
-        self.w_rot = self.w_rot * np.concatenate([keep, np.ones((len(keep), len(self.rot_links)))], 1)
+        self.w_rot = np.broadcast_to(self.w_rot, (len(keep), len(self.w_rot))).copy()
         self.w_col = float(s(cfg.w_collision))
 
     def __call__(self, q: np.ndarray, jacobian: bool = False,
