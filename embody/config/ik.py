@@ -82,6 +82,9 @@ class IKConfig(Section):
     #: Share of the wrist pose terms released where a hand point is fully anchored: the robot's
     #: hand differs, so the human's wrist pose and the anchored point conflict; the point wins.
     touch_release: float = Field(1.0, ge=0.0, le=1.0)
+    #: Wrist orientation weight where a hand point touches (instead of `w_wrist_rot`): the
+    #: anchored points would otherwise twist the palm (palm orientation is part of the sign).
+    w_wrist_rot_touch: float = Field(0.5, ge=0)
     # --- solver (Levenberg-Marquardt over the banded whole-sequence system) ---
     #: FK backend of the solver's residuals and geometric Jacobians: the pytorch-kinematics chain
     #: (cut down to the bodies the costs use, all frames in one batched call per iteration) or the

@@ -121,11 +121,12 @@ class Residuals:
         self.w_rot = np.array([s(cfg.w_wrist_rot)] * 2 + [s(cfg.w_torso_rot if n == "spine3" else cfg.w_head_rot)
                                                           for n in self.rot_links])
         # per frame (T,·): the wrist position lets go where an anchored hand point carries the
-        # sign; its rotation does not (any point target is reachable at the human's palm
-        # orientation by moving the wrist, and releasing it flipped palms at touches)
+        # sign; its rotation holds on harder (any point target is reachable at the human's palm
+        # orientation by moving the wrist; released, the points twisted palms by 30-70 degrees)
         keep = np.sqrt(np.asarray(targets.wrist_weight, dtype=np.float64))  # (T,2)
         self.w_pos = self.w_pos * np.concatenate([keep, np.ones_like(keep)], 1)
-        self.w_rot = np.broadcast_to(self.w_rot, (len(keep), len(self.w_rot))).copy()
+        hold = np.sqrt(np.asarray(targets.wrist_rot_weight, dtype=np.float64))  # (T,2), > 1 at a touch
+        self.w_rot = self.w_rot * np.concatenate([hold, np.ones((len(hold), len(self.rot_links)))], 1)
         self.w_col = float(s(cfg.w_collision))
 
     def __call__(self, q: np.ndarray, jacobian: bool = False,

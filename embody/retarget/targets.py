@@ -47,7 +47,7 @@ from embody.retarget.shape_fit import ShapeFit
 from embody.robot import Robot
 
 _ARRAYS = ("wrist_pos", "wrist_rot", "elbow_pos", "torso_rot", "head_rot", "hand_q", "point_pos", "point_weight",
-           "wrist_weight")
+           "wrist_weight", "wrist_rot_weight")
 
 
 @dataclass
@@ -57,7 +57,9 @@ class Targets:
     point_pos (T,P,3) / point_weight (T,P): anchored targets of the robot hand landmarks
     `point_names` (`embody.retarget.hand_points`; P = 0 without location preservation);
     wrist_weight (T,2): share of the wrist pose terms kept (1 − the anchored point weight ×
-    `ik.touch_release`: at a touch the touching point, not the human's wrist pose, decides)."""
+    `ik.touch_release`: at a touch the touching point, not the human's wrist position, decides);
+    wrist_rot_weight (T,2): factor on the wrist orientation term (`ik.w_wrist_rot_touch` /
+    `ik.w_wrist_rot` at a touch: the anchored points must not twist the palm)."""
 
     wrist_pos: np.ndarray
     wrist_rot: np.ndarray
@@ -73,6 +75,7 @@ class Targets:
     point_weight: np.ndarray | None = None
     point_names: list[str] = field(default_factory=list)
     wrist_weight: np.ndarray | None = None
+    wrist_rot_weight: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         t = len(self.wrist_pos)
@@ -82,6 +85,8 @@ class Targets:
             self.point_weight = np.zeros((t, len(self.point_names)))
         if self.wrist_weight is None:
             self.wrist_weight = np.ones((t, 2))
+        if self.wrist_rot_weight is None:
+            self.wrist_rot_weight = np.ones((t, 2))
 
     @property
     def num_frames(self) -> int:
@@ -275,13 +280,16 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
     if cfg is not None and cfg.location_preserving and robot.spec.landmarks:
         anchored = anchored_targets(motion, body, fit, robot, wrist_rot, torso_rot, hand_q, hand_joints, cfg)
         wrist_pos = wrist_pos + anchored.weight[..., None] * (anchored.wrist - wrist_pos)
-        release = np.ones((motion.num_frames, 2))
+        release, hold = np.ones((motion.num_frames, 2)), np.ones((motion.num_frames, 2))
+        boost = cfg.w_wrist_rot_touch / cfg.w_wrist_rot if cfg.w_wrist_rot > 0 else 1.0
         for k, side in enumerate(("left", "right")):
             cols = [i for i, n in enumerate(anchored.point_names) if n.startswith(f"{side}_")]
             if cols and cfg.w_hand_points > 0:
-                release[:, k] -= cfg.touch_release * anchored.point_touch[:, cols].max(1)
+                touch = anchored.point_touch[:, cols].max(1)
+                release[:, k] -= cfg.touch_release * touch
+                hold[:, k] += (boost - 1.0) * touch
         points = dict(point_pos=anchored.point_pos, point_weight=anchored.point_weight,
-                      point_names=anchored.point_names, wrist_weight=release)
+                      point_names=anchored.point_names, wrist_weight=release, wrist_rot_weight=hold)
     else:
         points = {}
     return Targets(
