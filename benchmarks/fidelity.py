@@ -178,6 +178,7 @@ def thumb_at_limit(robot, q: np.ndarray, motion, tol: float = 0.02) -> tuple[flo
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=24, help="default synthetic sequences (seed 0)")
+    ap.add_argument("--first", type=int, default=0, help="index of the first default sequence")
     ap.add_argument("--no-refine", action="store_true")
     ap.add_argument("--no-locations", action="store_true")
     ap.add_argument("--no-lean", action="store_true")
@@ -187,7 +188,7 @@ def main() -> None:
     fit = shape_fit(robot, body, cfg.ik)
     final = "preserving" if args.no_refine else "refined"
     rows, seconds, thumbs = [], [], []
-    for i in range(args.n):
+    for i in range(args.first, args.first + args.n):
         t0 = time.perf_counter()
         motion = generate_sequence(0, i)
         m, tracks = run_sequence(motion, cfg, body, robot, fit, not args.no_refine)

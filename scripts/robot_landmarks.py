@@ -25,7 +25,7 @@ ROBOTS = {
     "unitree_g1_dex3": {
         # the head mesh includes its neck mount (narrowest near z 0.33, a wide base at 0.28):
         # the face is the head above the neck, the throat on the neck's front
-        "face": [38], "face_above": 0.335, "torso": [35], "neck_z": 0.32,
+        "face": [38], "face_above": 0.335, "face_from_human": True, "torso": [35], "neck_z": 0.32,
         "shoulder": {"left": ["left_shoulder_pitch_link", "left_shoulder_roll_link"],
                      "right": ["right_shoulder_pitch_link", "right_shoulder_roll_link"]},
         "hip": {"left": ["pelvis", "left_hip_pitch_link", "left_hip_roll_link"],
@@ -131,8 +131,8 @@ def main(name: str) -> None:
 
     out: dict[str, tuple[str, np.ndarray]] = {}
 
-    def put(lname: str, point: np.ndarray, geom: int) -> None:
-        body = m.body(m.geom_bodyid[geom]).name
+    def put(lname: str, point: np.ndarray, geom: int, body: str | None = None) -> None:
+        body = body or m.body(m.geom_bodyid[geom]).name
         r, o = bpose(body)
         out[lname] = (body, r.T @ (point - o))
 
@@ -147,14 +147,23 @@ def main(name: str) -> None:
     # per chin-to-top height) carried onto this head, then put on its front surface there,
     # so each landmark sits where the human's would (a support point per direction lands on
     # whatever this head's shape sticks out most: cheeks beside the nose, a nose in a visor slot)
+    # (`face_from_human`; otherwise the front surface at the human's relative height per direction)
     human = _human_face()
     scale_r = _shoulder_width(m, d, spec, torso, geoms_of, bpose, support)
     k = np.array([scale_r / human["scale"]] * 2 + [(top[2] - chin[2]) / (human["head_top"][2] - human["chin"][2])])
-    for lname in FACE_HEIGHTS:
-        want = chin + k * (human[lname] - human["chin"])
-        # the front surface at the wanted (left, up): heads differ most in depth
-        lateral = np.linalg.norm(face[:, 1:] - want[1:], axis=1)
-        i = int(np.argmax(face[:, 0] - 1e3 * np.maximum(lateral - lateral.min() - 0.004, 0.0)))
+    for lname, frac in FACE_HEIGHTS.items():
+        if spec.get("face_from_human"):
+            want = chin + k * (human[lname] - human["chin"])
+            # the front surface at the wanted (left, up): heads differ most in depth
+            lateral = np.linalg.norm(face[:, 1:] - want[1:], axis=1)
+            i = int(np.argmax(face[:, 0] - 1e3 * np.maximum(lateral - lateral.min() - 0.004, 0.0)))
+        else:
+            z = top[2] - frac * (top[2] - chin[2])
+            d2 = np.asarray(RULES[lname].direction, dtype=np.float64) * [1, 1, 0]
+            score = (face - face.mean(0)) @ (d2 / np.linalg.norm(d2)) - 4.0 * np.abs(face[:, 2] - z)
+            if RULES[lname].direction[1] == 0.0:  # a midline landmark stays on the midline (a visor
+                score = np.where(np.abs(face[:, 1]) < 0.01, score, -np.inf)  # bump is not a forehead)
+            i = int(np.argmax(score))
         put(lname, face[i], int(fo[i]))
     body_pts, bo = surface(m, d, spec["torso"] + spec["face"], torso)
     mid = np.abs(body_pts[:, 1]) < 0.02
@@ -166,7 +175,8 @@ def main(name: str) -> None:
         pts, po = surface(m, d, geoms_of(spec["shoulder"][side]), torso)
         sel = np.abs(pts[:, 1] - sj[1]) < 0.02
         i = np.flatnonzero(sel)[support(pts[sel], (0, 0, 1))]
-        put(f"{side}_shoulder", pts[i], int(po[i]))
+        # carried by the torso, as the body's is by its collar (embody.body.landmarks.CARRIED_BY)
+        put(f"{side}_shoulder", pts[i], int(po[i]), m.body(robot.spec.torso_body).name)
     scale = float(np.linalg.norm(
         (bpose(out["left_shoulder"][0])[0] @ out["left_shoulder"][1] + bpose(out["left_shoulder"][0])[1])
         - (bpose(out["right_shoulder"][0])[0] @ out["right_shoulder"][1] + bpose(out["right_shoulder"][0])[1])))

@@ -8,10 +8,11 @@ import pytest
 import torch
 
 from embody.body import load_body_model
-from embody.body.landmarks import BODY_LANDMARKS, LANDMARKS, landmark_positions
+from embody.body.landmarks import BODY_LANDMARKS, CARRIED_BY, LANDMARKS, landmark_positions
 from embody.config.body import BodyConfig
 from embody.config.robot import RobotConfig
 from embody.robot import load_robot
+from embody.robot.contacts import subtree_ids
 from smplx_fixture import write_smplx
 
 
@@ -46,7 +47,18 @@ def test_mannequin_landmarks_follow_the_pose_and_read_right(mannequin):
     points, _, lm = landmark_positions(mannequin, pose, np.zeros(10))
     verts = mannequin.vertices(torch.as_tensor(pose), torch.zeros(10, dtype=torch.float64)).numpy()
     moved = np.linalg.norm(verts[:, lm.vertex] - points, axis=-1)
-    assert moved.max() < 0.01  # rigid shells: the vertex follows its dominant joint
+    own = [i for i, n in enumerate(lm.names) if n not in CARRIED_BY]
+    assert moved[:, own].max() < 0.01  # rigid shells: the vertex follows its dominant joint
+    # a shoulder rides on its collar (the trunk), not on the arm its vertex is skinned to
+    joints = mannequin.joints(torch.as_tensor(pose), torch.zeros(10, dtype=torch.float64)).numpy()
+    zero = np.zeros((1, 55, 3))
+    rest_j = mannequin.joints(torch.as_tensor(zero), torch.zeros(10, dtype=torch.float64)).numpy()
+    rest_p, _, _ = landmark_positions(mannequin, zero, np.zeros(10))
+    for name, carrier in CARRIED_BY.items():
+        i, j = lm.names.index(name), mannequin.joint_index(carrier)
+        np.testing.assert_allclose(np.linalg.norm(points[:, i] - joints[:, j], axis=-1),
+                                   np.linalg.norm(rest_p[0, i] - rest_j[0, j]), atol=1e-9)
+        assert moved[:, i].max() > 0.01  # its arm-skinned vertex does move away
     rest, _, _ = landmark_positions(mannequin, np.zeros((1, 55, 3)), np.zeros(10))
     p = dict(zip(lm.names, rest[0]))
     assert p["head_top"][1] > p["forehead"][1] > p["left_eye"][1] > p["nose"][1] > p["chin"][1]
@@ -88,7 +100,9 @@ def test_robot_landmarks_on_the_geometry(name):
     for k, lname in enumerate(names):
         p = world[:3, :3] @ points[0, k] + world[:3, 3]
         b = m.body(spec[lname].body).id
-        geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] == b]
+        # a shoulder is carried by the torso (as the body's by its collar) but lies on the arm's top
+        bodies = subtree_ids(m, spec[lname].body) if lname in CARRIED_BY else {b}
+        geoms = [g for g in range(m.ngeom) if m.geom_bodyid[g] in bodies]
         assert _surface_distance(m, d, geoms, p) < 3e-3, lname
     np.testing.assert_allclose(normals[0], [[0, 0, -1], [0, 0, -1]], atol=1e-3)  # palms down
     p = dict(zip(names, points[0]))

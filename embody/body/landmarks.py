@@ -34,6 +34,11 @@ FACE_LANDMARKS = BODY_LANDMARKS[:9]
 HAND_LANDMARKS = tuple(f"{s}_{n}" for s in SIDES
                        for n in ("wrist", "palm", *(f"{f}_tip" for f in FINGERS)))
 LANDMARKS = BODY_LANDMARKS + HAND_LANDMARKS
+#: Landmarks carried rigidly by a trunk joint instead of their vertex's skinning weights: the
+#: shoulder-top vertex is skinned to the arm, and with the arm down it swings ~7 cm out and back
+#: (shoulder width 1.45x the rest width), while the robot's shoulder stays put; a sign "at the
+#: shoulder" is placed on the trunk. At rest the landmark is still exactly its vertex.
+CARRIED_BY = {"left_shoulder": "left_collar", "right_shoulder": "right_collar"}
 #: Palm normal at rest (T-pose, palms down) in (forward, left, up).
 PALM_NORMAL_REST = (0.0, 0.0, -1.0)
 
@@ -186,6 +191,10 @@ def body_landmarks(body: BodyModel, betas: np.ndarray | torch.Tensor | None = No
     offset = np.einsum("jba,kjb->kja", rot, verts[vertex][:, None] - pos[None])
     weight = np.asarray(body.skin_weights, dtype=np.float64)[vertex]
     weight = weight / weight.sum(1, keepdims=True)
+    for name, carrier in CARRIED_BY.items():
+        j = _joint(body, carrier)
+        if j is not None:
+            weight[names.index(name)] = np.eye(weight.shape[1])[j]
     wrists = np.array([body.joint_index(f"{s}_wrist") for s in SIDES], dtype=np.int64)
     normal = to_body_axes(PALM_NORMAL_REST)
     normal_local = np.stack([rest[w, :3, :3].T @ normal for w in wrists])
