@@ -107,7 +107,10 @@ def test_hand_point_residual_jacobian_matches_finite_differences(setup):
     ik = cfg.ik.model_copy(update={"w_collision": 0.0})
     targets = build_targets(_motion(_touching_pose(body, "right_index_tip", 0.005), frames=2), body, fit, robot, ik)
     assert targets.point_weight[:, targets.point_names.index("right_index_tip")].min() > 0.9  # a touch
-    assert targets.wrist_weight[:, 1].max() < 0.1  # the wrist lets go there
+    assert targets.wrist_weight[:, 1].max() < 0.1  # the wrist position lets go there
+    # ... its orientation holds on harder (released, the anchored points twisted the palm)
+    assert targets.wrist_rot_weight[:, 1].min() > 0.9 * ik.w_wrist_rot_touch / ik.w_wrist_rot > 1.0
+    np.testing.assert_allclose(targets.wrist_rot_weight[:, 0], 1.0)  # the left hand touches nothing
     res = Residuals(robot, targets, ik)
     q = np.tile(robot.rest, (2, 1))
     q[:, res.ik] += np.random.default_rng(0).normal(0, 0.3, (2, len(res.ik)))
