@@ -26,6 +26,7 @@ ROBOTS = {
         # the head mesh includes its neck mount (narrowest near z 0.33, a wide base at 0.28):
         # the face is the head above the neck, the throat on the neck's front
         "face": [38], "face_above": 0.335, "face_from_human": True, "torso": [35], "neck_z": 0.32,
+        "hull": {"face": 39, "torso": 36},  # the collision meshes of the head and the torso
         "shoulder": {"left": ["left_shoulder_pitch_link", "left_shoulder_roll_link"],
                      "right": ["right_shoulder_pitch_link", "right_shoulder_roll_link"]},
         "hip": {"left": ["pelvis", "left_hip_pitch_link", "left_hip_roll_link"],
@@ -76,6 +77,18 @@ def surface(model: mujoco.MjModel, data: mujoco.MjData, geoms: list[int], torso:
         pts.append(w @ torso[:3, :3].T + torso[:3, 3])
         owner.append(np.full(len(v), g))
     return np.concatenate(pts), np.concatenate(owner)
+
+
+#: Landmarks moved forward onto a collision hull (`hull`: geom per key) where a robot defines one.
+HULL_FRONT = {**{n: "face" for n in ("forehead", "left_eye", "right_eye", "nose", "mouth", "chin", "left_cheek",
+                                     "right_cheek")}, "sternum": "torso", "belly": "torso"}
+
+
+def _hull_planes(m: mujoco.MjModel, d: mujoco.MjData, geom: int, torso: np.ndarray) -> np.ndarray:
+    """Outward planes (n, c: n·p + c ≤ 0 inside) of a mesh geom's convex hull, torso frame."""
+    from scipy.spatial import ConvexHull
+    pts, _ = surface(m, d, [geom], torso)
+    return ConvexHull(pts).equations
 
 
 def _human_face() -> dict[str, np.ndarray]:
@@ -209,6 +222,20 @@ def main(name: str) -> None:
             axis = torso[:3, :3] @ axis
             i = support(pts, axis)
             put(f"{side}_{finger}_tip", pts[i], int(po[i]))
+    # onto the collision hull: MuJoCo collides (and the fidelity contacts measure) convex hulls,
+    # so a landmark in a concavity of the visual mesh (G1: eyes 2 cm, nose 5.7 cm, sternum 1.2 cm
+    # inside) is a place no hand can reach; moved forward to the hull's front it is where a
+    # touch on it ends, as the human's landmarks are on the skin
+    for lname, key in HULL_FRONT.items():
+        if key not in spec.get("hull", {}) or lname not in out:
+            continue
+        eq = _hull_planes(m, d, spec["hull"][key], torso)
+        body, off = out[lname]
+        r, o = bpose(body)
+        p = r @ off + o
+        ahead = eq[:, 0] > 1e-6
+        t = float(((-eq[ahead, 3] - eq[ahead, :3] @ p) / eq[ahead, 0]).min())
+        out[lname] = (body, r.T @ (p + np.array([t, 0.0, 0.0]) - o))
     print("# Named landmarks (embody/body/landmarks.py names): body + offset in that body's frame,")
     print(f"# derived from the MuJoCo geometry by scripts/robot_landmarks.py {name}.")
     print("landmarks:")

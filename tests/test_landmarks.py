@@ -6,6 +6,7 @@ import mujoco
 import numpy as np
 import pytest
 import torch
+from scipy.spatial import ConvexHull
 
 from embody.body import load_body_model
 from embody.body.landmarks import BODY_LANDMARKS, CARRIED_BY, LANDMARKS, landmark_positions
@@ -77,7 +78,11 @@ def _surface_distance(model, data, geoms, point):
         if model.geom_type[g] == mujoco.mjtGeom.mjGEOM_MESH:
             m = model.geom_dataid[g]
             v = model.mesh_vert[model.mesh_vertadr[m]: model.mesh_vertadr[m] + model.mesh_vertnum[m]]
-            best = min(best, np.linalg.norm(v @ rot.T + pos - point, axis=1).min())
+            w = v @ rot.T + pos
+            best = min(best, np.linalg.norm(w - point, axis=1).min())
+            if model.geom_contype[g] or model.geom_conaffinity[g]:  # MuJoCo collides its convex hull
+                eq = ConvexHull(w).equations
+                best = min(best, abs((eq[:, :3] @ point + eq[:, 3]).max()))
         elif model.geom_type[g] == mujoco.mjtGeom.mjGEOM_SPHERE:
             best = min(best, abs(np.linalg.norm(point - pos) - model.geom_size[g][0]))
     return best

@@ -57,7 +57,9 @@ class IKConfig(Section):
     #: Blend weight 1 when the human hand is within `anchor_near` body scales (shoulder widths)
     #: of a landmark, 0 beyond `anchor_far`, linear between.
     anchor_near: float = Field(0.5, ge=0.0, le=5.0)
-    anchor_far: float = Field(1.0, gt=0.0, le=5.0)
+    #: (1.5: a hand held before the belly, ~0.7 scales out, was anchored at half weight and the
+    #: shape-fit target put it 4.4 cm too far forward of the robot's chest on a leaning signer.)
+    anchor_far: float = Field(1.5, gt=0.0, le=5.0)
     #: Softness (body scales) of the soft-min over (hand point, landmark) anchors: targets stay
     #: smooth when the nearest landmark changes.
     anchor_softness: float = Field(0.15, gt=0.0, le=1.0)
