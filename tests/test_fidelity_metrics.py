@@ -149,3 +149,18 @@ def test_location_agreement_counts_ties_between_close_landmarks_only():
     r = _two_landmark_track(np.tile([0.08, 0.0, -0.016], (4, 1)))
     _, m = compare(h, r, radius=0.5, tie=0.0)
     assert m["location_agree_pct"] == 0.0
+
+
+def test_contact_events_match_when_runs_overlap():
+    from embody.metrics.fidelity import contact_events, event_f1
+
+    h = np.zeros((20, 2), dtype=bool)
+    r = np.zeros((20, 2), dtype=bool)
+    h[3:8, 0] = True   # one touch, the robot's 2 frames late: found, and right
+    r[5:10, 0] = True
+    h[12:15, 0] = True  # a touch the robot misses
+    r[15:18, 1] = True  # a robot touch in another channel: wrong
+    ev = contact_events(h, r)
+    assert ev == {"human": 2, "robot": 2, "found": 1, "right": 1}
+    p, rc, f = event_f1(ev)
+    assert (p, rc, f) == (0.5, 0.5, 0.5)

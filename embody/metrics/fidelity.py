@@ -21,7 +21,8 @@ orientation, body scale, contact distances) and compared here, in NumPy only:
   contact when its surfaces come within `contact_eps`; the robot when its geoms do without
   penetrating deeper than `penetration_tol`, within `robot_eps` (MuJoCo's distances between
   the exact hulls; the IK's proxy margin leaves robot touches at 1.0-1.4 cm, within the same ε).
-  Precision, recall and F1 over frame events.
+  Precision, recall and F1 over frames, and over events (runs of contact frames in a channel,
+  matched when a human and a robot run overlap: `contact_events`).
 """
 
 from __future__ import annotations
@@ -216,6 +217,36 @@ def contacts(human: Track, robot: Track, eps: float, penetration: float,
     return {"human": h, "robot": r, "penetration": pen, "tp": h & r}
 
 
+def _runs(x: np.ndarray) -> list[tuple[int, int]]:
+    """Contiguous True runs [start, end) of a (T,) mask."""
+    d = np.diff(np.concatenate([[0], x.astype(np.int8), [0]]))
+    return list(zip(np.flatnonzero(d == 1), np.flatnonzero(d == -1)))
+
+
+def contact_events(human: np.ndarray, robot: np.ndarray) -> dict[str, int]:
+    """Event counts of (T,C) contact masks: an event is a run of contact frames in one channel; a
+    human event is found when a robot event of the same channel overlaps it, and a robot event
+    is right when it overlaps a human one (a touch a few frames early or late is the same touch;
+    the frame counts of `contacts` score its timing)."""
+    out = {"human": 0, "robot": 0, "found": 0, "right": 0}
+    for c in range(human.shape[1]):
+        hr, rr = _runs(human[:, c]), _runs(robot[:, c])
+        out["human"] += len(hr)
+        out["robot"] += len(rr)
+        out["found"] += sum(any(a < d and c0 < b for c0, d in rr) for a, b in hr)
+        out["right"] += sum(any(a < d and c0 < b for c0, d in hr) for a, b in rr)
+    return out
+
+
+def event_f1(ev: dict[str, int]) -> tuple[float, float, float]:
+    """Precision, recall and F1 of `contact_events` counts."""
+    p = ev["right"] / ev["robot"] if ev["robot"] else float("nan")
+    r = ev["found"] / ev["human"] if ev["human"] else float("nan")
+    f = 2 * p * r / (p + r) if ev["robot"] and ev["human"] and (p + r) > 0 else (
+        0.0 if (ev["robot"] or ev["human"]) else float("nan"))
+    return p, r, f
+
+
 def _f1(tp: int, hp: int, rp: int) -> tuple[float, float, float]:
     p = tp / rp if rp else float("nan")
     r = tp / hp if hp else float("nan")
@@ -237,6 +268,8 @@ def compare(human: Track, robot: Track, *, radius: float = 0.5, eps: float = 0.0
     near = loc["near"]
     tp, hp, rp = int(con["tp"].sum()), int(con["human"].sum()), int(con["robot"].sum())
     p, r, f = _f1(tp, hp, rp)
+    ev = contact_events(con["human"], con["robot"])
+    ep, er, ef = event_f1(ev)
     flex = shape["flexion_err"]
     metrics = {
         "location_err": float(loc["err"].mean()),
@@ -253,6 +286,8 @@ def compare(human: Track, robot: Track, *, radius: float = 0.5, eps: float = 0.0
         **mov,
         "contact_precision": p, "contact_recall": r, "contact_f1": f,
         "contact_frames_human": float(hp), "contact_frames_robot": float(rp), "contact_tp": float(tp),
+        "contact_event_precision": ep, "contact_event_recall": er, "contact_event_f1": ef,
+        **{f"contact_events_{k}": float(v) for k, v in ev.items()},
         "penetration_frames": float(con["penetration"].any(1).sum()),
     }
     frames = {"location_err": loc["err"], "location_landmark": loc["landmark"],
