@@ -61,7 +61,10 @@ METRICS = (
      "hands (scale units; mm = scale × the robot's shoulder width). Measured against the human "
      "after collision mitigation, not against the IK targets."),
     ("Location agree", "of the frames where the human hand is within 0.5 body scales of a "
-     "landmark, the share where the robot hand's nearest landmark is the same one (%)."),
+     "landmark, the share where the robot hand's nearest landmark is the same one, counting a "
+     "tie (either hand within `fidelity.location_tie` = 0.05 scales as near to the other's "
+     "choice: face landmarks are 1.5-4 cm apart) as agreement (%); sequences.csv also carries "
+     "the exact figure (`location_agree_exact_pct`)."),
     ("Palm orient.", "angle between the human's and the robot's palm normals, each in its own "
      "torso frame (deg)."),
     ("Handshape err.", "per finger the robot has, the difference of normalised flexion "
