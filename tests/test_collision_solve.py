@@ -83,5 +83,3 @@ def test_gauss_newton_clears_a_planted_collision(body):
     assert m["improved"] and m["reduction_pct"] >= 90.0 and 0 < m["steps"] <= 8
     frozen = np.setdiff1d(np.arange(55), mask_joints("arms"))
     assert np.array_equal(r.motion.pose[:, frozen], motion.pose[:, frozen])
-    again = mitigate(motion, body, cfg)
-    assert again.motion.pose.tobytes() == r.motion.pose.tobytes()
