@@ -52,8 +52,10 @@ class CollisionConfig(Section):
     mask: MaskPreset = "arms"
     #: Joint names (embody.motion.JOINT_NAMES) used when `mask` is `joints`.
     joints: list[str] = []
-    #: `gauss_newton`: Levenberg-Marquardt with analytic Jacobians and a banded solve
-    #: (`embody.collision.solve`, ~30x faster); `adam`: the first-order path (`lr`, `steps`).
+    #: `adam`: the first-order path (`lr`, `steps`), the measured default. `gauss_newton`:
+    #: Levenberg-Marquardt with analytic Jacobians and a block-banded solve
+    #: (`embody.collision.solve`), experimental: it clears some sequences in ~7 iterations but
+    #: stalls with residual depth on others (see its module docstring), so it is opt-in.
     solver: Literal["gauss_newton", "adam"] = "adam"
     #: LM iterations (each one banded solve + re-evaluation of the near points).
     solver_iterations: int = Field(40, ge=1, le=10_000)
