@@ -25,7 +25,8 @@ second-order step converges in ~5–15 iterations.
 Status (opt-in, `collision.solver: gauss_newton`; measured on a loaded 2-core machine, 2026-11-23):
 seq_002 of the default set is cleared in 7 iterations (mesh depth 15.9 → 0.0 mm, Pose MSE
 0.00018, as Adam); seq_000 and seq_003 stall after ~10 iterations with 14 mm / 58 mm of
-residual depth on frames that none of the masked joints' Jacobian columns resolve, and each
+residual depth: there a forearm sits ~58 mm inside two torso parts at once (spine1 and
+spine3), whose nearest-face pushes cancel (a saddle, like crossed forearms), and each
 iteration still costs ~1 s of CPU (the per-point evaluation of ~20–60k near (point, part)
 groups dominates, not the banded solve). Open: why those residuals stall, and a cheaper
 evaluation (float32, fewer candidates) before this can replace Adam.
@@ -242,9 +243,11 @@ def solve(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.ndarra
     x0m = pb.x0[:, mask_pose].numpy().reshape(t, -1)                 # (t, 3K)
     u = torch.zeros(t, k, 3, dtype=dt)
     variables = np.zeros(k, dtype=bool)
-    # only mask joints that move some residual are unknowns (the arm chain, and a finger
-    # only when a finger-only contact needs it), so the banded system stays narrow
-    allowed = np.ones(k, dtype=bool)
+    # finger joints stay out of the solve when the mask also holds the arm chain: the arm
+    # separates the parts and the banded system stays narrow (3 x 8 unknowns per frame; with
+    # all 38 arm-mask joints one solve took seconds). Only joints that move a residual count.
+    fingers = mask_pose >= FIRST_FINGER
+    allowed = ~fingers if (~fingers).any() else fingers
     cand = None
 
     def evaluate(u_: torch.Tensor, jac: bool):
