@@ -73,6 +73,7 @@ def result_line(df: pd.DataFrame) -> str:
             f"daccel_median={c['daccel_mse'].median():+.3e} "
             f"seconds_per_seq_mean={df['runtime_s'].mean():.2f} "
             f"seconds_per_150_frames_mean={per150:.2f} "
+            f"seconds_per_150_frames_1thread={per150:.2f} "
             f"cpu_seconds_per_seq_mean={df['cpu_s'].mean():.2f} "
             f"frames={int(df['frames'].sum())}"
             + (f" frames_over_5mm_before={int(df['frames_over_5mm_before'].sum())}"
@@ -151,6 +152,8 @@ def main() -> None:
     ap.add_argument("--paper-n", type=int, default=6)
     ap.add_argument("--long-n", type=int, default=8)
     ap.add_argument("--sweep", action="store_true", help="first print the SWEEP rows")
+    ap.add_argument("--solver", choices=("adam", "gauss_newton"), default=None,
+                    help="override collision.solver (default: the config's)")
     args = ap.parse_args()
     torch.set_num_threads(1)
     paths = sorted(default_dataset(args.data).glob("seq_*.npz"))[: args.n]
@@ -158,7 +161,7 @@ def main() -> None:
     t = time.perf_counter()
     part_volumes(body)
     print(f"part volumes ready in {time.perf_counter() - t:.1f}s (cached after the first run)")
-    default = CollisionConfig()
+    default = CollisionConfig() if args.solver is None else CollisionConfig(solver=args.solver)
     if args.sweep:
         for close, clearance, stall in SWEEP:
             cfg = CollisionConfig.model_validate({**default.model_dump(), "lambda_close": close,

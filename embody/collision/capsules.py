@@ -113,12 +113,32 @@ def segment_distance(p1: torch.Tensor, q1: torch.Tensor, p2: torch.Tensor,
     return (gap.square().sum(-1) + 1e-12).sqrt()
 
 
+def segment_closest(p1: torch.Tensor, q1: torch.Tensor, p2: torch.Tensor, q2: torch.Tensor
+                    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Closest points of segments p1q1 and p2q2: parameters s, t (...) and points (...,3)."""
+    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
+    a, e = (d1 * d1).sum(-1), (d2 * d2).sum(-1)
+    f, c, b = (d2 * r).sum(-1), (d1 * r).sum(-1), (d1 * d2).sum(-1)
+    denom = a * e - b * b
+    s = torch.where(denom > 1e-12, ((b * f - c * e) / denom.clamp(min=1e-12)).clamp(0, 1),
+                    torch.zeros_like(a))
+    t = (b * s + f) / e
+    s = torch.where(t < 0, (-c / a).clamp(0, 1), torch.where(t > 1, ((b - c) / a).clamp(0, 1), s))
+    t = t.clamp(0, 1)
+    return s, t, p1 + d1 * s.unsqueeze(-1), p2 + d2 * t.unsqueeze(-1)
+
+
+def capsule_overlaps(caps: Capsules, transforms: torch.Tensor, margin: float = 0.0) -> torch.Tensor:
+    """Per frame and pair max(0, r_a + r_b + margin − d) (T,P) from joint transforms (T,J,4,4)."""
+    p = transforms[:, :, :3, 3]
+    d = segment_distance(p[:, caps.a[:, 0]], p[:, caps.a[:, 1]], p[:, caps.b[:, 0]],
+                         p[:, caps.b[:, 1]])
+    return torch.relu(torch.as_tensor(caps.reach, dtype=p.dtype) + margin - d)
+
+
 def capsule_energies(caps: Capsules, transforms: torch.Tensor, margin: float = 0.0) -> torch.Tensor:
     """Per-frame Σ_pairs max(0, r_a + r_b + margin − d)² (T,) from joint transforms (T,J,4,4)."""
     if len(caps.reach) == 0:
         return transforms.new_zeros(transforms.shape[0]) + 0.0 * transforms[:, 0, 0, 0]
-    p = transforms[:, :, :3, 3]
-    d = segment_distance(p[:, caps.a[:, 0]], p[:, caps.a[:, 1]], p[:, caps.b[:, 0]],
-                         p[:, caps.b[:, 1]])
-    over = torch.relu(torch.as_tensor(caps.reach, dtype=p.dtype) + margin - d)
+    over = capsule_overlaps(caps, transforms, margin)
     return (over * over).sum(-1)

@@ -319,18 +319,41 @@ def frame_energies(model: CollisionModel, transforms: torch.Tensor, tolerance: f
     argmax, so recomputing just that plane (and that point's skin) with autograd gives the
     exact gradient at a cost that follows the penetrating points only.
     """
-    d = model.tensors(transforms.dtype, transforms.device)
     t_frames = transforms.shape[0]
     zero = transforms.new_zeros(t_frames) + 0.0 * transforms[:, :1, 0, 0].sum()
+    sel = penetrations(model, transforms, tolerance, near)
+    if sel is None:
+        return zero
+    depth = torch.relu(point_depths(model, transforms, sel) - tolerance)
+    return zero.index_add(0, sel.t, depth * depth)
+
+
+@dataclass(frozen=True)
+class Penetrations:
+    """Penetrating points: (frame, chunk, point, part b) and the deepest piece's active plane
+    (Q,4) in part b's joint frame (one row per point and part it is inside)."""
+
+    t: torch.Tensor
+    h: torch.Tensor
+    n: torch.Tensor
+    b: torch.Tensor
+    plane: torch.Tensor
+
+
+def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: float = 0.0,
+                 near: Contacts | None = None) -> Penetrations | None:
+    """Which points are deeper than `tolerance` inside which part, and by which plane (no
+    gradients); None when none is. `point_depths` evaluates them (differentiably)."""
+    d = model.tensors(transforms.dtype, transforms.device)
     reach = max(0.0, -tolerance)
     c = contacts(model, transforms, reach) if near is None else near
     if c.t.numel() == 0:
-        return zero
-    g = transforms[:, d["part_joints"]]
-    rot, trans = g[..., :3, :3], g[..., :3, 3]
-    blend = _blend(d, transforms)
+        return None
     with torch.no_grad():
-        q = _to_part(rot, trans, c.t, c.b, _row_points(d, blend.detach(), c.t, c.h))
+        g = transforms[:, d["part_joints"]]
+        rot, trans = g[..., :3, :3], g[..., :3, 3]
+        blend = _blend(d, transforms)
+        q = _to_part(rot, trans, c.t, c.b, _row_points(d, blend, c.t, c.h))
         inbox = (_box_distance(q, d["piece_box"][c.k][:, None]) <= reach) & d["chunk_mask"][c.h]
         r, n = torch.nonzero(inbox, as_tuple=True)
         planes = d["planes"][c.k[r]]                                # (Q,F,4)
@@ -339,7 +362,7 @@ def frame_energies(model: CollisionModel, transforms: torch.Tensor, tolerance: f
         inside = f < -tolerance
         r, n, f, plane, planes = r[inside], n[inside], f[inside], plane[inside], planes[inside]
         if r.numel() == 0:
-            return zero
+            return None
         # a part's SDF is the min over its pieces: keep the deepest piece per (frame, point, part)
         n_chunks, n_parts, size = d["chunk_part"].shape[0], d["part_radius"].shape[0], q.shape[1]
         key = ((c.t[r] * n_chunks + c.h[r]) * size + n) * n_parts + c.b[r]
@@ -349,11 +372,22 @@ def frame_energies(model: CollisionModel, transforms: torch.Tensor, tolerance: f
         first[1:] = key[order][1:] != key[order][:-1]
         keep = order[first]
         r, n = r[keep], n[keep]
-        t, h, b = c.t[r], c.h[r], c.b[r]
-        nd = planes[keep, plane[keep]]                              # (Q,4) the active plane
-    ql = _to_part(rot, trans, t, b, _skin(d, blend, t, h, n))
-    depth = torch.relu(-(ql * nd[:, :3]).sum(-1) - nd[:, 3] - tolerance)
-    return zero.index_add(0, t, depth * depth)
+        return Penetrations(c.t[r], c.h[r], n, c.b[r], planes[keep, plane[keep]])
+
+
+def point_depths(model: CollisionModel, transforms: torch.Tensor,
+                 sel: Penetrations, frame_offset: torch.Tensor | None = None) -> torch.Tensor:
+    """Signed depth (Q,) of the selected points behind their active plane (positive inside),
+    differentiable in `transforms`. `frame_offset` (Q,) shifts the frame index (a batch of
+    perturbed copies of the motion stacked along frames)."""
+    d = model.tensors(transforms.dtype, transforms.device)
+    t = sel.t if frame_offset is None else sel.t + frame_offset
+    g = transforms[:, d["part_joints"]]
+    rot, trans = g[..., :3, :3], g[..., :3, 3]
+    blend = _blend(d, transforms)
+    ql = _to_part(rot, trans, t, sel.b, _skin(d, blend, t, sel.h, sel.n))
+    nd = sel.plane.to(transforms.dtype)
+    return -(ql * nd[:, :3]).sum(-1) - nd[:, 3]
 
 
 def energy(model: CollisionModel, transforms: torch.Tensor, tolerance: float = 0.0) -> torch.Tensor:

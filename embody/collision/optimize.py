@@ -36,6 +36,7 @@ from embody.collision.depth import depth_metrics, motion_depths
 from embody.collision.energy import CollisionModel, collision_model, contacts, frame_energies
 from embody.collision.masks import mask_joints
 from embody.collision.metrics import sequence_metrics
+from embody.collision.solve import solve
 from embody.config.collision import CollisionConfig
 from embody.motion import Motion
 
@@ -144,7 +145,12 @@ def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> Collisio
     if cfg.enabled and fine_before.any() and cfg.steps > 0:
         window = int(round(cfg.blend_s * motion.fps))
         weight = blend_weights(fine_before > 0, window)
-        best_pose, steps = _optimise(body, fine, motion, idx, weight, cfg)
+        if cfg.solver == "gauss_newton":
+            caps = arm_capsules(body, motion.betas, cfg.allow_pairs) \
+                if cfg.capsule_weight > 0 else None
+            best_pose, steps = solve(body, fine, motion, idx, weight, cfg, caps)
+        else:
+            best_pose, steps = _optimise(body, fine, motion, idx, weight, cfg)
     fixed = motion.with_pose(best_pose)
     after = before if steps == 0 else frame_collision_energies(fixed, body, cfg)
     fine_after = after if same else _exact(body, fine, best_pose, motion.betas, cfg.tolerance)

@@ -52,6 +52,19 @@ class CollisionConfig(Section):
     mask: MaskPreset = "arms"
     #: Joint names (embody.motion.JOINT_NAMES) used when `mask` is `joints`.
     joints: list[str] = []
+    #: `adam`: the first-order path (`lr`, `steps`), the measured default. `gauss_newton`:
+    #: Levenberg-Marquardt with analytic Jacobians and a block-banded solve
+    #: (`embody.collision.solve`), experimental: it clears some sequences in ~7 iterations but
+    #: stalls with residual depth on others (see its module docstring), so it is opt-in.
+    solver: Literal["gauss_newton", "adam"] = "adam"
+    #: LM iterations (each one banded solve + re-evaluation of the near points).
+    solver_iterations: int = Field(40, ge=1, le=10_000)
+    #: λ continuation factor per LM iteration while a frame still penetrates.
+    solver_lambda_growth: float = Field(4.0, ge=1, le=1000)
+    #: Accepted LM steps between broad-phase refreshes of the near (point, piece) pairs.
+    solver_refresh_every: int = Field(2, ge=1, le=1000)
+    #: Stop (once every frame is clear) when an LM step lowers the objective by less than this.
+    solver_rtol: float = Field(1e-3, ge=0, le=1)
     lr: float = Field(1e-2, gt=0, le=1.0)
     steps: int = Field(500, ge=0, le=100_000)
     lambda_col: float = Field(50.0, ge=0)
