@@ -288,9 +288,10 @@ REFINE = Step("refine", "4", ("body", "robot", "ik", "render", "critic"), _refin
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
-RENDER = Step("render", "2", ("body", "robot", "render"), _render, _render_result,
+# v3: coarser draw meshes (robot 8 mm, reference body 15 mm, hands 6 mm), x264 ultrafast.
+RENDER = Step("render", "3", ("body", "robot", "render"), _render, _render_result,
               (COLLIDE, SHAPE_FIT, RETARGET), metrics=_render_metrics, files=_robot_files)
-RENDER_REFINED = Step("render", "2", ("body", "robot", "render"), _render, _render_result,
+RENDER_REFINED = Step("render", "3", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
 # v5: the exported control-rate array (validated), sign fidelity on that array, the report's wrist tracks.

@@ -77,22 +77,28 @@ def downsample(images: np.ndarray, factor: int) -> np.ndarray:
     return ((total + factor * factor // 2) // (factor * factor)).astype(np.uint8)
 
 
-def cluster_faces(vertices: np.ndarray, faces: np.ndarray, cell: float,
+def cluster_faces(vertices: np.ndarray, faces: np.ndarray, cell: float | np.ndarray,
                   groups: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vertex clustering of a deformable mesh for drawing: (kept vertex indices (K,), faces (F',3)
     indexing the kept vertices). Vertices merge only within one grid cell of `cell` metres (at
     the rest shape) and one connected piece of the mesh and one `groups` label (e.g. the dominant
-    skinning bone), so separate pieces, such as fingers, never get bridged when they move apart."""
+    skinning bone), so separate pieces, such as fingers, never get bridged when they move apart.
+    `cell` may be given per vertex (V,) (constant within a group: fine hands, a coarse torso);
+    vertices with a cell of 0 are kept as they are."""
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     n = len(vertices)
-    if cell <= 0:
+    cells = np.broadcast_to(np.asarray(cell, dtype=np.float64), (n,))
+    if not (cells > 0).any():
         return np.arange(n), faces
     adjacency = scipy.sparse.coo_matrix(
         (np.ones(faces.size), (faces.ravel(), np.roll(faces, 1, axis=1).ravel())), shape=(n, n))
     _, piece = scipy.sparse.csgraph.connected_components(adjacency, directed=False)
     labels = [piece] + ([np.asarray(groups, dtype=np.int64)] if groups is not None else [])
-    key = np.column_stack(labels + [np.floor(vertices / cell).astype(np.int64)])
+    alone = np.where(cells > 0, -1, np.arange(n))  # a cell of 0: the vertex is its own cluster
+    grid = np.floor(vertices / np.where(cells > 0, cells, 1.0)[:, None]).astype(np.int64)
+    size = np.round(cells * 1e6).astype(np.int64)  # grids of different cells never share keys
+    key = np.column_stack(labels + [alone, size, grid])
     _, first, label = np.unique(key, axis=0, return_index=True, return_inverse=True)
     rep = first[label.ravel()][faces]
     rep = rep[(rep[:, 0] != rep[:, 1]) & (rep[:, 1] != rep[:, 2]) & (rep[:, 0] != rep[:, 2])]
@@ -138,10 +144,12 @@ class SceneRenderer:
                  faces: np.ndarray | None = None, rest_vertices: np.ndarray | None = None,
                  torso_body: str = "torso_link",
                  reference_points: np.ndarray | None = None,
-                 reference_groups: np.ndarray | None = None) -> None:
+                 reference_groups: np.ndarray | None = None,
+                 reference_cells: np.ndarray | None = None) -> None:
         """`reference_points` (N,3), torso frame: reference body points the framing must hold.
         `reference_groups` (V,): labels (the dominant skinning bone) whose vertices may merge
-        when the reference mesh is decimated (`render.reference_cell_m`)."""
+        when the reference mesh is decimated; `reference_cells` (V,): the grid cell per vertex
+        (default `render.reference_cell_m` everywhere)."""
         self.cfg = cfg
         self.robot = robot
         self.world_from_torso = np.linalg.inv(np.asarray(robot.torso_from_world, dtype=np.float64))
@@ -161,8 +169,8 @@ class SceneRenderer:
             self._scene = mujoco.MjvScene(self._model, maxgeom=self._model.ngeom + 100)
             self._mesh: _MeshModel | None = None
             if faces is not None and rest_vertices is not None:
-                keep, kept_faces = cluster_faces(rest_vertices, faces, cfg.reference_cell_m,
-                                                 reference_groups)
+                cells = cfg.reference_cell_m if reference_cells is None else reference_cells
+                keep, kept_faces = cluster_faces(rest_vertices, faces, cells, reference_groups)
                 self.reference_keep = keep
                 self._reference_count = len(rest_vertices)
                 self._mesh = _MeshModel(kept_faces, np.asarray(rest_vertices)[keep], cfg,
