@@ -2,8 +2,10 @@
 
 Renders the first N sequences of the default synthetic set (the source motion as reference, the
 robot at a slowly waving T-pose: the cost hardly depends on the pose) exactly as the pipeline's
-render step does, and reports wall and CPU seconds per sequence (CPU time, encoder included, is the steadier figure
-on a shared machine), the preview's frame count, rate, size and bytes. Run it on two checkouts
+render step does, and reports wall and CPU seconds per sequence (CPU time, encoder included, is the
+steadier figure on a shared machine), the CPU milliseconds per drawn image (reference and robot
+of every preview frame, plus the other views' keyframes; the encoder and sheet included), the
+preview's frame count, rate, size and bytes. Run it on two checkouts
 back to back (`PYTHONPATH=<checkout>`) to compare.
 
     python benchmarks/render_step.py [--n 3]
@@ -64,7 +66,7 @@ def main() -> None:
     body, robot = load_body_model(cfg.body), load_robot(cfg.robot)
     fit = shape_fit(robot, body, cfg.ik)
     roll = robot.joint_index("left_shoulder_roll_joint")
-    walls, cpus = [], []
+    walls, cpus, drawn = [], [], []
     for motion in motions:
         t = motion.num_frames
         q = np.tile(robot.tpose, (t, 1))
@@ -75,10 +77,14 @@ def main() -> None:
         walls.append(time.perf_counter() - w0)
         cpus.append(_cpu() - c0)
         shape = _preview_shape(out.preview, out.preview_suffix) if out.preview else (0, 0, 0)
+        # images drawn: reference + robot per preview frame, and per keyframe of the other views
+        drawn.append(2 * shape[0] + 2 * len(keys) * (len(cfg.render.views) - 1))
         print(f"frames={t} fps={motion.fps:g} wall_s={walls[-1]:.2f} cpu_s={cpus[-1]:.2f} "
+              f"cpu_ms_per_image={1000 * cpus[-1] / drawn[-1]:.1f} "
               f"preview_frames={shape[0]} preview_hw={shape[1]}x{shape[2]} "
               f"preview_kb={len(out.preview or b'') / 1024:.0f} sheet_kb={len(out.sheet_png) / 1024:.0f}")
     print(f"RESULT render_s={np.mean(walls):.2f} render_cpu_s={np.mean(cpus):.2f} "
+          f"cpu_ms_per_image={1000 * np.sum(cpus) / np.sum(drawn):.1f} "
           f"preview_frames={shape[0]} preview_height={shape[1]} sequences={len(motions)}")
 
 

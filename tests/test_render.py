@@ -137,6 +137,19 @@ def test_render_config_validation():
         load_config(sets=["render.width=0"])
 
 
+def test_background_painted_in_gl_equals_the_numpy_fill(robot, renderer):
+    q = np.stack([robot.tpose, np.zeros(robot.n_joints)])
+    gl = renderer.robot_frames(q, full=True)
+    assert renderer._gl_fill is True  # the GL fill ran and left no clear colour
+    renderer._gl_fill = False
+    try:
+        filled = renderer.robot_frames(q, full=True)
+    finally:
+        renderer._gl_fill = None
+    assert np.array_equal(gl, filled)
+    assert (gl[:, 0, 0] == BACKGROUND).all()
+
+
 def test_decimated_robot_meshes_keep_the_silhouette(robot, renderer):
     q = robot.tpose.copy()
     q[robot.joint_index("left_elbow_joint")] = 0.3
