@@ -288,7 +288,7 @@ REFINE = Step("refine", "4", ("body", "robot", "ik", "render", "critic"), _refin
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
-# v3: coarser draw meshes (robot 8 mm, reference body 15 mm, hands 6 mm).
+# v3: coarser draw meshes (robot 8 mm, reference body 20 mm, hands 6 mm).
 RENDER = Step("render", "3", ("body", "robot", "render"), _render, _render_result,
               (COLLIDE, SHAPE_FIT, RETARGET), metrics=_render_metrics, files=_robot_files)
 RENDER_REFINED = Step("render", "3", ("body", "robot", "render"), _render, _render_result,

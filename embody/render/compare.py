@@ -221,14 +221,17 @@ def stream_preview(renderer: SceneRenderer, cfg: RenderConfig, motion: Motion, q
     if cfg.preview_format == "none":
         return None, PreviewFrames(view, keep[:0], np.zeros((0,)), np.zeros((0,)))
     writer = PreviewWriter(path, rate, cfg.preview_format)
+    w = renderer.size[0]
     for start in range(0, len(frames), _CHUNK):
         chunk = frames[start:start + _CHUNK]
-        ref = renderer.reference_frames(renderer.skin(motion, chunk), view, full=True)
-        rob = renderer.robot_frames(q[chunk], view, full=True)
-        writer.add(np.concatenate([ref, rob], axis=2))
+        # both bodies drawn straight into their halves of the side-by-side frames
+        both = np.empty((len(chunk), renderer.size[1], 2 * w, 3), dtype=np.uint8)
+        renderer.reference_frames(renderer.skin(motion, chunk), view, full=True, out=both[:, :, :w])
+        renderer.robot_frames(q[chunk], view, full=True, out=both[:, :, w:])
+        writer.add(both)
         hit = np.isin(chunk, keep)
-        kept["reference"].append(ref[hit])
-        kept["robot"].append(rob[hit])
+        kept["reference"].append(both[hit, :, :w])
+        kept["robot"].append(both[hit, :, w:])
     out = writer.close()
     return out, PreviewFrames(view, keep, np.concatenate(kept["reference"]),
                               np.concatenate(kept["robot"]))

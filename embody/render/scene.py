@@ -185,6 +185,7 @@ class SceneRenderer:
         self._option = mujoco.MjvOption()  # groups 0-2 visible: robot visuals, no collision meshes
         #: Background painted in GL (`_fill_background_gl`): None until the first image checks it.
         self._gl_fill: bool | None = None
+        self._pixels = np.empty((self.size[1], self.size[0], 3), dtype=np.uint8)  # read-back
 
     # --- setup ----------------------------------------------------------------------------
 
@@ -263,12 +264,13 @@ class SceneRenderer:
 
     # --- rendering ------------------------------------------------------------------------
 
-    def _draw(self, model, data, scene, ctx, cam) -> np.ndarray:
+    def _draw(self, model, data, scene, ctx, cam, into: np.ndarray | None = None) -> np.ndarray:
+        """One image (H,W,3), top row first; written into `into` when given (no extra copy)."""
         mujoco.mjv_updateScene(model, data, self._option, None, cam,
                                mujoco.mjtCatBit.mjCAT_ALL, scene)
         for flag in _OFF_FLAGS:
             scene.flags[flag] = 0
-        out = np.empty((self.size[1], self.size[0], 3), dtype=np.uint8)
+        out = self._pixels
         # each MjrContext owns a framebuffer; bind this one's (the last created is bound)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, ctx)
         mujoco.mjr_render(self._rect, scene, ctx)
@@ -279,28 +281,43 @@ class SceneRenderer:
             self._gl_fill = bool(filled) and not _black(flat).any()
         if not self._gl_fill:
             flat[_black(flat)] = self._background  # still the clear colour
-        return out[::-1]
+        if into is None:
+            return out[::-1].copy()
+        into[...] = out[::-1]
+        return into
 
-    def _finish(self, frames: list[np.ndarray], full: bool) -> np.ndarray:
-        images = np.stack(frames)
+    def _finish(self, frames: list[np.ndarray], full: bool, out: np.ndarray | None) -> np.ndarray:
+        if out is not None:
+            return out
+        images = np.stack(frames) if frames else np.zeros((0, self.size[1], self.size[0], 3), np.uint8)
         return images if full else downsample(images, self.cfg.supersample)
 
-    def robot_frames(self, q: np.ndarray, view: str = "front", full: bool = False) -> np.ndarray:
+    def _target(self, out: np.ndarray | None, n: int, full: bool) -> None:
+        if out is not None and (not full or out.shape != (n, self.size[1], self.size[0], 3)):
+            raise ValueError(f"out must be ({n}, {self.size[1]}, {self.size[0]}, 3) with full=True")
+
+    def robot_frames(self, q: np.ndarray, view: str = "front", full: bool = False,
+                     out: np.ndarray | None = None) -> np.ndarray:
         """Images (N,H,W,3) of joint configurations q (N,n) in the robot's joint order; at the
-        configured size, or as drawn (`self.size`, supersampled) with `full`."""
+        configured size, or as drawn (`self.size`, supersampled) with `full`, then written into
+        `out` when given (e.g. one half of the preview's side-by-side frames)."""
+        q = np.atleast_2d(q)
+        self._target(out, len(q), full)
         self._ctx.make_current()
         cam = self.camera(view)
         frames = []
-        for qi in np.atleast_2d(q):
+        for i, qi in enumerate(q):
             self._data.qpos[:] = self.robot.qpos(np.asarray(qi, dtype=np.float64))
             mujoco.mj_kinematics(self._model, self._data)
-            frames.append(self._draw(self._model, self._data, self._scene, self._robot_ctx, cam))
-        return self._finish(frames, full)
+            frames.append(self._draw(self._model, self._data, self._scene, self._robot_ctx, cam,
+                                     None if out is None else out[i]))
+        return self._finish(frames, full, out)
 
     def reference_frames(self, vertices: np.ndarray, view: str = "front",
-                         full: bool = False) -> np.ndarray:
+                         full: bool = False, out: np.ndarray | None = None) -> np.ndarray:
         """Images (N,H,W,3) of reference meshes given as (N,V,3) vertices in the torso frame:
-        every vertex of the mesh, or only the drawn ones (`reference_keep`)."""
+        every vertex of the mesh, or only the drawn ones (`reference_keep`); `full` and `out`
+        as in `robot_frames`."""
         if self._mesh is None:
             raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
         vertices = np.asarray(vertices)
@@ -309,15 +326,16 @@ class SceneRenderer:
                 raise ValueError(f"reference vertices: expected {self._reference_count} or "
                                  f"{len(self.reference_keep)} per frame, got {vertices.shape[1]}")
             vertices = vertices[:, self.reference_keep]
+        self._target(out, len(vertices), full)
         self._ctx.make_current()
         cam = self.camera(view)
         rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
         frames = []
-        for verts in np.asarray(vertices, dtype=np.float64):
+        for i, verts in enumerate(np.asarray(vertices, dtype=np.float64)):
             self._mesh.set_vertices(verts @ rot.T + pos, self._mesh_ctx)
             frames.append(self._draw(self._mesh.model, self._mesh.data, self._mesh_scene,
-                                     self._mesh_ctx, cam))
-        return self._finish(frames, full)
+                                     self._mesh_ctx, cam, None if out is None else out[i]))
+        return self._finish(frames, full, out)
 
     def close(self) -> None:
         """Free GL resources now: EGL teardown at interpreter exit prints errors otherwise."""
