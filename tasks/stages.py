@@ -239,6 +239,17 @@ def _report_tracks(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any]
     return out, {k: np.asarray(v, dtype=np.float32) for k, v in arrays.items()}
 
 
+def _control_counts(ik: Any, q_control: np.ndarray) -> dict[str, float] | None:
+    """`validation_counts` of the IK's own control-rate array as its solve verified them
+    (`control_*` metrics), when `q_control` is that array; else None."""
+    names = ("joint_limit_violations", "velocity_violations", "self_collision_frames")
+    if not all(f"control_{k}" in ik.metrics for k in names):
+        return None
+    if np.shape(q_control) != np.shape(ik.q_control) or not np.array_equal(q_control, ik.q_control):
+        return None
+    return {k: float(ik.metrics[f"control_{k}"]) for k in names}
+
+
 def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     """Smoothness, MuJoCo-verified validity and sign fidelity of the final joint trajectory (the
     refined one when the critic ran). Validity is measured on the exact control-rate array
@@ -260,7 +271,13 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
                                            ctx.cfg.ik.contact_repair)
     else:
         q, q_control = np.asarray(ik.q, dtype=np.float64), np.asarray(ik.q_control, np.float64)
-    source = validation_counts(ctx.robot, q, ik.fps)
+    # the IK's solve already counted MuJoCo contacts of its own arrays: not counted twice
+    ik_contacts = ik.frame_metrics.get("self_contacts")
+    source = validation_counts(ctx.robot, q, ik.fps, ik_contacts
+                               if ik_contacts is not None and np.array_equal(q, ik.q) else None)
+    control = _control_counts(ik, q_control)
+    if control is None:
+        control = validation_counts(ctx.robot, q_control, ik.control_rate_hz)
     fidelity, frames, names = _fidelity(ctx, inputs, q_control)
     tracked, tracks = _report_tracks(ctx, inputs)
     return Metrics({"frames": int(q.shape[0]), "joints": int(q.shape[-1]),
@@ -268,7 +285,7 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
                     "final": "refine" if "refine" in inputs else "retarget",
                     "control_frames": int(q_control.shape[0]),
                     "validation_rate_hz": float(ik.control_rate_hz),
-                    **validation_counts(ctx.robot, q_control, ik.control_rate_hz),
+                    **control,
                     **{f"source_{k}": v for k, v in source.items()}, **fidelity, **tracked},
                    {"q_control": q_control, **frames, **tracks},
                    {"location_landmark": names})
