@@ -226,9 +226,12 @@ def _report_tracks(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any]
     from embody.critic.refine import robot_wrists
     refined = inputs.get("refine")
     if refined is not None:
-        first = refined.ik_only
-        arrays = {"wrist_reference": first.target_pos, "wrist_ik": robot_wrists(ctx.robot, first.q)[0],
-                  "wrist_refined": robot_wrists(ctx.robot, refined.q)[0]}
+        first, final = refined.ik_only, refined.final
+
+        def wrists(r: Any) -> np.ndarray:  # the critic's own FK of that round, when stored
+            return r.wrist_pos if r.wrist_pos is not None else robot_wrists(ctx.robot, r.q)[0]
+        arrays = {"wrist_reference": first.target_pos, "wrist_ik": wrists(first),
+                  "wrist_refined": wrists(final)}
         out: dict[str, Any] = {f"critic_ik.{k}": v for k, v in first.metrics.items()
                                if isinstance(v, (int, float, bool))}
         out["critic_ik.accepted"] = bool(first.accepted)
@@ -301,7 +304,8 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 RETARGET = Step("retarget", "2", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
-REFINE = Step("refine", "4", ("body", "robot", "ik", "render", "critic"), _refine,
+# v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
+REFINE = Step("refine", "5", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
