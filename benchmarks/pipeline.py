@@ -5,7 +5,10 @@ geometric critic, render, metrics) over the default synthetic set in a fresh sto
 store's computation log for each step's compute time. `seconds_per_seq` is the flow's wall time
 (report build excluded, printed separately) divided by the number of sequences; the per-step
 figures are the summed compute seconds of that step divided by the same number, so with N workers
-they add up to about N × seconds_per_seq. `cpu_s_per_seq` (this process and its finished
+they add up to about N × seconds_per_seq; `<step>_cpu_s` is the CPU time of the worker thread
+that computed it (recorded by `tasks.execute`; GL raster threads and the x264 child excluded),
+and `outside_steps_s` the worker-seconds spent outside any step's computation (Prefect task
+runs, store reads/writes, the driver, workers idle at the tail). `cpu_s_per_seq` (this process and its finished
 children) and the load average at the end are printed too: on a shared machine compare runs made
 back to back or side by side, never against a figure from another day.
 
@@ -58,15 +61,25 @@ def main() -> None:
     cpu = _cpu() - c0
     n = summary["ok"] + summary["failed"]
     per_step: dict[str, float] = defaultdict(float)
+    cpu_step: dict[str, float] = defaultdict(float)
     for row in ArtifactStore(store_dir).computations():
         per_step[row["step"]] += float(row.get("compute_s", 0.0))
+        cpu_step[row["step"]] += float(row.get("cpu_s", 0.0))
+    # what the workers spent outside step computations: Prefect task runs, store reads and
+    # writes, the driver, idle workers at the tail (all worker-seconds not in a compute_s)
+    overhead = args.workers * wall - sum(per_step.values())
+    m = max(n, 1)
     print(f"sequences={n} ok={summary['ok']} failed={summary['failed']} workers={args.workers} "
           f"flow_s={wall:.1f} report_s={summary['report_s']:.1f}")
+    print("  step        wall s total  wall s/seq  worker-thread CPU s/seq")
     for step, secs in sorted(per_step.items()):
-        print(f"  {step:10s} {secs:8.2f} s total  {secs / max(n, 1):6.2f} s/seq")
-    print("RESULT " + " ".join([f"seconds_per_seq={wall / max(n, 1):.2f}"]
-                               + [f"{s}_s={per_step.get(s, 0.0) / max(n, 1):.2f}" for s in STEPS]
-                               + [f"cpu_s_per_seq={cpu / max(n, 1):.2f}",
+        print(f"  {step:10s} {secs:10.2f} {secs / m:10.2f} {cpu_step[step] / m:10.2f}")
+    print(f"  outside steps (worker-seconds) {overhead:.1f} total, {overhead / m:.2f} s/seq")
+    print("RESULT " + " ".join([f"seconds_per_seq={wall / m:.2f}"]
+                               + [f"{s}_s={per_step.get(s, 0.0) / m:.2f}" for s in STEPS]
+                               + [f"{s}_cpu_s={cpu_step.get(s, 0.0) / m:.2f}" for s in STEPS]
+                               + [f"outside_steps_s={overhead / m:.2f}",
+                                  f"cpu_s_per_seq={cpu / m:.2f}",
                                   f"load1={os.getloadavg()[0]:.1f}"]))
 
 

@@ -2,11 +2,13 @@
 
 Renders the first N sequences of the default synthetic set (the source motion as reference, the
 robot at a slowly waving T-pose: the cost hardly depends on the pose) exactly as the pipeline's
-render step does, and reports wall and CPU seconds per sequence (CPU time, encoder included, is the steadier figure
-on a shared machine), the preview's frame count, rate, size and bytes. Run it on two checkouts
+render step does, and reports wall and CPU seconds per sequence (CPU time, encoder included, is the
+steadier figure on a shared machine), the CPU milliseconds per drawn image (reference and robot
+of every preview frame, plus the other views' keyframes; the encoder and sheet included), the
+preview's frame count, rate, size and bytes. Run it on two checkouts
 back to back (`PYTHONPATH=<checkout>`) to compare.
 
-    python benchmarks/render_step.py [--n 3]
+    python benchmarks/render_step.py [--n 3] [--phases]
 """
 
 from __future__ import annotations
@@ -44,9 +46,44 @@ def _cpu() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
+def phases(motion, body, fit, robot, q: np.ndarray, cfg) -> dict[str, float]:
+    """CPU ms per preview frame of each phase of drawing the preview (first view), timed around
+    the same calls `stream_preview` makes: skinning, the reference image, the robot image, the
+    x264 encoder (the child's CPU, at close) and opening the renderer."""
+    from embody.render.compare import open_renderer
+    from embody.render.preview import PreviewWriter
+    acc: dict[str, float] = {}
+
+    def timed(name, fn, *a, **k):
+        c = _cpu()
+        out = fn(*a, **k)
+        acc[name] = acc.get(name, 0.0) + _cpu() - c
+        return out
+
+    renderer = timed("open_renderer", open_renderer, robot, body, fit, cfg)
+    w, h = renderer.size
+    frames = np.arange(len(q))
+    with tempfile.TemporaryDirectory() as tmp:
+        writer = PreviewWriter(Path(tmp) / "p", motion.fps)
+        for start in range(0, len(frames), 32):
+            chunk = frames[start:start + 32]
+            both = np.empty((len(chunk), h, 2 * w, 3), dtype=np.uint8)
+            verts = timed("skin", renderer.skin, motion, chunk)
+            timed("reference_image", renderer.reference_frames, verts, cfg.views[0], full=True,
+                  out=both[:, :, :w])
+            timed("robot_image", renderer.robot_frames, q[chunk], cfg.views[0], full=True,
+                  out=both[:, :, w:])
+            timed("encode", writer.add, both)
+        timed("encode", writer.close)
+    renderer.close()
+    return {k: 1000 * v / len(frames) for k, v in acc.items()}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=3)
+    parser.add_argument("--phases", action="store_true",
+                        help="Also print CPU ms per preview frame of each drawing phase.")
     args = parser.parse_args()
     import torch
     torch.set_num_threads(1)
@@ -64,7 +101,7 @@ def main() -> None:
     body, robot = load_body_model(cfg.body), load_robot(cfg.robot)
     fit = shape_fit(robot, body, cfg.ik)
     roll = robot.joint_index("left_shoulder_roll_joint")
-    walls, cpus = [], []
+    walls, cpus, drawn = [], [], []
     for motion in motions:
         t = motion.num_frames
         q = np.tile(robot.tpose, (t, 1))
@@ -75,10 +112,18 @@ def main() -> None:
         walls.append(time.perf_counter() - w0)
         cpus.append(_cpu() - c0)
         shape = _preview_shape(out.preview, out.preview_suffix) if out.preview else (0, 0, 0)
+        # images drawn: reference + robot per preview frame, and per keyframe of the other views
+        drawn.append(2 * shape[0] + 2 * len(keys) * (len(cfg.render.views) - 1))
         print(f"frames={t} fps={motion.fps:g} wall_s={walls[-1]:.2f} cpu_s={cpus[-1]:.2f} "
+              f"cpu_ms_per_image={1000 * cpus[-1] / drawn[-1]:.1f} "
               f"preview_frames={shape[0]} preview_hw={shape[1]}x{shape[2]} "
               f"preview_kb={len(out.preview or b'') / 1024:.0f} sheet_kb={len(out.sheet_png) / 1024:.0f}")
+    if args.phases:
+        split = phases(motions[-1], body, fit, robot, q, cfg.render)
+        print("phases (CPU ms per preview frame): "
+              + " ".join(f"{k}={v:.1f}" for k, v in split.items()))
     print(f"RESULT render_s={np.mean(walls):.2f} render_cpu_s={np.mean(cpus):.2f} "
+          f"cpu_ms_per_image={1000 * np.sum(cpus) / np.sum(drawn):.1f} "
           f"preview_frames={shape[0]} preview_height={shape[1]} sequences={len(motions)}")
 
 

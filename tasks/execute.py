@@ -84,15 +84,18 @@ def _compute(step: Step, ctx: Context, key: str, inputs: dict[str, Any], input_k
              seq_id: str | None, reason: str = "miss") -> dict[str, Any]:
     """Compute, publish and count one artifact; returns its metrics."""
     store = ctx.store
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.thread_time()
     result = step.compute(ctx, inputs)
     compute_s = time.perf_counter() - t0
+    # CPU seconds of this worker thread (not GL's raster threads or the encoder child): far
+    # less sensitive than wall time to other jobs on a shared machine
+    cpu_s = time.thread_time() - c0
     metrics = jsonable(step.metrics(result))
     published = store.publish(step.name, key, result.to_arrays(), result.to_attrs(), {
         "inputs": input_keys, "config": step.config(ctx.cfg), "version": step.version,
         "timings": {"compute_s": compute_s}, "run": ctx.run, "sequence": seq_id, "metrics": metrics})
     store.record(step.name, key, sequence=seq_id, run=ctx.run, compute_s=compute_s,
-                 published=published, reason=reason)
+                 cpu_s=cpu_s, published=published, reason=reason)
     return metrics
 
 

@@ -226,9 +226,12 @@ def _report_tracks(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any]
     from embody.critic.refine import robot_wrists
     refined = inputs.get("refine")
     if refined is not None:
-        first = refined.ik_only
-        arrays = {"wrist_reference": first.target_pos, "wrist_ik": robot_wrists(ctx.robot, first.q)[0],
-                  "wrist_refined": robot_wrists(ctx.robot, refined.q)[0]}
+        first, final = refined.ik_only, refined.final
+
+        def wrists(r: Any) -> np.ndarray:  # the critic's own FK of that round, when stored
+            return r.wrist_pos if r.wrist_pos is not None else robot_wrists(ctx.robot, r.q)[0]
+        arrays = {"wrist_reference": first.target_pos, "wrist_ik": wrists(first),
+                  "wrist_refined": wrists(final)}
         out: dict[str, Any] = {f"critic_ik.{k}": v for k, v in first.metrics.items()
                                if isinstance(v, (int, float, bool))}
         out["critic_ik.accepted"] = bool(first.accepted)
@@ -237,6 +240,17 @@ def _report_tracks(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any]
         arrays = {"wrist_reference": targets.wrist_pos, "wrist_ik": robot_wrists(ctx.robot, inputs["retarget"].q)[0]}
         out = {}
     return out, {k: np.asarray(v, dtype=np.float32) for k, v in arrays.items()}
+
+
+def _control_counts(ik: Any, q_control: np.ndarray) -> dict[str, float] | None:
+    """`validation_counts` of the IK's own control-rate array as its solve verified them
+    (`control_*` metrics), when `q_control` is that array; else None."""
+    names = ("joint_limit_violations", "velocity_violations", "self_collision_frames")
+    if not all(f"control_{k}" in ik.metrics for k in names):
+        return None
+    if np.shape(q_control) != np.shape(ik.q_control) or not np.array_equal(q_control, ik.q_control):
+        return None
+    return {k: float(ik.metrics[f"control_{k}"]) for k in names}
 
 
 def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
@@ -260,7 +274,13 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
                                            ctx.cfg.ik.contact_repair)
     else:
         q, q_control = np.asarray(ik.q, dtype=np.float64), np.asarray(ik.q_control, np.float64)
-    source = validation_counts(ctx.robot, q, ik.fps)
+    # the IK's solve already counted MuJoCo contacts of its own arrays: not counted twice
+    ik_contacts = ik.frame_metrics.get("self_contacts")
+    source = validation_counts(ctx.robot, q, ik.fps, ik_contacts
+                               if ik_contacts is not None and np.array_equal(q, ik.q) else None)
+    control = _control_counts(ik, q_control)
+    if control is None:
+        control = validation_counts(ctx.robot, q_control, ik.control_rate_hz)
     fidelity, frames, names = _fidelity(ctx, inputs, q_control)
     tracked, tracks = _report_tracks(ctx, inputs)
     return Metrics({"frames": int(q.shape[0]), "joints": int(q.shape[-1]),
@@ -268,7 +288,7 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
                     "final": "refine" if "refine" in inputs else "retarget",
                     "control_frames": int(q_control.shape[0]),
                     "validation_rate_hz": float(ik.control_rate_hz),
-                    **validation_counts(ctx.robot, q_control, ik.control_rate_hz),
+                    **control,
                     **{f"source_{k}": v for k, v in source.items()}, **fidelity, **tracked},
                    {"q_control": q_control, **frames, **tracks},
                    {"location_landmark": names})
@@ -284,13 +304,15 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 RETARGET = Step("retarget", "2", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
-REFINE = Step("refine", "4", ("body", "robot", "ik", "render", "critic"), _refine,
+# v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
+REFINE = Step("refine", "5", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
-RENDER = Step("render", "2", ("body", "robot", "render"), _render, _render_result,
+# v3: coarser draw meshes (robot 8 mm, reference body 20 mm, hands 6 mm).
+RENDER = Step("render", "3", ("body", "robot", "render"), _render, _render_result,
               (COLLIDE, SHAPE_FIT, RETARGET), metrics=_render_metrics, files=_robot_files)
-RENDER_REFINED = Step("render", "2", ("body", "robot", "render"), _render, _render_result,
+RENDER_REFINED = Step("render", "3", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
 # v5: the exported control-rate array (validated), sign fidelity on that array, the report's wrist tracks.

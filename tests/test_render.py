@@ -137,6 +137,19 @@ def test_render_config_validation():
         load_config(sets=["render.width=0"])
 
 
+def test_background_painted_in_gl_equals_the_numpy_fill(robot, renderer):
+    q = np.stack([robot.tpose, np.zeros(robot.n_joints)])
+    gl = renderer.robot_frames(q, full=True)
+    assert renderer._gl_fill is True  # the GL fill ran and left no clear colour
+    renderer._gl_fill = False
+    try:
+        filled = renderer.robot_frames(q, full=True)
+    finally:
+        renderer._gl_fill = None
+    assert np.array_equal(gl, filled)
+    assert (gl[:, 0, 0] == BACKGROUND).all()
+
+
 def test_decimated_robot_meshes_keep_the_silhouette(robot, renderer):
     q = robot.tpose.copy()
     q[robot.joint_index("left_elbow_joint")] = 0.3
@@ -218,11 +231,38 @@ def test_decimated_reference_keeps_pieces_apart_and_the_silhouette(robot, fitted
     assert len(keep) == 6 and len(kept) == 2
     keep, kept = cluster_faces(verts, faces, 0.0)
     assert np.array_equal(keep, np.arange(6)) and np.array_equal(kept, faces)
+    # per-vertex cells: a fine (here: zero) cell keeps its vertices, a coarse one merges
+    grid = np.array([[0, 0, 0], [1e-3, 0, 0], [0, 1e-3, 0], [0.1, 0, 0], [0, 0.1, 0]], float)
+    fan = np.array([[0, 1, 2], [0, 3, 4], [1, 3, 4]])
+    keep, kept = cluster_faces(grid, fan, np.array([0.05, 0.05, 0.05, 0.0, 0.0]))
+    assert np.array_equal(keep, [0, 3, 4]) and len(kept) == 1  # 1 and 2 merged into 0
+    keep, kept = cluster_faces(grid, fan, np.array([0.0, 0.0, 0.0, 0.05, 0.05]))
+    assert len(keep) == 5 and len(kept) == 3
     body, fit = fitted
     motion, _ = _wave(robot, 2, 30.0)
     masks = []
-    for cell in (0.0, RenderConfig().reference_cell_m):
-        with open_renderer(robot, body, fit, RenderConfig(reference_cell_m=cell)) as renderer:
-            assert renderer.skin.exact  # skinning only the drawn vertices is exact here
+    full = RenderConfig(reference_cell_m=0.0, reference_body_cell_m=0.0)
+    for cfg in (full, RenderConfig()):
+        with open_renderer(robot, body, fit, cfg) as renderer:
+            assert renderer.skin.exact  # sparse skinning of only the drawn vertices is exact here
             masks.append(_mask(renderer.reference_frames(renderer.skin(motion, [1]))[0]))
+            drawn = len(renderer.reference_keep)
+    assert drawn < 0.6 * len(body.skin_weights)  # the default draws far fewer vertices
     assert (masks[0] & masks[1]).sum() / (masks[0] | masks[1]).sum() > 0.97
+
+
+def test_reference_hands_keep_the_fine_cell(fitted):
+    from embody.render.compare import hand_bones, reference_cells
+    body, _ = fitted
+    hands = hand_bones(body)
+    names = [body.joint_names[j] for j in hands]
+    assert {"left_wrist", "right_wrist", "left_index3", "right_thumb1"} <= set(names)
+    assert not {"left_elbow", "head", "spine3"} & set(names)
+    cfg = RenderConfig()
+    cells = reference_cells(body, cfg)
+    on_hand = np.isin(np.asarray(body.skin_weights).argmax(axis=1), hands)
+    assert on_hand.any() and (~on_hand).any()
+    assert np.all(cells[on_hand] == cfg.reference_cell_m)
+    assert np.all(cells[~on_hand] == cfg.reference_body_cell_m)
+    same = reference_cells(body, RenderConfig(reference_body_cell_m=None))
+    assert np.all(same == cfg.reference_cell_m)

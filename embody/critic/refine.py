@@ -81,6 +81,9 @@ class RoundRecord:
     #: The solve's exported control-rate array of `q` (kept so the metrics step need not
     #: resample and repair it again; stored for the chosen round only).
     q_control: np.ndarray | None = None
+    #: The robot's wrist positions (T,2,3, torso frame) of `q`, as the critic measured them
+    #: (stored, so the metrics step's report tracks need no second FK pass).
+    wrist_pos: np.ndarray | None = None
 
     @property
     def accepted(self) -> bool | None:
@@ -119,6 +122,8 @@ class RefineResult:
                   "keyframes": np.asarray(self.keyframes, dtype=np.int64)}
         if self.final.q_control is not None:
             arrays["final_q_control"] = np.asarray(self.final.q_control, dtype=np.float64)
+        if all(r.wrist_pos is not None for r in self.rounds):
+            arrays["wrist_pos"] = np.stack([np.asarray(r.wrist_pos, dtype=np.float64) for r in self.rounds])
         return arrays
 
     def to_attrs(self) -> dict[str, Any]:
@@ -141,6 +146,9 @@ class RefineResult:
                      attrs["critic"], int(attrs.get("chosen", -1)))
         if "final_q_control" in arrays:
             result.final.q_control = np.asarray(arrays["final_q_control"])
+        if "wrist_pos" in arrays:
+            for r, pos in zip(rounds, np.asarray(arrays["wrist_pos"])):
+                r.wrist_pos = pos
         return result
 
 
@@ -220,7 +228,7 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
             pos, rot = robot_wrists(robot, q)
             record = RoundRecord(index, q, np.asarray(working.wrist_pos), np.asarray(working.wrist_rot),
                                  wrist_metrics(ref_pos, ref_rot, pos, rot, targets.arm_length),
-                                 q_control=getattr(solution, "q_control", None))
+                                 q_control=getattr(solution, "q_control", None), wrist_pos=pos)
             location_offset, fidelity = judge(q) if judge is not None else (None, {})
             record.metrics.update(fidelity)
             rounds.append(record)

@@ -11,10 +11,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+import scipy.sparse
 import torch
 
 from embody.body.base import BodyModel
-from embody.body.kinematics import skin
 from embody.config.render import RenderConfig
 from embody.motion import Motion
 from embody.render.preview import PreviewWriter
@@ -41,23 +41,33 @@ def reference_vertices(motion: Motion, body: BodyModel, fit, frames: np.ndarray)
 
 class ReferenceSkin:
     """Vertices of only the drawn (decimated) reference mesh, in the torso frame: linear blend
-    skinning of those vertices in float32 (images need no more), when it reproduces
-    `body.vertices` to 10 µm (checked on the reach poses; a body with pose-dependent shape
-    falls back to skinning every vertex)."""
+    skinning of those vertices in float32 (images need no more) with the weights as a sparse
+    matrix (at most 4 bones a vertex here: ~10× fewer products than the dense blend), when it
+    reproduces `body.vertices` to 10 µm (checked on the reach poses; a body with
+    pose-dependent shape falls back to skinning every vertex)."""
 
     def __init__(self, body: BodyModel, fit, keep: np.ndarray, check_poses: torch.Tensor,
                  check_vertices: torch.Tensor) -> None:
         self.body, self.fit, self.keep = body, fit, np.asarray(keep)
         self.betas = torch.as_tensor(fit.betas, dtype=torch.float64)
         with torch.no_grad():
-            self.rest = body.rest_vertices(self.betas)[self.keep].to(torch.float32)
-            self.bind = body.rest_joints(self.betas).to(torch.float32)
-            self.weights = torch.as_tensor(np.asarray(body.skin_weights)[self.keep], dtype=torch.float32)
+            self.rest = body.rest_vertices(self.betas)[self.keep].cpu().numpy().astype(np.float32)
+            self.bind = body.rest_joints(self.betas).cpu().numpy().astype(np.float32)
+            self.weights = scipy.sparse.csr_matrix(
+                np.asarray(body.skin_weights)[self.keep].astype(np.float32))
             own = self._skin(body.joint_transforms(check_poses, self.betas))
-            self.exact = bool((own - check_vertices[:, self.keep]).abs().max() < 1e-5)
+            self.exact = bool(np.abs(own - check_vertices[:, self.keep].cpu().numpy()).max() < 1e-5)
 
-    def _skin(self, transforms: torch.Tensor) -> torch.Tensor:
-        return skin(transforms.to(torch.float32), self.rest, self.bind, self.weights).to(torch.float64)
+    def _skin(self, transforms: torch.Tensor) -> np.ndarray:
+        """v = Σ_j w_vj (R_j (v_rest − b_j) + t_j), as `body.kinematics.skin`, (T,K,3) float64."""
+        tf = transforms.cpu().numpy().astype(np.float32)  # (T,J,4,4)
+        rot = tf[..., :3, :3]
+        trans = tf[..., :3, 3] - np.einsum("tjab,jb->tja", rot, self.bind)
+        bone = np.concatenate([rot, trans[..., None]], axis=-1)  # (T,J,3,4)
+        t, j = bone.shape[:2]
+        blended = (self.weights @ bone.transpose(1, 0, 2, 3).reshape(j, -1)).reshape(-1, t, 3, 4)
+        out = np.einsum("vtab,vb->tva", blended[..., :3], self.rest) + blended[..., 3].transpose(1, 0, 2)
+        return out.astype(np.float64)
 
     def __call__(self, motion: Motion, frames: np.ndarray) -> np.ndarray:
         """(N,K,3) torso-frame vertices of the drawn mesh at `frames`."""
@@ -67,11 +77,30 @@ class ReferenceSkin:
             for start in range(0, len(frames), _CHUNK):
                 pose = _root_free(motion, frames[start:start + _CHUNK])
                 if self.exact:
-                    verts = self._skin(self.body.joint_transforms(pose, self.betas))
+                    verts = torch.from_numpy(self._skin(self.body.joint_transforms(pose, self.betas)))
                 else:
                     verts = self.body.vertices(pose, self.betas)[:, self.keep]
                 out.append(self.fit.apply(verts).cpu().numpy())
         return np.concatenate(out) if out else np.zeros((0, len(self.keep), 3))
+
+
+def hand_bones(body: BodyModel) -> np.ndarray:
+    """Indices of the wrist joints and every joint below them (the fingers); empty when the
+    body names no wrists."""
+    names = list(body.joint_names)
+    parents = np.asarray(body.parents)
+    inside = np.zeros(len(names), dtype=bool)
+    for j in range(len(names)):  # parents precede children
+        inside[j] = names[j] in ("left_wrist", "right_wrist") or (parents[j] >= 0 and inside[parents[j]])
+    return np.flatnonzero(inside)
+
+
+def reference_cells(body: BodyModel, cfg: RenderConfig) -> np.ndarray:
+    """Decimation cell (m) per reference vertex: `reference_cell_m` on the hands (by dominant
+    skinning bone), `reference_body_cell_m` elsewhere."""
+    bones = np.asarray(body.skin_weights).argmax(axis=1)
+    coarse = cfg.reference_cell_m if cfg.reference_body_cell_m is None else cfg.reference_body_cell_m
+    return np.where(np.isin(bones, hand_bones(body)), cfg.reference_cell_m, coarse)
 
 
 def open_renderer(robot, body: BodyModel, fit, cfg: RenderConfig) -> SceneRenderer:
@@ -86,7 +115,7 @@ def open_renderer(robot, body: BodyModel, fit, cfg: RenderConfig) -> SceneRender
     bones = np.asarray(body.skin_weights).argmax(axis=1)
     renderer = SceneRenderer(robot, cfg, np.asarray(body.faces), rest.cpu().numpy(),
                              torso_body=robot.spec.torso_body, reference_points=points,
-                             reference_groups=bones)
+                             reference_groups=bones, reference_cells=reference_cells(body, cfg))
     try:
         renderer.skin = ReferenceSkin(body, fit, renderer.reference_keep, reach, reach_verts)
     except Exception:
@@ -192,14 +221,17 @@ def stream_preview(renderer: SceneRenderer, cfg: RenderConfig, motion: Motion, q
     if cfg.preview_format == "none":
         return None, PreviewFrames(view, keep[:0], np.zeros((0,)), np.zeros((0,)))
     writer = PreviewWriter(path, rate, cfg.preview_format)
+    w = renderer.size[0]
     for start in range(0, len(frames), _CHUNK):
         chunk = frames[start:start + _CHUNK]
-        ref = renderer.reference_frames(renderer.skin(motion, chunk), view, full=True)
-        rob = renderer.robot_frames(q[chunk], view, full=True)
-        writer.add(np.concatenate([ref, rob], axis=2))
+        # both bodies drawn straight into their halves of the side-by-side frames
+        both = np.empty((len(chunk), renderer.size[1], 2 * w, 3), dtype=np.uint8)
+        renderer.reference_frames(renderer.skin(motion, chunk), view, full=True, out=both[:, :, :w])
+        renderer.robot_frames(q[chunk], view, full=True, out=both[:, :, w:])
+        writer.add(both)
         hit = np.isin(chunk, keep)
-        kept["reference"].append(ref[hit])
-        kept["robot"].append(rob[hit])
+        kept["reference"].append(both[hit, :, :w])
+        kept["robot"].append(both[hit, :, w:])
     out = writer.close()
     return out, PreviewFrames(view, keep, np.concatenate(kept["reference"]),
                               np.concatenate(kept["robot"]))

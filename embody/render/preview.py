@@ -16,6 +16,8 @@ log = logging.getLogger(__name__)
 
 #: x264 settings: `veryfast` encodes these flat-shaded frames several times faster than the
 #: default preset at a similar size; one thread and `-bitexact` keep the bytes reproducible.
+#: Measured on 166 preview frames (1280×480): veryfast 7.4 ms/frame, 176 KB; ultrafast with
+#: `-tune animation` 5.3 ms/frame but 689 KB: 4× the store for 2 ms a frame, so not taken.
 _X264 = ["-preset", "veryfast", "-crf", "23", "-threads", "1", "-bitexact"]
 
 

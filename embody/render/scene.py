@@ -77,22 +77,28 @@ def downsample(images: np.ndarray, factor: int) -> np.ndarray:
     return ((total + factor * factor // 2) // (factor * factor)).astype(np.uint8)
 
 
-def cluster_faces(vertices: np.ndarray, faces: np.ndarray, cell: float,
+def cluster_faces(vertices: np.ndarray, faces: np.ndarray, cell: float | np.ndarray,
                   groups: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Vertex clustering of a deformable mesh for drawing: (kept vertex indices (K,), faces (F',3)
     indexing the kept vertices). Vertices merge only within one grid cell of `cell` metres (at
     the rest shape) and one connected piece of the mesh and one `groups` label (e.g. the dominant
-    skinning bone), so separate pieces, such as fingers, never get bridged when they move apart."""
+    skinning bone), so separate pieces, such as fingers, never get bridged when they move apart.
+    `cell` may be given per vertex (V,) (constant within a group: fine hands, a coarse torso);
+    vertices with a cell of 0 are kept as they are."""
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     n = len(vertices)
-    if cell <= 0:
+    cells = np.broadcast_to(np.asarray(cell, dtype=np.float64), (n,))
+    if not (cells > 0).any():
         return np.arange(n), faces
     adjacency = scipy.sparse.coo_matrix(
         (np.ones(faces.size), (faces.ravel(), np.roll(faces, 1, axis=1).ravel())), shape=(n, n))
     _, piece = scipy.sparse.csgraph.connected_components(adjacency, directed=False)
     labels = [piece] + ([np.asarray(groups, dtype=np.int64)] if groups is not None else [])
-    key = np.column_stack(labels + [np.floor(vertices / cell).astype(np.int64)])
+    alone = np.where(cells > 0, -1, np.arange(n))  # a cell of 0: the vertex is its own cluster
+    grid = np.floor(vertices / np.where(cells > 0, cells, 1.0)[:, None]).astype(np.int64)
+    size = np.round(cells * 1e6).astype(np.int64)  # grids of different cells never share keys
+    key = np.column_stack(labels + [alone, size, grid])
     _, first, label = np.unique(key, axis=0, return_index=True, return_inverse=True)
     rep = first[label.ravel()][faces]
     rep = rep[(rep[:, 0] != rep[:, 1]) & (rep[:, 1] != rep[:, 2]) & (rep[:, 0] != rep[:, 2])]
@@ -138,10 +144,12 @@ class SceneRenderer:
                  faces: np.ndarray | None = None, rest_vertices: np.ndarray | None = None,
                  torso_body: str = "torso_link",
                  reference_points: np.ndarray | None = None,
-                 reference_groups: np.ndarray | None = None) -> None:
+                 reference_groups: np.ndarray | None = None,
+                 reference_cells: np.ndarray | None = None) -> None:
         """`reference_points` (N,3), torso frame: reference body points the framing must hold.
         `reference_groups` (V,): labels (the dominant skinning bone) whose vertices may merge
-        when the reference mesh is decimated (`render.reference_cell_m`)."""
+        when the reference mesh is decimated; `reference_cells` (V,): the grid cell per vertex
+        (default `render.reference_cell_m` everywhere)."""
         self.cfg = cfg
         self.robot = robot
         self.world_from_torso = np.linalg.inv(np.asarray(robot.torso_from_world, dtype=np.float64))
@@ -161,8 +169,8 @@ class SceneRenderer:
             self._scene = mujoco.MjvScene(self._model, maxgeom=self._model.ngeom + 100)
             self._mesh: _MeshModel | None = None
             if faces is not None and rest_vertices is not None:
-                keep, kept_faces = cluster_faces(rest_vertices, faces, cfg.reference_cell_m,
-                                                 reference_groups)
+                cells = cfg.reference_cell_m if reference_cells is None else reference_cells
+                keep, kept_faces = cluster_faces(rest_vertices, faces, cells, reference_groups)
                 self.reference_keep = keep
                 self._reference_count = len(rest_vertices)
                 self._mesh = _MeshModel(kept_faces, np.asarray(rest_vertices)[keep], cfg,
@@ -175,6 +183,9 @@ class SceneRenderer:
         self._rect = mujoco.MjrRect(0, 0, *self.size)
         self._background = np.round(np.asarray(cfg.background_rgb) * 255).astype(np.uint8)
         self._option = mujoco.MjvOption()  # groups 0-2 visible: robot visuals, no collision meshes
+        #: Background painted in GL (`_fill_background_gl`): None until the first image checks it.
+        self._gl_fill: bool | None = None
+        self._pixels = np.empty((self.size[1], self.size[0], 3), dtype=np.uint8)  # read-back
 
     # --- setup ----------------------------------------------------------------------------
 
@@ -253,40 +264,60 @@ class SceneRenderer:
 
     # --- rendering ------------------------------------------------------------------------
 
-    def _draw(self, model, data, scene, ctx, cam) -> np.ndarray:
+    def _draw(self, model, data, scene, ctx, cam, into: np.ndarray | None = None) -> np.ndarray:
+        """One image (H,W,3), top row first; written into `into` when given (no extra copy)."""
         mujoco.mjv_updateScene(model, data, self._option, None, cam,
                                mujoco.mjtCatBit.mjCAT_ALL, scene)
         for flag in _OFF_FLAGS:
             scene.flags[flag] = 0
-        out = np.empty((self.size[1], self.size[0], 3), dtype=np.uint8)
+        out = self._pixels
         # each MjrContext owns a framebuffer; bind this one's (the last created is bound)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, ctx)
         mujoco.mjr_render(self._rect, scene, ctx)
+        filled = self._gl_fill is not False and _fill_background_gl(self._background)
         mujoco.mjr_readPixels(out, None, self._rect, ctx)
         flat = out.reshape(-1, 3)
-        flat[(flat[:, 0] | flat[:, 1] | flat[:, 2]) == 0] = self._background  # still the clear colour
-        return out[::-1]
+        if self._gl_fill is None:  # first image: check that the GL fill left no clear colour
+            self._gl_fill = bool(filled) and not _black(flat).any()
+        if not self._gl_fill:
+            flat[_black(flat)] = self._background  # still the clear colour
+        if into is None:
+            return out[::-1].copy()
+        into[...] = out[::-1]
+        return into
 
-    def _finish(self, frames: list[np.ndarray], full: bool) -> np.ndarray:
-        images = np.stack(frames)
+    def _finish(self, frames: list[np.ndarray], full: bool, out: np.ndarray | None) -> np.ndarray:
+        if out is not None:
+            return out
+        images = np.stack(frames) if frames else np.zeros((0, self.size[1], self.size[0], 3), np.uint8)
         return images if full else downsample(images, self.cfg.supersample)
 
-    def robot_frames(self, q: np.ndarray, view: str = "front", full: bool = False) -> np.ndarray:
+    def _target(self, out: np.ndarray | None, n: int, full: bool) -> None:
+        if out is not None and (not full or out.shape != (n, self.size[1], self.size[0], 3)):
+            raise ValueError(f"out must be ({n}, {self.size[1]}, {self.size[0]}, 3) with full=True")
+
+    def robot_frames(self, q: np.ndarray, view: str = "front", full: bool = False,
+                     out: np.ndarray | None = None) -> np.ndarray:
         """Images (N,H,W,3) of joint configurations q (N,n) in the robot's joint order; at the
-        configured size, or as drawn (`self.size`, supersampled) with `full`."""
+        configured size, or as drawn (`self.size`, supersampled) with `full`, then written into
+        `out` when given (e.g. one half of the preview's side-by-side frames)."""
+        q = np.atleast_2d(q)
+        self._target(out, len(q), full)
         self._ctx.make_current()
         cam = self.camera(view)
         frames = []
-        for qi in np.atleast_2d(q):
+        for i, qi in enumerate(q):
             self._data.qpos[:] = self.robot.qpos(np.asarray(qi, dtype=np.float64))
             mujoco.mj_kinematics(self._model, self._data)
-            frames.append(self._draw(self._model, self._data, self._scene, self._robot_ctx, cam))
-        return self._finish(frames, full)
+            frames.append(self._draw(self._model, self._data, self._scene, self._robot_ctx, cam,
+                                     None if out is None else out[i]))
+        return self._finish(frames, full, out)
 
     def reference_frames(self, vertices: np.ndarray, view: str = "front",
-                         full: bool = False) -> np.ndarray:
+                         full: bool = False, out: np.ndarray | None = None) -> np.ndarray:
         """Images (N,H,W,3) of reference meshes given as (N,V,3) vertices in the torso frame:
-        every vertex of the mesh, or only the drawn ones (`reference_keep`)."""
+        every vertex of the mesh, or only the drawn ones (`reference_keep`); `full` and `out`
+        as in `robot_frames`."""
         if self._mesh is None:
             raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
         vertices = np.asarray(vertices)
@@ -295,15 +326,16 @@ class SceneRenderer:
                 raise ValueError(f"reference vertices: expected {self._reference_count} or "
                                  f"{len(self.reference_keep)} per frame, got {vertices.shape[1]}")
             vertices = vertices[:, self.reference_keep]
+        self._target(out, len(vertices), full)
         self._ctx.make_current()
         cam = self.camera(view)
         rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
         frames = []
-        for verts in np.asarray(vertices, dtype=np.float64):
+        for i, verts in enumerate(np.asarray(vertices, dtype=np.float64)):
             self._mesh.set_vertices(verts @ rot.T + pos, self._mesh_ctx)
             frames.append(self._draw(self._mesh.model, self._mesh.data, self._mesh_scene,
-                                     self._mesh_ctx, cam))
-        return self._finish(frames, full)
+                                     self._mesh_ctx, cam, None if out is None else out[i]))
+        return self._finish(frames, full, out)
 
     def close(self) -> None:
         """Free GL resources now: EGL teardown at interpreter exit prints errors otherwise."""
@@ -321,6 +353,48 @@ class SceneRenderer:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _black(flat: np.ndarray) -> np.ndarray:
+    """Pixels (N,3) still at the clear colour (pure black, which no lit surface here reaches)."""
+    return (flat[:, 0] | flat[:, 1] | flat[:, 2]) == 0
+
+
+def _fill_background_gl(rgb: np.ndarray) -> bool:
+    """Paint the background colour where nothing was drawn, in GL: one full-screen quad at the
+    cleared depth (MuJoCo clears depth to 0 and draws with GL_GEQUAL, reversed z), ~10× cheaper
+    on software GL than the same fill in NumPy after the read-back. False when it cannot run
+    (no PyOpenGL); the caller then fills after reading."""
+    try:
+        from OpenGL import GL
+    except Exception:  # noqa: BLE001 - the NumPy fill is the fallback
+        return False
+    try:
+        GL.glPushAttrib(GL.GL_ALL_ATTRIB_BITS)
+        GL.glMatrixMode(GL.GL_PROJECTION)
+        GL.glPushMatrix()
+        GL.glLoadIdentity()
+        GL.glMatrixMode(GL.GL_MODELVIEW)
+        GL.glPushMatrix()
+        GL.glLoadIdentity()
+        for cap in (GL.GL_LIGHTING, GL.GL_TEXTURE_2D, GL.GL_BLEND, GL.GL_CULL_FACE, GL.GL_FOG):
+            GL.glDisable(cap)
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glDepthFunc(GL.GL_GEQUAL)  # passes only where the depth is still the cleared 0
+        GL.glDepthMask(GL.GL_FALSE)
+        GL.glColor3ub(int(rgb[0]), int(rgb[1]), int(rgb[2]))
+        GL.glBegin(GL.GL_QUADS)
+        for x, y in ((-1, -1), (1, -1), (1, 1), (-1, 1)):
+            GL.glVertex3f(x, y, 0.0)
+        GL.glEnd()
+        GL.glMatrixMode(GL.GL_PROJECTION)
+        GL.glPopMatrix()
+        GL.glMatrixMode(GL.GL_MODELVIEW)
+        GL.glPopMatrix()
+        GL.glPopAttrib()
+    except Exception:  # noqa: BLE001 - e.g. a core-profile context: fill after reading
+        return False
+    return True
 
 
 class _MeshModel:
