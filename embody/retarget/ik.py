@@ -234,6 +234,23 @@ def evaluate(robot: Robot, q: np.ndarray, targets: Targets,
     return frames, metrics
 
 
+def same_problem(a: Targets, b: Targets) -> bool:
+    """Whether two target sets give the solver exactly the same problem, so one solve serves both
+    (the pipeline's IK-only fidelity baseline is the retarget step's solve wherever location
+    preservation anchored nothing). The solver reads the arrays below and, only where a point
+    weight is positive, the anchored hand points (`hand_points.hand_point_term`)."""
+    if (a.fps, list(a.hand_joints), a.arm_length) != (b.fps, list(b.hand_joints), b.arm_length):
+        return False
+    for k in ("wrist_pos", "wrist_rot", "elbow_pos", "torso_rot", "head_rot", "hand_q", "wrist_weight"):
+        if not np.array_equal(np.asarray(getattr(a, k)), np.asarray(getattr(b, k))):
+            return False
+    active = [np.size(t.point_weight) > 0 and bool(np.any(np.asarray(t.point_weight) > 0)) for t in (a, b)]
+    if not any(active):
+        return True
+    return (all(active) and list(a.point_names) == list(b.point_names)
+            and np.array_equal(a.point_pos, b.point_pos) and np.array_equal(a.point_weight, b.point_weight))
+
+
 def solve_joints(robot: Robot, targets: Targets, cfg: IKConfig,
                  init: IKSolution | np.ndarray | None = None) -> np.ndarray:
     """The optimiser alone: joint trajectory (T, n_joints) inside the joint box, before the
