@@ -267,10 +267,15 @@ class Residuals:
             value[idx] = sd[np.arange(len(idx)), face]
             normal_l[idx] = planes[face, :3]
         value -= px.radii[si[qc]]
-        sel = value < margin
+        sel = np.flatnonzero(value < margin)
+        sel = sel[np.lexsort((qc[sel], tc[sel]))]  # by frame, then pair: a stable row layout
         tc, qc, value, r_h = tc[sel], qc[sel], value[sel], r_h[sel]
-        hnear, col = np.unique(qc, return_inverse=True)
-        hgap = np.zeros((t, len(hnear)))
+        # rows packed per frame (slot k = the frame's k-th active pair): the cost is a sum of
+        # squares per frame, so K = the most pairs active in one frame rows suffice, not one
+        # column per pair active anywhere (a third of the Jacobian and JᵀJ work on G1)
+        count = np.bincount(tc, minlength=t)
+        col = np.arange(len(tc)) - (np.cumsum(count) - count)[tc]
+        hgap = np.zeros((t, int(count.max()) if len(tc) else 0))
         hgap[tc, col] = margin - value
         x = (r_h @ xl[sel][..., None])[..., 0] + p_h[sel]  # torso frame
         normal = (r_h @ normal_l[sel][..., None])[..., 0]
@@ -282,7 +287,7 @@ class Residuals:
             dclear = (np.einsum("tpa,tpja->tpj", u, lever(centres[:, i])) * ms[:, i].T
                       - np.einsum("tpa,tpja->tpj", u, lever(centres[:, k])) * ms[:, k].T)
             jac = -w * (gap > 0)[..., None] * dclear
-            hjac = np.zeros((t, len(hnear), n_ik))
+            hjac = np.zeros((t, hgap.shape[1], n_ik))
             arm = np.cross(z[tc], x[:, None] - o[tc])  # (C,J,3)
             moves = (ms[:, si[qc]] - self.mask[:, hb[hi[qc]]]).T  # (C,J)
             hjac[tc, col] = -w * np.einsum("ca,cja->cj", normal, arm) * moves
