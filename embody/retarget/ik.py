@@ -5,6 +5,9 @@ optional torso/head orientation, the proxy self-collision penalty, a posture pri
 robot's rest pose (stronger on the waist: the torso stays upright unless the arms need it), a
 hinge on joint speeds past the velocity limits, plus Δ²q (and optionally Δ³q, `w_jerk`) smoothness coupling the frames.
 
+A cold start continues from a faint to a partial to the full collision term, its first two
+phases on every second frame (coarse to fine, `IKConfig.coarse_stride`).
+
 Frames couple only through the smoothness and velocity terms, so the normal matrix is banded and
 one LAPACK call (`banded.block_banded_solve`) solves all frames jointly in O(T·n³). Steps
 are clamped to the joint box, so limits are never violated. Residuals are NumPy with geometric
