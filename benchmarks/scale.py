@@ -52,6 +52,7 @@ sys.path.insert(0, str(ROOT))
 #: the mesh depth judge off, one IK iteration, a 10-step shape fit, no fidelity IK baseline.
 CHEAP = ["--set", "collision.enabled=false", "--set", "collision.depth_metrics=false",
          "--set", "ik.iterations=1", "--set", "ik.tracking_iterations=1",
+         "--set", "ik.ramp_iterations=0",
          "--set", "ik.shape_iterations=10", "--set", "critic.rounds=1",
          "--set", "fidelity.baseline=false"]
 #: An HTTP 5xx (access-log status or reason), SQLite locking, a traceback. Not a bare "50x ":

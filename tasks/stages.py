@@ -187,6 +187,7 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     from embody.metrics.embodiments import human_track, robot_track
     from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with, resample_track
     from embody.retarget import solve
+    from embody.retarget.ik import same_problem
     from embody.retarget.validation import validation_counts
     motion, ik, cfg = inputs["collide"].motion, inputs["retarget"], ctx.cfg
     human = resample_track(human_track(motion, ctx.body), ik.control_rate_hz)
@@ -194,7 +195,10 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     out: dict[str, Any] = {}
     if cfg.ik.location_preserving and cfg.fidelity.baseline:
         plain = cfg.ik.model_copy(update={"location_preserving": False})
-        base = solve(ctx.robot, _targets(ctx, motion, inputs["shape_fit"], plain), plain)
+        plain_targets = _targets(ctx, motion, inputs["shape_fit"], plain)
+        # nothing anchored: the retarget step already solved this very problem
+        same = same_problem(plain_targets, _targets(ctx, motion, inputs["shape_fit"], cfg.ik))
+        base = ik if same else solve(ctx.robot, plain_targets, plain)
         rows["ik"] = base.q_control
         out.update({f"fidelity.ik.{k}": v for k, v in validation_counts(ctx.robot, base.q, ik.fps).items()})
         out["fidelity.ik.mean_jerk"] = base.metrics["jerk"]

@@ -96,12 +96,23 @@ class IKConfig(Section):
     #: within the 1.5× we accept for solving on the real pk kinematics; "tree" is the fast path.
     kinematics: Literal["pytorch_kinematics", "tree"] = "pytorch_kinematics"
     #: Cold start: iterations that track with only `tracking_collision` before the full term comes on.
-    tracking_iterations: int = Field(8, ge=0, le=10_000)
+    tracking_iterations: int = Field(12, ge=0, le=10_000)
     #: Collision weight of the tracking phase, as a fraction of `w_collision`. A faint penalty
     #: (1e-3) leaves the way to the targets free but stops hands from being planted inside each
     #: other, which the full term cannot undo later (48 → 9 frames; 0 leaves 3×, 1e-2 costs 40%
     #: more wrist error: hands block each other on their way out of the rest pose).
     tracking_collision: float = Field(0.001, ge=0, le=1)
+    #: Cold start, between tracking and the full term: `ramp_iterations` at this fraction of
+    #: `w_collision` (a continuation step: on benchmarks/ik_vs_mink.py's 4 sequences tracking 12 +
+    #: ramp 0.1×6 gives 3.85 mm all-frame wrist error vs 4.46 for tracking 8 alone, jerk 1066 vs
+    #: 1135, 0 contacts either way; tracking 16 alone reaches 3.94 but leaves 8 control-rate
+    #: contact frames after the repair). 0 iterations: no ramp.
+    ramp_collision: float = Field(0.1, ge=0, le=1)
+    ramp_iterations: int = Field(6, ge=0, le=10_000)
+    #: Cold start: the tracking and ramp phases run on every `coarse_stride`-th frame (time step
+    #: × stride, smoothness rescaled), and their interpolation starts the full phase on every
+    #: frame. 1: every phase on every frame.
+    coarse_stride: int = Field(2, ge=1, le=8)
     #: Iterations with every term on (the only phase when warm-started).
     iterations: int = Field(24, ge=1, le=10_000)
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.

@@ -110,6 +110,10 @@ class Residuals:
             radii = np.where(self.group_members >= 0, px.radii[px.hull_pairs[self.group_members, 0]], -np.inf)
             self.member_reach = half[self.group_hull][:, None] + (cfg.collision_margin + radii)[..., None]
             self.box_half = half
+            # axis-major copies (G,3,M) for the per-point test: one contiguous batched matmul
+            self.member_reach_t = np.ascontiguousarray(np.swapaxes(self.member_reach, 1, 2))
+            self.member_centres_t = np.ascontiguousarray(
+                np.swapaxes(px.centres[px.hull_pairs[self.group_members, 0]], 1, 2))
             self.group_box_reach = self.part_radius[self.group_part] + cfg.collision_margin
         self.target_pos = np.concatenate([targets.wrist_pos, targets.elbow_pos], 1).astype(np.float64)
         rots = [np.asarray(targets.wrist_rot, dtype=np.float64)]
@@ -233,7 +237,7 @@ class Residuals:
         pc = pos[:, pb] + (rot[:, pb] @ self.part_centre[..., None])[..., 0]
         hc = pos[:, hb] + (rot[:, hb] @ px.hull_centre[..., None])[..., 0]
         gv = pc[:, self.group_part] - hc[:, self.group_hull]
-        tg, gg = np.nonzero(np.einsum("tga,tga->tg", gv, gv) < self.group_reach**2)
+        tg, gg = np.nonzero(gv[..., 0] ** 2 + gv[..., 1] ** 2 + gv[..., 2] ** 2 < self.group_reach**2)
         # ... then the part's bounding sphere against the hull's box, in the hull body's frame ...
         h_of = self.group_hull[gg]
         r_h, p_h = rot[tg, hb[h_of]], pos[tg, hb[h_of]]
@@ -249,10 +253,11 @@ class Residuals:
         p_rel = (r_ht @ (pos[tg, gb] - p_h)[..., None])[..., 0]
         members = self.group_members[gg]  # (G,M), −1 = padding
         si, hi = px.hull_pairs[:, 0], px.hull_pairs[:, 1]
-        xl = np.swapaxes(r_rel @ np.swapaxes(px.centres[si[members]], 1, 2), 1, 2) + p_rel[:, None]
-        inside = (np.abs(xl - self.box_mid[h_of][:, None]) < self.member_reach[gg]).all(-1)
+        xl = r_rel @ self.member_centres_t[gg] + p_rel[..., None]  # (G,3,M), hull-body frame
+        d = np.abs(xl - self.box_mid[h_of][..., None]) - self.member_reach_t[gg]
+        inside = np.maximum(np.maximum(d[:, 0], d[:, 1]), d[:, 2]) < 0
         gsel, msel = np.nonzero(inside)
-        tc, qc, xl = tg[gsel], members[gsel, msel], xl[gsel, msel]
+        tc, qc, xl = tg[gsel], members[gsel, msel], xl[gsel, :, msel]
         r_h, p_h = r_h[gsel], p_h[gsel]
         # ... then the polytope's plane distances, hull by hull (no padded plane sets)
         value, normal_l = np.empty(len(qc)), np.empty((len(qc), 3))
@@ -265,10 +270,15 @@ class Residuals:
             value[idx] = sd[np.arange(len(idx)), face]
             normal_l[idx] = planes[face, :3]
         value -= px.radii[si[qc]]
-        sel = value < margin
+        sel = np.flatnonzero(value < margin)
+        sel = sel[np.lexsort((qc[sel], tc[sel]))]  # by frame, then pair: a stable row layout
         tc, qc, value, r_h = tc[sel], qc[sel], value[sel], r_h[sel]
-        hnear, col = np.unique(qc, return_inverse=True)
-        hgap = np.zeros((t, len(hnear)))
+        # rows packed per frame (slot k = the frame's k-th active pair): the cost is a sum of
+        # squares per frame, so K = the most pairs active in one frame rows suffice, not one
+        # column per pair active anywhere (a third of the Jacobian and JᵀJ work on G1)
+        count = np.bincount(tc, minlength=t)
+        col = np.arange(len(tc)) - (np.cumsum(count) - count)[tc]
+        hgap = np.zeros((t, int(count.max()) if len(tc) else 0))
         hgap[tc, col] = margin - value
         x = (r_h @ xl[sel][..., None])[..., 0] + p_h[sel]  # torso frame
         normal = (r_h @ normal_l[sel][..., None])[..., 0]
@@ -280,7 +290,7 @@ class Residuals:
             dclear = (np.einsum("tpa,tpja->tpj", u, lever(centres[:, i])) * ms[:, i].T
                       - np.einsum("tpa,tpja->tpj", u, lever(centres[:, k])) * ms[:, k].T)
             jac = -w * (gap > 0)[..., None] * dclear
-            hjac = np.zeros((t, len(hnear), n_ik))
+            hjac = np.zeros((t, hgap.shape[1], n_ik))
             arm = np.cross(z[tc], x[:, None] - o[tc])  # (C,J,3)
             moves = (ms[:, si[qc]] - self.mask[:, hb[hi[qc]]]).T  # (C,J)
             hjac[tc, col] = -w * np.einsum("ca,cja->cj", normal, arm) * moves
