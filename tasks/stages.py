@@ -320,9 +320,10 @@ RENDER_REFINED = Step("render", "3", ("body", "robot", "render"), _render, _rend
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
 # v5: the exported control-rate array (validated), sign fidelity on that array, the report's wrist tracks.
-METRICS = Step("metrics", "5", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+# v6: location agreement with ties (and the exact figure), contact events; IK-only baseline reuse.
+METRICS = Step("metrics", "6", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "5", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "6", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 
