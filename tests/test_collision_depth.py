@@ -117,3 +117,24 @@ def test_forearms_passed_through_each_other_come_apart(body):
                                                      steps=150))
     after = motion_depths(body, stalled.motion.pose, motion.betas)
     assert after.max() > 0.01  # without the capsules the forearms stay crossed
+
+
+def test_depth_polish_clears_the_frames_the_judge_flags_and_nothing_else(body):
+    """`polish` re-optimises only frames the mesh judge finds deeper than `depth_polish`
+    (every vertex, blended over `blend_s`); the rest stays the input bit for bit."""
+    from embody.collision.masks import mask_joints
+    from embody.collision.optimize import polish
+
+    motion = planted(44, slice(20, 24))
+    cfg = CollisionConfig()
+    idx = mask_joints(cfg.mask, cfg.joints)
+    depth = motion_depths(body, motion.pose, motion.betas)
+    assert depth.max() > 0.015
+    pose, steps, after = polish(body, motion, motion.pose, idx, depth, cfg)
+    assert steps > 0 and after.max() <= cfg.depth_polish
+    np.testing.assert_allclose(after, motion_depths(body, pose, motion.betas), atol=1e-9)
+    far = np.r_[0:5, 39:44]
+    assert pose[far].tobytes() == motion.pose[far].astype(pose.dtype).tobytes()
+    # nothing deeper than the threshold: the pose comes back untouched
+    same, none, d = polish(body, motion, motion.pose, idx, np.minimum(depth, 0.001), cfg)
+    assert none == 0 and same is motion.pose

@@ -19,7 +19,7 @@ from embody.body.base import BodyModel
 from embody.collision.depth import depth_metrics
 from embody.collision.metrics import sequence_metrics
 from embody.collision.optimize import (CollisionResult, _depths, frame_collision_energies,
-                                       mitigate)
+                                       mitigate, polish)
 from embody.config.collision import CollisionConfig
 from embody.motion import Motion
 
@@ -76,12 +76,20 @@ def mitigate_windowed(motion: Motion, body: BodyModel,
     fixed = motion.with_pose(pose)
     if after.mean() > before.mean():  # never hand back something worse than the input
         fixed, after = motion.with_pose(x0), before.copy()
-    metrics = sequence_metrics(x0, fixed.pose, float(before.mean()), float(after.mean()),
-                               time.perf_counter() - start_time, steps)
-    metrics.update(mask=cfg.mask, windows=len(spans))
+    depth_s, depths, extra = 0.0, None, 0
     if judge:
         t_depth = time.perf_counter()
-        metrics.update(depth_metrics(*_depths(body, motion, fixed.pose, cfg)))
-        metrics["depth_s"] = time.perf_counter() - t_depth
+        depths = _depths(body, motion, fixed.pose, cfg)
+        depth_s = time.perf_counter() - t_depth
+        polished, extra, d1 = polish(body, motion, fixed.pose, idx, depths[1], cfg)
+        if extra:
+            fixed, depths = motion.with_pose(polished), (depths[0], d1)
+            after = frame_collision_energies(fixed, body, cfg)
+    metrics = sequence_metrics(x0, fixed.pose, float(before.mean()), float(after.mean()),
+                               time.perf_counter() - start_time - depth_s, steps)
+    metrics.update(mask=cfg.mask, windows=len(spans))
+    if depths is not None:
+        metrics.update(depth_metrics(*depths))
+        metrics.update(depth_s=depth_s, polish_steps=extra)
     return CollisionResult(fixed, metrics, before, after,
                            np.asarray(idx if idx is not None else [], dtype=np.int64))
