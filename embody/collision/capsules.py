@@ -100,17 +100,8 @@ def arm_capsules(body: BodyModel, betas: np.ndarray,
 def segment_distance(p1: torch.Tensor, q1: torch.Tensor, p2: torch.Tensor,
                      q2: torch.Tensor) -> torch.Tensor:
     """Distance (...) between segments p1q1 and p2q2 (...,3) (Ericson 5.1.9), differentiable."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e = (d1 * d1).sum(-1), (d2 * d2).sum(-1)
-    f, c, b = (d2 * r).sum(-1), (d1 * r).sum(-1), (d1 * d2).sum(-1)
-    denom = a * e - b * b
-    s = torch.where(denom > 1e-12, ((b * f - c * e) / denom.clamp(min=1e-12)).clamp(0, 1),
-                    torch.zeros_like(a))
-    t = (b * s + f) / e
-    s = torch.where(t < 0, (-c / a).clamp(0, 1), torch.where(t > 1, ((b - c) / a).clamp(0, 1), s))
-    t = t.clamp(0, 1)
-    gap = (p1 + d1 * s.unsqueeze(-1)) - (p2 + d2 * t.unsqueeze(-1))
-    return (gap.square().sum(-1) + 1e-12).sqrt()
+    _, _, a, b = segment_closest(p1, q1, p2, q2)
+    return ((a - b).square().sum(-1) + 1e-12).sqrt()
 
 
 def segment_closest(p1: torch.Tensor, q1: torch.Tensor, p2: torch.Tensor, q2: torch.Tensor

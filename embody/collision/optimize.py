@@ -161,23 +161,30 @@ def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> Collisio
     fine_after = after if same else _exact(body, fine, best_pose, motion.betas, cfg.tolerance)
     if steps and fine_after.sum() > fine_before.sum():  # never worse than the input
         fixed, after = motion.with_pose(x0_np), before
-    depth_s, depths, extra = 0.0, None, 0
-    if cfg.depth_metrics:  # the judge's time is kept apart from the optimiser's runtime
-        t_depth = time.perf_counter()
-        depths = _depths(body, motion, fixed.pose, cfg)
-        depth_s = time.perf_counter() - t_depth
-        polished, extra, d1 = polish(body, motion, fixed.pose, idx, depths[1], cfg)
-        if extra:
-            fixed, depths = motion.with_pose(polished), (depths[0], d1)
-            after = frame_collision_energies(fixed, body, cfg)
-    runtime = time.perf_counter() - start - depth_s
+    fixed, after, judged, depth_s = judge(body, motion, fixed, after, idx, cfg, cfg.depth_metrics)
+    runtime = time.perf_counter() - start - depth_s  # the judge's time is kept apart
     metrics = sequence_metrics(x0_np, fixed.pose, float(before.mean()), float(after.mean()),
                                runtime, steps)
     metrics["mask"] = cfg.mask
-    if depths is not None:
-        metrics.update(depth_metrics(*depths))
-        metrics.update(depth_s=depth_s, polish_steps=extra)
+    metrics.update(judged)
     return CollisionResult(fixed, metrics, before, after, idx)
+
+
+def judge(body: BodyModel, motion: Motion, fixed: Motion, after: np.ndarray, idx: np.ndarray,
+          cfg: CollisionConfig, enabled: bool
+          ) -> tuple[Motion, np.ndarray, dict[str, float | int], float]:
+    """The mesh judge's depths before/after, then the depth-guided `polish`. Returns (motion,
+    per-frame energies after, the depth metrics (empty when not `enabled`), judge seconds)."""
+    if not enabled:
+        return fixed, after, {}, 0.0
+    t_depth = time.perf_counter()
+    depths = _depths(body, motion, fixed.pose, cfg)
+    depth_s = time.perf_counter() - t_depth
+    polished, extra, d1 = polish(body, motion, fixed.pose, idx, depths[1], cfg)
+    if extra:
+        fixed, depths = motion.with_pose(polished), (depths[0], d1)
+        after = frame_collision_energies(fixed, body, cfg)
+    return fixed, after, {**depth_metrics(*depths), "depth_s": depth_s, "polish_steps": extra}, depth_s
 
 
 def polish(body: BodyModel, motion: Motion, pose: np.ndarray, idx: np.ndarray,

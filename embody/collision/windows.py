@@ -16,10 +16,9 @@ from dataclasses import replace
 import numpy as np
 
 from embody.body.base import BodyModel
-from embody.collision.depth import depth_metrics
 from embody.collision.metrics import sequence_metrics
-from embody.collision.optimize import (CollisionResult, _depths, frame_collision_energies,
-                                       mitigate, polish)
+from embody.collision.optimize import (CollisionResult, frame_collision_energies, judge,
+                                       mitigate)
 from embody.config.collision import CollisionConfig
 from embody.motion import Motion
 
@@ -49,7 +48,7 @@ def mitigate_windowed(motion: Motion, body: BodyModel,
     if len(spans) == 1:
         return mitigate(motion, body, cfg)
     start_time = time.perf_counter()
-    judge = cfg.depth_metrics  # judged once on the blended whole, not per window
+    judging = cfg.depth_metrics  # judged once on the blended whole, not per window
     cfg = cfg.model_copy(update={"depth_metrics": False})
     x0 = motion.pose
     pose = x0.copy()
@@ -76,20 +75,9 @@ def mitigate_windowed(motion: Motion, body: BodyModel,
     fixed = motion.with_pose(pose)
     if after.mean() > before.mean():  # never hand back something worse than the input
         fixed, after = motion.with_pose(x0), before.copy()
-    depth_s, depths, extra = 0.0, None, 0
-    if judge:
-        t_depth = time.perf_counter()
-        depths = _depths(body, motion, fixed.pose, cfg)
-        depth_s = time.perf_counter() - t_depth
-        polished, extra, d1 = polish(body, motion, fixed.pose, idx, depths[1], cfg)
-        if extra:
-            fixed, depths = motion.with_pose(polished), (depths[0], d1)
-            after = frame_collision_energies(fixed, body, cfg)
+    fixed, after, judged, depth_s = judge(body, motion, fixed, after, idx, cfg, judging)
     metrics = sequence_metrics(x0, fixed.pose, float(before.mean()), float(after.mean()),
                                time.perf_counter() - start_time - depth_s, steps)
-    metrics.update(mask=cfg.mask, windows=len(spans))
-    if depths is not None:
-        metrics.update(depth_metrics(*depths))
-        metrics.update(depth_s=depth_s, polish_steps=extra)
+    metrics.update(mask=cfg.mask, windows=len(spans), **judged)
     return CollisionResult(fixed, metrics, before, after,
                            np.asarray(idx if idx is not None else [], dtype=np.int64))
