@@ -108,10 +108,10 @@ class Residuals:
             # per group member: how far from its hull's box centre it may be, per axis
             half = (px.hull_box[:, 1] - px.hull_box[:, 0]) / 2
             radii = np.where(self.group_members >= 0, px.radii[px.hull_pairs[self.group_members, 0]], -np.inf)
-            self.member_reach = half[self.group_hull][:, None] + (cfg.collision_margin + radii)[..., None]
+            reach = half[self.group_hull][:, None] + (cfg.collision_margin + radii)[..., None]
             self.box_half = half
             # axis-major copies (G,3,M) for the per-point test: one contiguous batched matmul
-            self.member_reach_t = np.ascontiguousarray(np.swapaxes(self.member_reach, 1, 2))
+            self.member_reach_t = np.ascontiguousarray(np.swapaxes(reach, 1, 2))
             self.member_centres_t = np.ascontiguousarray(
                 np.swapaxes(px.centres[px.hull_pairs[self.group_members, 0]], 1, 2))
             self.group_box_reach = self.part_radius[self.group_part] + cfg.collision_margin
@@ -163,12 +163,8 @@ class Residuals:
                   extra: list[tuple[np.ndarray, TermJacobian]] = ()) -> np.ndarray:
         z, o = self.fk.joint_frames(rot, pos, list(self.ik))  # (T,J,3) each
 
-        def point_jac(p: np.ndarray, m: np.ndarray) -> np.ndarray:
-            """(T,P,3) points moved by joints per mask (J,P) → (T,P,3,J)."""
-            return np.cross(z[:, None], p[:, :, None] - o[:, None]).transpose(0, 1, 3, 2) * m.T[None, :, None]
-
         lm = self.mask[:, self.link_body]  # (J,L)
-        jp = point_jac(p_link[:, :4], lm[:, :4]) * self.w_pos[:, :, None, None]
+        jp = point_jacobian(z, o, p_link[:, :4], lm[:, :4]) * self.w_pos[:, :, None, None]
         jr = (z[:, None] * lm[:, self.rot_cols].T[None, :, :, None]).transpose(0, 1, 3, 2)
         jr = jr * self.w_rot[:, :, None, None]
         blocks = [jp.reshape(len(q), -1, len(self.ik)), jr.reshape(len(q), -1, len(self.ik))]

@@ -253,7 +253,7 @@ def same_problem(a: Targets, b: Targets) -> bool:
     weight is positive, the anchored hand points (`hand_points.hand_point_term`)."""
     if (a.fps, list(a.hand_joints), a.arm_length) != (b.fps, list(b.hand_joints), b.arm_length):
         return False
-    for k in ("wrist_pos", "wrist_rot", "elbow_pos", "torso_rot", "head_rot", "hand_q", "wrist_weight"):
+    for k in (k for k in _ARRAYS if not k.startswith("point_")):  # every per-frame array the solver reads
         if not np.array_equal(np.asarray(getattr(a, k)), np.asarray(getattr(b, k))):
             return False
     active = [np.size(t.point_weight) > 0 and bool(np.any(np.asarray(t.point_weight) > 0)) for t in (a, b)]
