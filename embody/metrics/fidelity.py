@@ -95,9 +95,7 @@ def relative_location(track: Track, side: str, names: list[str], nearest: np.nda
 
 def nearest_landmark(track: Track, side: str, names: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Index into `names` of the palm's nearest landmark (T,) and its distance per scale (T,)."""
-    palm = track.point(f"{side}_palm")
-    lms = np.stack([track.point(n) for n in names], 1)
-    d = np.linalg.norm(lms - palm[:, None], axis=-1) / track.scale
+    d = _distances(track, side, names)
     k = d.argmin(1)
     return k, d[np.arange(len(d)), k]
 
