@@ -95,10 +95,18 @@ class Context:
                                                 compare=False)
 
     def key(self, step: Step, input_keys: Mapping[str, str]) -> str:
-        """`step.key` with the step's config JSON computed once per context, not per sequence."""
-        if step.name not in self._configs:
-            self._configs[step.name] = step.config(self.cfg)
-        return content_key(step.name, step.version, self._configs[step.name], input_keys)
+        """`step.key` with the step's config JSON computed once per context, not per sequence.
+
+        The memo is replaced, never mutated: Prefect walks every field of a task's parameters
+        (this context included) in its worker threads while the driver and other workers add
+        steps here, and a dict that grows under an iterator raises "dictionary changed size
+        during iteration" in whichever task happened to be submitted at that moment.
+        """
+        configs = self._configs
+        if step.name not in configs:
+            configs = {**configs, step.name: step.config(self.cfg)}
+            self._configs = configs
+        return content_key(step.name, step.version, configs[step.name], input_keys)
 
     @property
     def store(self) -> ArtifactStore:
