@@ -194,13 +194,41 @@ def _box_distance(q: torch.Tensor, box: torch.Tensor) -> torch.Tensor:
 
 @dataclass(frozen=True)
 class Contacts:
-    """(frame, chunk, part a, part b, piece) rows whose points may be inside the piece."""
+    """(frame, chunk, part a, part b, piece) rows whose points may be inside the piece, and
+    the same at point level: `points` (frame, chunk, point, part b, piece) rows of the points
+    within the broad phase's margin of the piece (its box and its planes)."""
 
     t: torch.Tensor
     h: torch.Tensor
     a: torch.Tensor
     b: torch.Tensor
     k: torch.Tensor
+    points: "PointRows"
+
+
+@dataclass(frozen=True)
+class PointRows:
+    """Point-piece candidate rows: what the narrow phase evaluates. Kept from a refresh
+    until the next one, so the optimiser's steps in between skin and test only these points
+    (not every point of a near chunk)."""
+
+    t: torch.Tensor
+    h: torch.Tensor
+    n: torch.Tensor
+    b: torch.Tensor
+    k: torch.Tensor
+    #: rows repeat a point per piece: each distinct (frame, chunk, point) is skinned once
+    first: torch.Tensor
+    inverse: torch.Tensor
+
+    @classmethod
+    def of(cls, t: torch.Tensor, h: torch.Tensor, n: torch.Tensor, b: torch.Tensor,
+           k: torch.Tensor, n_chunks: int, size: int) -> "PointRows":
+        _, inv = torch.unique((t * n_chunks + h) * size + n, return_inverse=True)
+        first = torch.full((int(inv.max()) + 1 if inv.numel() else 0,), len(inv),
+                           dtype=torch.long).scatter_reduce(
+            0, inv, torch.arange(len(inv)), "amin")
+        return cls(t, h, n, b, k, first, inv)
 
 
 def _blend(d: dict[str, torch.Tensor], transforms: torch.Tensor) -> torch.Tensor:
@@ -297,13 +325,18 @@ def contacts(model: CollisionModel, transforms: torch.Tensor, margin: float = 0.
         close = _box_distance(cq[:, None, :], d["piece_box"][pk])
         close = (close < chunk_r[ft, fh, None] + margin) & (pieces >= 0)
         m, ks = torch.nonzero(close, as_tuple=True)
-        c = Contacts(ft[m], fh[m], ca[fh[m]], fb[m], pk[m, ks])
-        if m.numel():  # level 3: the chunk's points against the piece's box
-            q = _to_part(rot, trans, c.t, c.b, _row_points(d, blend, c.t, c.h))
-            hit = ((_box_distance(q, d["piece_box"][c.k][:, None]) <= margin)
-                   & d["chunk_mask"][c.h]).any(dim=1)
-            c = Contacts(c.t[hit], c.h[hit], c.a[hit], c.b[hit], c.k[hit])
-    return c
+        t, h, a, b, k = ft[m], fh[m], ca[fh[m]], fb[m], pk[m, ks]
+        if m.numel():  # level 3: the chunk's points against the piece's box, then its planes
+            q = _to_part(rot, trans, t, b, _row_points(d, blend, t, h))
+            inbox = (_box_distance(q, d["piece_box"][k][:, None]) <= margin) & d["chunk_mask"][h]
+            hit = inbox.any(dim=1)
+            r, n = torch.nonzero(inbox, as_tuple=True)
+            # max over a convex piece's planes is a lower bound of the distance outside it
+            f, _ = _piece_planes(model, d, k[r], q[r, n])
+            r, n = r[f <= margin], n[f <= margin]
+            return Contacts(t[hit], h[hit], a[hit], b[hit], k[hit],
+                            PointRows.of(t[r], h[r], n, b[r], k[r], *d["chunk_mask"].shape))
+    return Contacts(t, h, a, b, k, PointRows.of(t, h, h, b, k, *d["chunk_mask"].shape))
 
 
 def frame_energies(model: CollisionModel, transforms: torch.Tensor, tolerance: float = 0.0,
@@ -349,30 +382,66 @@ def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: flo
     c = contacts(model, transforms, reach) if near is None else near
     if c.t.numel() == 0:
         return None
+    p = c.points
+    if p.t.numel() == 0:
+        return None
     with torch.no_grad():
         g = transforms[:, d["part_joints"]]
         rot, trans = g[..., :3, :3], g[..., :3, 3]
         blend = _blend(d, transforms)
-        q = _to_part(rot, trans, c.t, c.b, _row_points(d, blend, c.t, c.h))
-        inbox = (_box_distance(q, d["piece_box"][c.k][:, None]) <= reach) & d["chunk_mask"][c.h]
-        r, n = torch.nonzero(inbox, as_tuple=True)
-        planes = d["planes"][c.k[r]]                                # (Q,F,4)
-        f, plane = (torch.bmm(planes[..., :3], q[r, n].unsqueeze(-1)).squeeze(-1)
-                    + planes[..., 3]).max(-1)
-        inside = f < -tolerance
-        r, n, f, plane, planes = r[inside], n[inside], f[inside], plane[inside], planes[inside]
-        if r.numel() == 0:
+        u = p.first
+        world = _skin(d, blend, p.t[u], p.h[u], p.n[u])[p.inverse]
+        q = _to_part(rot, trans, p.t, p.b, world)
+        r = torch.nonzero(_box_distance(q, d["piece_box"][p.k]) <= reach).squeeze(1)
+        f, plane = _piece_planes(model, d, p.k[r], q[r])
+        inside = torch.nonzero(f < -tolerance).squeeze(1)
+        if inside.numel() == 0:
             return None
+        r, f, plane = r[inside], f[inside], plane[inside]
         # a part's SDF is the min over its pieces: keep the deepest piece per (frame, point, part)
-        n_chunks, n_parts, size = d["chunk_part"].shape[0], d["part_radius"].shape[0], q.shape[1]
-        key = ((c.t[r] * n_chunks + c.h[r]) * size + n) * n_parts + c.b[r]
+        n_chunks, n_parts = d["chunk_part"].shape[0], d["part_radius"].shape[0]
+        size = d["chunk_mask"].shape[1]
+        key = ((p.t[r] * n_chunks + p.h[r]) * size + p.n[r]) * n_parts + p.b[r]
         order = torch.sort(f, stable=True).indices                  # deepest first
         order = order[torch.sort(key[order], stable=True).indices]  # grouped by key
         first = torch.ones_like(order, dtype=torch.bool)
         first[1:] = key[order][1:] != key[order][:-1]
         keep = order[first]
-        r, n = r[keep], n[keep]
-        return Penetrations(c.t[r], c.h[r], n, c.b[r], planes[keep, plane[keep]])
+        rk = r[keep]
+        return Penetrations(p.t[rk], p.h[rk], p.n[rk], p.b[rk], d["planes"][p.k[rk], plane[keep]])
+
+
+def _piece_planes(model: CollisionModel, d: dict[str, torch.Tensor], k: torch.Tensor,
+                  q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """max_f(n_f·q + d_f) and its plane index per row (points q (R,3) in the frame of piece
+    k (R,)), one small matmul per piece with its own planes: gathering the padded (R,F,4)
+    planes per row cost more than the arithmetic."""
+    f = q.new_empty(len(k))
+    arg = torch.empty(len(k), dtype=torch.long)
+    if len(k) == 0:
+        return f, arg
+    pieces, order = torch.sort(k, stable=True)
+    ids, counts = torch.unique_consecutive(pieces, return_counts=True)
+    own = _own_planes(model, d)
+    start = 0
+    for piece, n in zip(ids.tolist(), counts.tolist()):
+        rows = order[start:start + n]
+        start += n
+        pl = own[piece]
+        fr, ar = torch.addmm(pl[:, 3], q[rows], pl[:, :3].T).max(-1)
+        f[rows], arg[rows] = fr, ar
+    return f, arg
+
+
+def _own_planes(model: CollisionModel, d: dict[str, torch.Tensor]) -> list[torch.Tensor]:
+    """Each piece's planes without the padding (cached per dtype/device like `tensors`)."""
+    planes = d["planes"]
+    cache = model.__dict__.setdefault("_own_planes", {})
+    key = (planes.dtype, planes.device)
+    if key not in cache:
+        real = (model.planes[..., 3] != _PAD_PLANE[3]).sum(1)
+        cache[key] = [planes[i, :int(n)].contiguous() for i, n in enumerate(real)]
+    return cache[key]
 
 
 def point_depths(model: CollisionModel, transforms: torch.Tensor,
