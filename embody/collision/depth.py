@@ -330,12 +330,39 @@ def _flood(mesh: DepthMesh, v: np.ndarray, comp: _Component, seeds: np.ndarray,
     return best
 
 
+def _separated(va: np.ndarray, vb: np.ndarray) -> bool:
+    """A plane normal to the line between the two point sets' centroids separates them: then
+    no triangle spanned by the one crosses one spanned by the other (a sound, cheap test that
+    spares the BVH build for pairs whose boxes overlap but whose surfaces are apart)."""
+    axis = vb.mean(0) - va.mean(0)
+    return bool((va @ axis).max() < (vb @ axis).min())
+
+
+def _component_boxes(mesh: DepthMesh, v: np.ndarray) -> np.ndarray:
+    """(...,C,2,3) min/max corner of each component of posed meshes (...,V,3)."""
+    order, starts = _component_order(mesh)
+    w = v[..., order, :]
+    return np.stack([np.minimum.reduceat(w, starts, axis=-2),
+                     np.maximum.reduceat(w, starts, axis=-2)], axis=-2)
+
+
+def _component_order(mesh: DepthMesh) -> tuple[np.ndarray, np.ndarray]:
+    cache = mesh.__dict__.setdefault("_order", [])
+    if not cache:
+        sizes = [len(c.vertices) for c in mesh.components]
+        cache.extend((np.concatenate([c.vertices for c in mesh.components]),
+                      np.r_[0, np.cumsum(sizes)[:-1]].astype(np.int64)))
+    return cache[0], cache[1]
+
+
 def frame_depth(mesh: DepthMesh, v: np.ndarray,
-                pairs: list[tuple[int, int]] | None = None) -> float:
-    """Max penetration depth (m) of one posed mesh (V,3)."""
+                pairs: list[tuple[int, int]] | None = None,
+                box: np.ndarray | None = None) -> float:
+    """Max penetration depth (m) of one posed mesh (V,3). `pairs` limits the component pairs
+    tested (default: every checked pair); `box` (C,2,3) the components' boxes if known."""
     pairs = _checked_comp_pairs(mesh) if pairs is None else pairs
     comps = mesh.components
-    box = np.stack([np.stack([v[c.vertices].min(0), v[c.vertices].max(0)]) for c in comps])
+    box = _component_boxes(mesh, v) if box is None else box
     cache: dict[int, tuple] = {}
     fbox: dict[int, tuple[np.ndarray, np.ndarray]] = {}
 
@@ -346,8 +373,9 @@ def frame_depth(mesh: DepthMesh, v: np.ndarray,
 
     def faces_in_box(i: int, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
         if i not in fbox:  # each component's face boxes once per frame, not once per pair
-            tri = v[comps[i].vertices][comps[i].faces]
-            fbox[i] = (tri.min(1), tri.max(1))
+            vc = v[comps[i].vertices]
+            a, b, c = (vc[comps[i].faces[:, k]] for k in range(3))
+            fbox[i] = (np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c))
         fmin, fmax = fbox[i]
         return np.flatnonzero(((fmax >= lo) & (fmin <= hi)).all(-1))
 
@@ -362,6 +390,9 @@ def frame_depth(mesh: DepthMesh, v: np.ndarray,
         # only faces of a group checked against some face of the other side can matter
         si = si[mesh.checked[ci.face_group[si]][:, np.unique(cj.face_group[sj])].any(1)]
         sj = sj[mesh.checked[cj.face_group[sj]][:, np.unique(ci.face_group[si])].any(1)]
+        if len(si) == 0 or len(sj) == 0 or _separated(vi[np.unique(ci.faces[si])],
+                                                      vj[np.unique(cj.faces[sj])]):
+            continue
         xi, xj = _crossing(vi, ci.faces[si], vj, cj.faces[sj])
         xi, xj = si[xi], sj[xj]
         keep = mesh.checked[ci.face_group[xi], cj.face_group[xj]]
@@ -398,10 +429,17 @@ def frame_depth(mesh: DepthMesh, v: np.ndarray,
 
 
 def frame_depths(mesh: DepthMesh, vertices: np.ndarray) -> np.ndarray:
-    """Max penetration depth (m) per frame of posed meshes (T,V,3)."""
-    pairs = _checked_comp_pairs(mesh)
-    return np.array([frame_depth(mesh, np.asarray(v, dtype=np.float64), pairs)
-                     for v in vertices])
+    """Max penetration depth (m) per frame of posed meshes (T,V,3). The component boxes and
+    their overlaps are computed for all frames at once; each frame then visits only its
+    checked pairs whose boxes overlap (a pair whose boxes are apart cannot cross)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    pairs = np.array(_checked_comp_pairs(mesh), dtype=np.int64).reshape(-1, 2)
+    boxes = _component_boxes(mesh, vertices)                               # (T,C,2,3)
+    lo = np.maximum(boxes[:, pairs[:, 0], 0], boxes[:, pairs[:, 1], 0])
+    hi = np.minimum(boxes[:, pairs[:, 0], 1], boxes[:, pairs[:, 1], 1])
+    overlap = (lo <= hi).all(-1)                                           # (T,P)
+    return np.array([frame_depth(mesh, v, [tuple(p) for p in pairs[o].tolist()], b)
+                     for v, o, b in zip(vertices, overlap, boxes)])
 
 
 def motion_depths(body: BodyModel, pose: np.ndarray, betas: np.ndarray,
