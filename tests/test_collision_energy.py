@@ -183,3 +183,23 @@ def test_points_are_the_skinned_mesh(body, model):
     center, radius = _chunk_spheres(d, _blend(d, transforms))
     dist = (pts - center[:, :, None]).norm(dim=-1)
     assert bool((dist[:, mask] <= radius[..., None].expand_as(dist)[:, mask]).all())
+
+
+def test_refreshed_candidates_give_the_exact_energy(body, model):
+    """The optimiser evaluates only the broad phase's point candidates between refreshes: at
+    the refresh itself (same pose) that is the exact energy, for any margin and tolerance, and
+    a pose moved by less than the margin keeps it exact too."""
+    from embody.collision.energy import contacts
+    pose = crossing_poses()
+    betas = torch.zeros(10, dtype=torch.float64)
+    tr = body.joint_transforms(torch.as_tensor(pose, dtype=torch.float64), betas)
+    for margin in (0.0, 0.005, 0.022):
+        near = contacts(model, tr, margin)
+        assert near.points.t.numel() > 0
+        for tol in (0.0, 0.001, -min(margin, 0.003)):
+            assert torch.equal(frame_energies(model, tr, tol, near),
+                               frame_energies(model, tr, tol))
+    near = contacts(model, tr, 0.022)
+    moved = body.joint_transforms(torch.as_tensor(pose + 0.002, dtype=torch.float64), betas)
+    assert torch.equal(frame_energies(model, moved, 0.001, near),
+                       frame_energies(model, moved, 0.001))

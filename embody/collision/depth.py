@@ -261,11 +261,14 @@ class _Surface:
             m = feat == code
             normal[m] = vn[gf[m, code]]
         border = np.zeros(len(p), dtype=bool)
+        # a whole watertight component has no border edge (no seam, no hole)
+        whole = self.comp.solid and len(self.face_ids) == len(self.comp.faces)
         for code in range(3):
             m = feat == 3 + code
             e = eof[m, code]
             normal[m] = en[e]
-            border[m] = ~np.isin(self.comp.edge_faces[e], self.face_ids).all(1)
+            if not whole:
+                border[m] = ~np.isin(self.comp.edge_faces[e], self.face_ids).all(1)
         side = ((p - point) * normal).sum(1)
         return dist, side, face, border
 
@@ -365,6 +368,7 @@ def frame_depth(mesh: DepthMesh, v: np.ndarray,
     box = _component_boxes(mesh, v) if box is None else box
     cache: dict[int, tuple] = {}
     fbox: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    surfaces: dict[int, _Surface] = {}
 
     def normals(i: int) -> tuple:
         if i not in cache:
@@ -403,7 +407,9 @@ def frame_depth(mesh: DepthMesh, v: np.ndarray,
             c = comps[b]
             if not c.solid:
                 continue
-            surf = _Surface(v[c.vertices], c, np.arange(len(c.faces)), normals(b))
+            if b not in surfaces:  # one surface (and k-d tree) per component and frame
+                surfaces[b] = _Surface(v[c.vertices], c, np.arange(len(c.faces)), normals(b))
+            surf = surfaces[b]
             allowed = mesh.checked[mesh.vertex_group[a.vertices]][:, np.unique(c.face_group)]
             best = max(best, _flood(mesh, v, a, seeds, surf, trust_border=True,
                                     allowed=allowed.any(1)))
