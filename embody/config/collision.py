@@ -44,10 +44,11 @@ class CollisionConfig(Section):
     direction, which moves the joints with the longest lever arm rather than every masked joint
     alike), decays once every frame is clear (`lr_decay` 0.8, so the closeness pull settles
     instead of a few frames flickering in and out of contact until `steps` run out) and λ grows
-    more gently (1.2: less overshoot past the contact). On the four sequences around the median
-    that lowered Pose MSE 0.0214/0.0234/0.0240/0.0204 → 0.0193/0.0221/0.0233/0.0196 and
-    optimiser steps 456/500/451/231 → 216/271/396/201; lr 2e-3 or 5e-3, λ growth 1.5, a 1 mm
-    clearance or a 2–4 mm residual depth allowance did not do better.
+    more gently (1.2: less overshoot past the contact). The optimiser alone (no polish) went
+    from Pose MSE median 0.0224 to 0.0209 and 6011 to 5304 steps over the 24 sequences; with
+    the depth polish Table I's median is 0.0218 (issue 13's 0.0206 not reached). lr 2e-3 or
+    5e-3, λ growth 1.5, a 1 mm clearance or a 2–4 mm residual depth allowance did not do
+    better (docs/performance.md, 2026-11-26).
 
     With per-parameter Adam (the paper preset's), each parameter's step is normalised alone,
     so with a weak closeness term joints barely touched by a collision still drift by ~lr per
