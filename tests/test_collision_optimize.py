@@ -96,3 +96,37 @@ def test_mask_presets():
         mask_joints("joints", ["elbow"])
     with pytest.raises(ConfigError):
         mask_joints("joints", [])
+
+
+def test_frame_adam_steps_along_each_frames_gradient():
+    """The shared per-frame second moment keeps the gradient's direction within a frame (its
+    RMS step is lr), where torch's Adam takes a sign-like step of lr on every parameter."""
+    import torch
+
+    from embody.collision.optimize import _FrameAdam
+
+    g = torch.tensor([[[3.0, 0.0, 0.0], [0.0, 0.3, 0.0]], [[1e-3, 2e-3, 0.0], [0.0, 0.0, 0.0]]])
+    u = torch.zeros_like(g, requires_grad=True)
+    opt = _FrameAdam(u, lr=0.1)
+    u.grad = g.clone()
+    opt.step()
+    rms = g.pow(2).mean(dim=(1, 2), keepdim=True).sqrt()
+    torch.testing.assert_close(u.detach(), -0.1 * g / rms, rtol=1e-4, atol=1e-6)  # eps 1e-8
+    ref = torch.zeros_like(g, requires_grad=True)
+    adam = torch.optim.Adam([ref], lr=0.1)
+    ref.grad = g.clone()
+    adam.step()
+    assert ref[0, 1, 1].item() == pytest.approx(-0.1, rel=1e-4)  # torch: as far as the big one
+    assert u[0, 1, 1].item() == pytest.approx(0.1 * u[0, 0, 0].item(), rel=1e-5)  # ours: 1/10
+
+
+def test_paper_preset_keeps_torch_adam_at_a_constant_step():
+    from pathlib import Path
+
+    import yaml
+
+    root = Path(__file__).resolve().parents[1]
+    overlay = yaml.safe_load((root / "configs/collision/paper.yaml").read_text())["collision"]
+    cfg = CollisionConfig.model_validate({**CollisionConfig().model_dump(), **overlay})
+    assert cfg.adam_norm == "parameter" and cfg.lr_decay == 1.0 and cfg.lr == 0.01
+    assert CollisionConfig().adam_norm == "frame"

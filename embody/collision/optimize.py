@@ -2,7 +2,10 @@
 
 x_eff = x0 + w(t) M ⊙ u; minimise with Adam
     Σ_t λ_t L_col,t(x_eff) + λ_close ‖x_eff − x0‖² + λ_smooth ‖Δ²x_eff‖²
-(means over frames). Only the masked joints are parameters, so unmasked joints are x0 bit for
+(means over frames); Adam's second moment is shared per frame (`adam_norm`, `_FrameAdam`) so
+each frame's step follows its gradient's direction, and its step size decays once every frame
+is clear (`lr_decay`) so the closeness pull settles instead of flickering in and out of
+contact. Only the masked joints are parameters, so unmasked joints are x0 bit for
 bit; w(t) (`blend_weights`) is 1 on frames that penetrate and fades to 0 within `blend_s`, so
 frames far from any penetration are x0 bit for bit and the correction blends in smoothly.
 λ_t grows (λ continuation) while frame t still penetrates, so the collision term acts as a
@@ -231,6 +234,38 @@ def _exact(body: BodyModel, model: CollisionModel, pose: np.ndarray, betas: np.n
             torch.as_tensor(betas, dtype=torch.float32)), tolerance).double().numpy()
 
 
+class _FrameAdam:
+    """Adam whose second moment is shared by all parameters of a frame (their mean square).
+
+    Why: torch's Adam normalises each parameter alone, a sign-like step that moves every
+    masked joint by ~lr whatever its lever arm; shared per frame, the step keeps the
+    gradient's direction within the frame (the least-norm way out of a penetration, and Pose
+    MSE counts every joint's change alike) while its size stays invariant to the λ
+    continuation's scale. `param_groups` mirrors torch's so the step size can be scheduled."""
+
+    def __init__(self, u: torch.Tensor, lr: float, betas: tuple[float, float] = (0.9, 0.999),
+                 eps: float = 1e-8) -> None:
+        self.u, self.b1, self.b2, self.eps = u, betas[0], betas[1], eps
+        self.param_groups = [{"lr": lr}]
+        self.m = torch.zeros_like(u)
+        self.v = torch.zeros(u.shape[0], *([1] * (u.dim() - 1)), dtype=u.dtype)
+        self.n = 0
+
+    def zero_grad(self, set_to_none: bool = True) -> None:
+        self.u.grad = None
+
+    @torch.no_grad()
+    def step(self) -> None:
+        g = self.u.grad
+        self.n += 1
+        self.m.mul_(self.b1).add_(g, alpha=1 - self.b1)
+        self.v.mul_(self.b2).add_((g * g).mean(dim=tuple(range(1, g.dim())), keepdim=True),
+                                  alpha=1 - self.b2)
+        m_hat = self.m / (1 - self.b1 ** self.n)
+        v_hat = self.v / (1 - self.b2 ** self.n)
+        self.u.sub_(self.param_groups[0]["lr"] * m_hat / (v_hat.sqrt() + self.eps))
+
+
 def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.ndarray,
               weight: np.ndarray, cfg: CollisionConfig) -> tuple[np.ndarray, int]:
     """Adam over the masked joints of the frames near a penetration, with a per-frame λ_col
@@ -240,7 +275,8 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
     x_eff(t) = x0(t) + w(t) u(t) on the masked joints, w the blend weights: frames with w = 0
     are x0 bit for bit and the correction fades in and out smoothly. Runs until every frame is
     clear at `tolerance` (all points of the contact-stride model) and the closeness pull has
-    settled for `early_stop_stall` steps, or `steps` run out; returns the clear pose with the
+    settled for `early_stop_stall` steps (the step size decaying by `lr_decay` per refresh
+    from the first clear refresh on), or `steps` run out; returns the clear pose with the
     lowest objective (or, if none, the least penetrating one).
     """
     active = np.flatnonzero(weight > 0)
@@ -253,12 +289,13 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
     t = x0.shape[0]
     jidx = torch.as_tensor(idx)
     u = torch.zeros(t, len(idx), 3, requires_grad=True)
-    opt = torch.optim.Adam([u], lr=cfg.lr)
+    opt: _FrameAdam | torch.optim.Adam = (_FrameAdam(u, cfg.lr) if cfg.adam_norm == "frame"
+                                          else torch.optim.Adam([u], lr=cfg.lr))
     lam = torch.full((t,), float(cfg.lambda_col))
     caps = arm_capsules(body, motion.betas, cfg.allow_pairs) if cfg.capsule_weight > 0 else None
     best_key = (float("inf"), float("inf"))
     best = torch.zeros_like(x0)
-    clear_since, near, step = None, None, 0
+    clear_since, near, step, settling = None, None, 0, False
     for step in range(1, cfg.steps + 1):
         delta = torch.zeros_like(x0).index_copy(1, jidx, u) * w
         x = x0 + delta
@@ -282,11 +319,15 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
             if key < best_key:
                 best_key, best = key, delta.detach().clone()
             if e_sum == 0.0:
+                settling = True
                 clear_since = step if clear_since is None else clear_since
                 if cfg.early_stop and step - clear_since >= cfg.early_stop_stall:
                     break
             else:
                 clear_since = None
+            if settling:  # steps of ~lr exceed the clearance: shrink them so it settles
+                group = opt.param_groups[0]
+                group["lr"] = max(cfg.lr * cfg.lr_floor, group["lr"] * cfg.lr_decay)
         opt.zero_grad(set_to_none=True)
         obj.backward()
         opt.step()

@@ -39,8 +39,20 @@ class CollisionConfig(Section):
     and runs as a constraint: per-frame λ continuation, no stop while a frame penetrates, and
     only the frames within `blend_s` of a penetration move (the table above predates that).
 
-    Adam normalises each parameter's step, so with a weak closeness term joints barely touched
-    by a collision still drift by ~lr per step; a strong pull returns them once the collision
+    Since 2026-11-26 (s4-colquality, `benchmarks/collision.py --n 24`) the Adam step shares its
+    second moment per frame (`adam_norm: frame`, lr 3e-3: the step follows the gradient's
+    direction, which moves the joints with the longest lever arm rather than every masked joint
+    alike), decays once every frame is clear (`lr_decay` 0.8, so the closeness pull settles
+    instead of a few frames flickering in and out of contact until `steps` run out) and λ grows
+    more gently (1.2: less overshoot past the contact). The optimiser alone (no polish) went
+    from Pose MSE median 0.0224 to 0.0209 and 6011 to 5304 steps over the 24 sequences; with
+    the depth polish Table I's median is 0.0218 (issue 13's 0.0206 not reached). lr 2e-3 or
+    5e-3, λ growth 1.5, a 1 mm clearance or a 2–4 mm residual depth allowance did not do
+    better (docs/performance.md, 2026-11-26).
+
+    With per-parameter Adam (the paper preset's), each parameter's step is normalised alone,
+    so with a weak closeness term joints barely touched by a collision still drift by ~lr per
+    step; a strong pull returns them once the collision
     is resolved (the best zero-energy pose is kept), and the clearance keeps that pull from
     settling at residual depth. The pull-back needs ~20 steps after the last energy gain, so
     the stall window is 20 (40 gives the same result 1.7x slower). λ_close = 30 halves the
@@ -65,8 +77,17 @@ class CollisionConfig(Section):
     solver_refresh_every: int = Field(2, ge=1, le=1000)
     #: Stop (once every frame is clear) when an LM step lowers the objective by less than this.
     solver_rtol: float = Field(1e-3, ge=0, le=1)
-    lr: float = Field(1e-2, gt=0, le=1.0)
+    #: Adam's second moment per `parameter` (torch's Adam, the paper's) or shared per `frame`
+    #: (the step keeps the gradient's direction within a frame; `optimize._FrameAdam`).
+    adam_norm: Literal["parameter", "frame"] = "frame"
+    lr: float = Field(3e-3, gt=0, le=1.0)
     steps: int = Field(500, ge=0, le=100_000)
+    #: Once a refresh first finds every frame clear, the step size shrinks by `lr_decay` at
+    #: each refresh down to `lr_floor`·lr: Adam's ~lr steps (≈5 mm at the hand) exceed the
+    #: clearance, so at a constant lr a few frames flicker in and out of contact for hundreds
+    #: of steps while the closeness term drifts up.
+    lr_decay: float = Field(0.8, gt=0, le=1)
+    lr_floor: float = Field(0.05, gt=0, le=1)
     lambda_col: float = Field(50.0, ge=0)
     lambda_close: float = Field(10.0, ge=0)
     lambda_smooth: float = Field(0.1, ge=0)
@@ -81,7 +102,7 @@ class CollisionConfig(Section):
     blend_s: float = Field(0.5, ge=0, le=10)
     #: λ continuation: a frame's λ_col is multiplied by this at each broad-phase refresh while
     #: it still penetrates, up to `lambda_max`.
-    lambda_growth: float = Field(1.5, ge=1, le=100)
+    lambda_growth: float = Field(1.2, ge=1, le=100)
     lambda_max: float = Field(1e5, gt=0)
     #: Weight of the limb core-capsule term (`embody.collision.capsules`) that separates arms
     #: passed through each other (the point energy alone cancels there); 0 turns it off.
