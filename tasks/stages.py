@@ -322,9 +322,10 @@ RENDER_REFINED = Step("render", "3", ("body", "robot", "render"), _render, _rend
                       files=_robot_files)
 # v5: the exported control-rate array (validated), sign fidelity on that array, the report's wrist tracks.
 # v6: location agreement with ties (and the exact figure), contact events; IK-only baseline reuse.
-METRICS = Step("metrics", "6", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+# v7: robot contacts: MuJoCo's false 0.0 distances of separated meshes recomputed (convex_distance).
+METRICS = Step("metrics", "7", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "6", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "7", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 

@@ -5,7 +5,8 @@ Human contacts are closest distances between the skinned mesh's vertex sets (han
 by dominant skinning joint; a KD-tree per frame). Robot contacts are MuJoCo's own
 `mj_geomDistance` between collision geoms: the hand's geoms (the wrist landmark body's subtree,
 near the palm), the face's (the geoms closest to the face landmarks) and the chest's (closest to
-sternum and belly). A negative distance is a penetration.
+sternum and belly), with its false 0.0 readings of separated meshes (MuJoCo #3383) recomputed
+(`embody.metrics.convex_distance`). A negative distance is a penetration.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from scipy.spatial import cKDTree
 
 from embody.body.base import BodyModel
 from embody.body.landmarks import LANDMARKS, body_landmarks
+from embody.metrics.convex_distance import geom_distance
 from embody.metrics.fidelity import CONTACTS, SIDES, Track
 from embody.motion import Motion
 from embody.robot import Robot
@@ -174,7 +176,8 @@ class RobotContactGeoms:
 
 
 def robot_contacts(robot: Robot, q: np.ndarray, distmax: float = 0.1) -> np.ndarray:
-    """MuJoCo's closest signed distances (T, len(CONTACTS)) per channel (m; < 0 penetrates)."""
+    """MuJoCo's closest signed distances (T, len(CONTACTS)) per channel (m; < 0 penetrates),
+    checked by `geom_distance` where MuJoCo claims a touch."""
     geoms = RobotContactGeoms(robot)
     m = robot.model
     d = mujoco.MjData(m)
@@ -188,7 +191,7 @@ def robot_contacts(robot: Robot, q: np.ndarray, distmax: float = 0.1) -> np.ndar
             best = distmax
             for ga in geoms.sets[a]:
                 for gb in geoms.sets[b]:
-                    best = min(best, mujoco.mj_geomDistance(m, d, ga, gb, distmax, fromto))
+                    best = min(best, geom_distance(m, d, ga, gb, distmax, fromto))
             out[t, c] = best
     return out
 
