@@ -62,8 +62,9 @@ class Targets:
     `ik.touch_release`: at a touch the touching point, not the human's wrist position, decides);
     wrist_rot_weight (T,2): factor on the wrist orientation term (`ik.w_wrist_rot_touch` /
     `ik.w_wrist_rot` at a touch: the anchored points must not twist the palm);
-    hand_gap (T,): the least hand-hand clearance (m) the robot must keep, 0 where the human's
-    hands touch or with location preservation off (`embody.retarget.hand_clearance`)."""
+    hand_gap (T,3): the least clearance (m) the robot must keep between its hands, and between
+    each hand and its chest (`hand_clearance.CHANNELS`), 0 where the human's touch or with
+    location preservation off (`embody.retarget.hand_clearance`)."""
 
     wrist_pos: np.ndarray
     wrist_rot: np.ndarray
@@ -93,7 +94,7 @@ class Targets:
         if self.wrist_rot_weight is None:
             self.wrist_rot_weight = np.ones((t, 2))
         if self.hand_gap is None:
-            self.hand_gap = np.zeros(t)
+            self.hand_gap = np.zeros((t, 3))
 
     @property
     def num_frames(self) -> int:
@@ -259,14 +260,16 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
 
 
 def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> np.ndarray:
-    """The robot's least hand-hand clearance per frame (T,) (`embody.retarget.hand_clearance`):
-    the human's mesh gap between the hands times the hand-size ratio, capped at `hand_gap_max`,
-    where the human's hands are apart (gap > `hand_contact_eps`); 0 where they touch."""
+    """The robot's least clearance per frame (T,3) between its hands and between each hand and
+    its chest (`embody.retarget.hand_clearance.CHANNELS`): the human's mesh gap times the
+    hand-size ratio, capped at `hand_gap_max`, where the human's are apart (gap >
+    `hand_contact_eps`); 0 where they touch."""
     t = motion.num_frames
     if cfg.w_hand_clearance <= 0 or not all(f"{s}_wrist" in robot.spec.landmarks for s in ("left", "right")):
-        return np.zeros(t)
+        return np.zeros((t, 3))
     from embody.metrics.embodiments import human_contacts  # the fidelity measure's own human gap
-    from embody.retarget.hand_clearance import hand_ratio
+    from embody.metrics.fidelity import CONTACTS
+    from embody.retarget.hand_clearance import CHANNELS, hand_ratio
 
     pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
     pose[:, 0] = 0.0
@@ -276,7 +279,7 @@ def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> n
         tr = body.joint_transforms(pose, torch.as_tensor(betas)).numpy()
         rest = body.joint_transforms(torch.zeros(1, pose.shape[1], 3, dtype=torch.float64),
                                      torch.as_tensor(betas)).numpy()
-    gap = human_contacts(body, tr, betas)[:, 0]  # CONTACTS[0]: the hands
+    gap = human_contacts(body, tr, betas)[:, [CONTACTS.index(c) for c in CHANNELS]]
     h_rest, _ = hl.positions(rest)
     r_rest, _, r_names = robot.landmark_points(robot.tpose[None])
     rho = hand_ratio(h_rest[0], hl.names, r_rest[0], r_names, robot.body_scale / hl.scale)
