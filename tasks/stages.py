@@ -306,7 +306,8 @@ SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=
 COLLIDE = Step("collide", "4", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
-RETARGET = Step("retarget", "2", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v3: hand-hand and hand-chest clearance at hand scale (targets.hand_gap, retarget/hand_clearance.py).
+RETARGET = Step("retarget", "3", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
