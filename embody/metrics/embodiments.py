@@ -74,9 +74,10 @@ class _SubsetSkin:
         return np.einsum("tvab,vb->tva", blended[..., :3], self.rest) + blended[..., 3]
 
 
-def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray) -> np.ndarray:
-    """Closest mesh distances (T, len(CONTACTS)) between hands, face and chest (m), from the
-    body's joint transforms (T,J,4,4)."""
+def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray,
+                   channels: tuple[str, ...] = CONTACTS) -> np.ndarray:
+    """Closest mesh distances (T, len(channels)) between hands, face and chest (m), from the
+    body's joint transforms (T,J,4,4); `channels` a subset of CONTACTS, in that order."""
     sets = _vertex_sets(body)
     order = list(sets)
     allv = np.concatenate([sets[k] for k in order])
@@ -86,12 +87,12 @@ def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray) -
     pairs = {"hands": ("left_hand", "right_hand"), "left_face": ("left_hand", "face"),
              "right_face": ("right_hand", "face"), "left_chest": ("left_hand", "chest"),
              "right_chest": ("right_hand", "chest")}
-    out = np.zeros((len(transforms), len(CONTACTS)))
+    out = np.zeros((len(transforms), len(channels)))
     for start in range(0, len(transforms), _CHUNK):
         verts = skin(np.asarray(transforms[start:start + _CHUNK], dtype=np.float64))
         for t, v in enumerate(verts):
             trees = {}
-            for c, name in enumerate(CONTACTS):
+            for c, name in enumerate(channels):
                 a, b = pairs[name]
                 if len(v[part[a]]) == 0 or len(v[part[b]]) == 0:
                     out[start + t, c] = np.nan

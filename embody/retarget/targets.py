@@ -268,7 +268,6 @@ def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> n
     if cfg.w_hand_clearance <= 0 or not all(f"{s}_wrist" in robot.spec.landmarks for s in ("left", "right")):
         return np.zeros((t, 3))
     from embody.metrics.embodiments import human_contacts  # the fidelity measure's own human gap
-    from embody.metrics.fidelity import CONTACTS
     from embody.retarget.hand_clearance import CHANNELS, hand_ratio
 
     pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
@@ -279,7 +278,7 @@ def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> n
         tr = body.joint_transforms(pose, torch.as_tensor(betas)).numpy()
         rest = body.joint_transforms(torch.zeros(1, pose.shape[1], 3, dtype=torch.float64),
                                      torch.as_tensor(betas)).numpy()
-    gap = human_contacts(body, tr, betas)[:, [CONTACTS.index(c) for c in CHANNELS]]
+    gap = human_contacts(body, tr, betas, CHANNELS)
     h_rest, _ = hl.positions(rest)
     r_rest, _, r_names = robot.landmark_points(robot.tpose[None])
     rho = hand_ratio(h_rest[0], hl.names, r_rest[0], r_names, robot.body_scale / hl.scale)
