@@ -115,35 +115,26 @@ class HandClearanceTerm:
                 row += len(hulls)
                 continue
             x, pcol = self._points(pose, frames, pts)
-            reach = self.gap[frames, c][:, None] + px.radii[pts][None]  # (F,P)
+            f_idx = np.arange(len(frames))
             for h in hulls:
                 hcol = pose.index[px.bodies[px.hull_body[h]]]
                 r_h, p_h = pose.rot[frames, hcol], pose.pos[frames, hcol]
                 xl = np.einsum("fba,fpb->fpa", r_h, x - p_h[:, None])  # hull-body frame
-                # narrow phase only for points within reach of the hull's box (the box holds the
-                # polytope's vertices, so a point further out is further from the polytope)
-                box = px.hull_box[h]
-                out = np.linalg.norm(np.maximum(np.maximum(box[0] - xl, xl - box[1]), 0.0), axis=-1)
-                fi, pi = np.nonzero(out < reach)
-                if len(fi):
-                    planes = px.hull_planes[h]
-                    sd = xl[fi, pi] @ planes[:, :3].T + planes[:, 3]  # (N,planes)
-                    face = sd.argmax(-1)
-                    value = sd[np.arange(len(fi)), face] - px.radii[pts][pi]
-                    order = np.lexsort((value, fi))  # per frame, smallest clearance first
-                    first = order[np.r_[True, fi[order][1:] != fi[order][:-1]]]
-                    sel_f, k = fi[first], pi[first]
-                    short = np.maximum(self.gap[frames[sel_f], c] - value[first], 0.0)
-                    r[frames[sel_f], row] = sw * short
-                    a = np.flatnonzero(short > 0)
-                    if len(a):
-                        fa = sel_f[a]
-                        act_f.append(frames[fa])
-                        act_row.append(np.full(len(a), row))
-                        act_x.append(x[fa, k[a]])
-                        act_n.append(np.einsum("fab,fb->fa", r_h[fa], planes[face[first[a]], :3]))
-                        act_pb.append(pcol[k[a]])
-                        act_hb.append(np.full(len(a), hcol))
+                planes = px.hull_planes[h]
+                sd = xl @ planes[:, :3].T + planes[:, 3]  # (F,P,planes)
+                face = sd.argmax(-1)
+                value = np.take_along_axis(sd, face[..., None], -1)[..., 0] - px.radii[pts][None]
+                k = value.argmin(1)
+                short = np.maximum(self.gap[frames, c] - value[f_idx, k], 0.0)
+                r[frames, row] = sw * short
+                a = np.flatnonzero(short > 0)
+                if len(a):
+                    act_f.append(frames[a])
+                    act_row.append(np.full(len(a), row))
+                    act_x.append(x[a, k[a]])
+                    act_n.append(np.einsum("fab,fb->fa", r_h[a], planes[face[a, k[a]], :3]))
+                    act_pb.append(pcol[k[a]])
+                    act_hb.append(np.full(len(a), hcol))
                 row += 1
         cat = lambda v, shape: np.concatenate(v) if v else np.zeros(shape)  # noqa: E731
         f, rows_, x, n = cat(act_f, 0).astype(np.int64), cat(act_row, 0).astype(np.int64), cat(act_x, (0, 3)), cat(act_n, (0, 3))
