@@ -308,7 +308,8 @@ SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=
 COLLIDE = Step("collide", "5", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
-RETARGET = Step("retarget", "2", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v3: hand-hand and hand-chest clearance at hand scale (targets.hand_gap, retarget/hand_clearance.py).
+RETARGET = Step("retarget", "3", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -324,9 +325,10 @@ RENDER_REFINED = Step("render", "3", ("body", "robot", "render"), _render, _rend
                       files=_robot_files)
 # v5: the exported control-rate array (validated), sign fidelity on that array, the report's wrist tracks.
 # v6: location agreement with ties (and the exact figure), contact events; IK-only baseline reuse.
-METRICS = Step("metrics", "6", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+# v7: robot contacts: MuJoCo's false 0.0 distances of separated meshes recomputed (convex_distance).
+METRICS = Step("metrics", "7", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "6", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "7", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 

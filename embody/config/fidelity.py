@@ -13,11 +13,13 @@ class FidelityConfig(Section):
     location_radius: float = Field(0.5, gt=0.0, le=5.0)
     #: Surfaces closer than this (m) are in contact (hand-hand, hand-face, hand-chest).
     contact_eps: float = Field(0.015, gt=0.0, le=0.2)
-    #: The robot touches when its geoms are this close (m). The same ε as the human's: the IK
-    #: keeps its collision margin between proxies that are larger than MuJoCo's hulls, so robot
-    #: touches measure 1.0-1.4 cm; a wider ε (it was 0.03) counted a hand hovering 2-3 cm off
-    #: the body, where the human's is 2-5 cm off, as a contact (precision 0.21 → 0.26 at 0.015).
-    robot_contact_eps: float = Field(0.015, gt=0.0, le=0.2)
+    #: The robot touches when its geoms are this close (m). None (default): the human's ε at
+    #: hand scale, ε × robot/human hand length (wrist → middle tip; G1 Dex3 1.42 → 2.1 cm;
+    #: `embody.metrics.fidelity.robot_contact_eps`). A contact is a gap small against the hands
+    #: making it; the IK keeps the robot's non-touching hand gaps at the same hand scale
+    #: (`ik.w_hand_clearance`), so a human gap just over ε maps to a robot gap just over this.
+    #: Its touches stop at the collision margin (MuJoCo: 1.3-1.7 cm), which a fixed 1.5 cm split.
+    robot_contact_eps: float | None = Field(None, gt=0.0, le=0.2)
     #: Location agreement accepts ties: the robot's nearest landmark agrees when a palm is
     #: within this many body scales as near to it as to the human's (face landmarks lie
     #: 1.5-4 cm apart; the human's own 1st and 2nd nearest differ by a median 1.4 cm at the face).

@@ -87,6 +87,15 @@ class IKConfig(Section):
     #: Wrist orientation weight where a hand point touches (instead of `w_wrist_rot`): the
     #: anchored points would otherwise twist the palm (palm orientation is part of the sign).
     w_wrist_rot_touch: float = Field(0.5, ge=0)
+    #: Hinge keeping the robot's hands apart where the human's are apart, at hand scale
+    #: (embody/retarget/hand_clearance.py): G1's Dex3 hands are 1.4 human hands long on an arm
+    #: span 0.76 of the human's, so without it hands passing near each other touch. 0: off.
+    w_hand_clearance: float = Field(20.0, ge=0)
+    #: The human's hands touch within this gap (m; the fidelity measure's `contact_eps`): no
+    #: clearance is asked for there, the collision margin makes the touch.
+    hand_contact_eps: float = Field(0.015, gt=0.0, le=0.1)
+    #: The most hand-hand clearance (m) asked for: enough to read as "apart".
+    hand_gap_max: float = Field(0.05, gt=0.0, le=0.5)
     # --- solver (Levenberg-Marquardt over the banded whole-sequence system) ---
     #: FK backend of the solver's residuals and geometric Jacobians: the pytorch-kinematics chain
     #: (cut down to the bodies the costs use, all frames in one batched call per iteration) or the

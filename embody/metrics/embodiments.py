@@ -5,7 +5,8 @@ Human contacts are closest distances between the skinned mesh's vertex sets (han
 by dominant skinning joint; a KD-tree per frame). Robot contacts are MuJoCo's own
 `mj_geomDistance` between collision geoms: the hand's geoms (the wrist landmark body's subtree,
 near the palm), the face's (the geoms closest to the face landmarks) and the chest's (closest to
-sternum and belly). A negative distance is a penetration.
+sternum and belly), with its false 0.0 readings of separated meshes (MuJoCo #3383) recomputed
+(`embody.metrics.convex_distance`). A negative distance is a penetration.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from scipy.spatial import cKDTree
 
 from embody.body.base import BodyModel
 from embody.body.landmarks import LANDMARKS, body_landmarks
+from embody.metrics.convex_distance import geom_distance
 from embody.metrics.fidelity import CONTACTS, SIDES, Track
 from embody.motion import Motion
 from embody.robot import Robot
@@ -72,9 +74,10 @@ class _SubsetSkin:
         return np.einsum("tvab,vb->tva", blended[..., :3], self.rest) + blended[..., 3]
 
 
-def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray) -> np.ndarray:
-    """Closest mesh distances (T, len(CONTACTS)) between hands, face and chest (m), from the
-    body's joint transforms (T,J,4,4)."""
+def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray,
+                   channels: tuple[str, ...] = CONTACTS) -> np.ndarray:
+    """Closest mesh distances (T, len(channels)) between hands, face and chest (m), from the
+    body's joint transforms (T,J,4,4); `channels` a subset of CONTACTS, in that order."""
     sets = _vertex_sets(body)
     order = list(sets)
     allv = np.concatenate([sets[k] for k in order])
@@ -84,12 +87,12 @@ def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray) -
     pairs = {"hands": ("left_hand", "right_hand"), "left_face": ("left_hand", "face"),
              "right_face": ("right_hand", "face"), "left_chest": ("left_hand", "chest"),
              "right_chest": ("right_hand", "chest")}
-    out = np.zeros((len(transforms), len(CONTACTS)))
+    out = np.zeros((len(transforms), len(channels)))
     for start in range(0, len(transforms), _CHUNK):
         verts = skin(np.asarray(transforms[start:start + _CHUNK], dtype=np.float64))
         for t, v in enumerate(verts):
             trees = {}
-            for c, name in enumerate(CONTACTS):
+            for c, name in enumerate(channels):
                 a, b = pairs[name]
                 if len(v[part[a]]) == 0 or len(v[part[b]]) == 0:
                     out[start + t, c] = np.nan
@@ -174,7 +177,8 @@ class RobotContactGeoms:
 
 
 def robot_contacts(robot: Robot, q: np.ndarray, distmax: float = 0.1) -> np.ndarray:
-    """MuJoCo's closest signed distances (T, len(CONTACTS)) per channel (m; < 0 penetrates)."""
+    """MuJoCo's closest signed distances (T, len(CONTACTS)) per channel (m; < 0 penetrates),
+    checked by `geom_distance` where MuJoCo claims a touch."""
     geoms = RobotContactGeoms(robot)
     m = robot.model
     d = mujoco.MjData(m)
@@ -188,7 +192,7 @@ def robot_contacts(robot: Robot, q: np.ndarray, distmax: float = 0.1) -> np.ndar
             best = distmax
             for ga in geoms.sets[a]:
                 for gb in geoms.sets[b]:
-                    best = min(best, mujoco.mj_geomDistance(m, d, ga, gb, distmax, fromto))
+                    best = min(best, geom_distance(m, d, ga, gb, distmax, fromto))
             out[t, c] = best
     return out
 

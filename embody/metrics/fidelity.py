@@ -20,7 +20,9 @@ orientation, body scale, contact distances) and compared here, in NumPy only:
 - *Contact*: per frame and channel (hand-hand, each hand to face, to chest), the human is in
   contact when its surfaces come within `contact_eps`; the robot when its geoms do without
   penetrating deeper than `penetration_tol`, within `robot_eps` (MuJoCo's distances between
-  the exact hulls; the IK's proxy margin leaves robot touches at 1.0-1.4 cm, within the same ε).
+  the exact hulls, `embodiments.robot_contacts`), by default the human's ε at hand scale
+  (`robot_contact_eps`: a Dex3 hand is 1.42 human hands long; the IK's proxy margin leaves robot
+  touches at 1.3-1.7 cm, and keeps non-touching gaps at hand scale).
   Precision, recall and F1 over frames, and over events (runs of contact frames in a channel,
   matched when a human and a robot run overlap: `contact_events`).
 """
@@ -203,6 +205,33 @@ def movement(human: Track, robot: Track) -> dict[str, float]:
             "speed_corr": float(np.mean(corr)) if corr else float("nan")}
 
 
+def hand_length(points: np.ndarray, names) -> float | None:
+    """Mean wrist → middle fingertip distance of both hands at rest (points (K,3) named `names`),
+    None on a hand without a middle finger."""
+    names = list(names)
+    out = []
+    for s in SIDES:
+        if f"{s}_wrist" not in names or f"{s}_middle_tip" not in names:
+            return None
+        out.append(np.linalg.norm(points[names.index(f"{s}_middle_tip")] - points[names.index(f"{s}_wrist")]))
+    return float(np.mean(out))
+
+
+def hand_ratio(human_rest: np.ndarray, human_names, robot_rest: np.ndarray, robot_names,
+               fallback: float) -> float:
+    """Robot hand length over the human's (`fallback`, e.g. the body-scale ratio, without fingers)."""
+    h, r = hand_length(human_rest, human_names), hand_length(robot_rest, robot_names)
+    return r / h if h and r else fallback
+
+
+def robot_contact_eps(human: Track, robot: Track, eps: float) -> float:
+    """The robot's contact ε: the human's at hand scale (ε × robot/human hand length; G1 Dex3:
+    1.42 → 2.1 cm). A contact is a gap small against the hands that make it, as locations are
+    offsets per body scale; the IK keeps non-touching gaps at the same hand scale
+    (`embody.retarget.hand_clearance`), so both sides of the threshold are mapped alike."""
+    return eps * hand_ratio(human.rest, human.names, robot.rest, robot.names, robot.scale / human.scale)
+
+
 def contacts(human: Track, robot: Track, eps: float, penetration: float,
              robot_eps: float | None = None) -> dict[str, np.ndarray]:
     """Frame events (T,C) of human and robot contact, robot penetrations, and P/R/F1 counts."""
@@ -211,7 +240,7 @@ def contacts(human: Track, robot: Track, eps: float, penetration: float,
     measured = np.isfinite(hc) & np.isfinite(rc)
     h = measured & (hc < eps)
     pen = measured & (rc < -penetration)
-    r = measured & (rc < (eps if robot_eps is None else robot_eps)) & ~pen
+    r = measured & (rc < (robot_contact_eps(human, robot, eps) if robot_eps is None else robot_eps)) & ~pen
     return {"human": h, "robot": r, "penetration": pen, "tp": h & r}
 
 
@@ -287,6 +316,7 @@ def compare(human: Track, robot: Track, *, radius: float = 0.5, eps: float = 0.0
         "contact_event_precision": ep, "contact_event_recall": er, "contact_event_f1": ef,
         **{f"contact_events_{k}": float(v) for k, v in ev.items()},
         "penetration_frames": float(con["penetration"].any(1).sum()),
+        "contact_eps_robot": float(robot_contact_eps(human, robot, eps) if robot_eps is None else robot_eps),
     }
     frames = {"location_err": loc["err"], "location_landmark": loc["landmark"],
               "location_distance": loc["distance"], "location_agree": loc["agree"],

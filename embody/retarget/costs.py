@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from embody.config.ik import IKConfig
+from embody.retarget.hand_clearance import hand_clearance_term
 from embody.retarget.hand_points import hand_point_term
 from embody.retarget.targets import Targets
 from embody.robot import Robot
@@ -65,9 +66,11 @@ def point_jacobian(z: np.ndarray, o: np.ndarray, p: np.ndarray, moves: np.ndarra
 
 def extra_terms(robot: Robot, targets: Targets, cfg: IKConfig) -> list[ResidualTerm]:
     """Residual terms every solve adds to the built-in ones (the hook for new IK tasks): the
-    anchored hand points of location-preserving targets (`hand_points.py`)."""
-    points = hand_point_term(robot, targets, cfg.w_hand_points)
-    return [points] if points is not None else []
+    anchored hand points of location-preserving targets (`hand_points.py`) and their hand-hand
+    clearance (`hand_clearance.py`)."""
+    terms = [hand_point_term(robot, targets, cfg.w_hand_points),
+             hand_clearance_term(robot, targets, cfg.w_hand_clearance)]
+    return [t for t in terms if t is not None]
 
 
 def rotation_log(r: np.ndarray) -> np.ndarray:

@@ -18,8 +18,8 @@ Touch vs collision margin: the anchored target of a touching point lies at least
 `ik.collision_margin` from its landmark (along the human's offset direction), which is the
 clearance the self-collision term enforces between the proxies. The two terms then agree on where
 the touch ends instead of pulling against each other: the robot touches at the margin and never
-penetrates (MuJoCo measures such a touch at 1.0-1.4 cm between its hulls, within
-`fidelity.robot_contact_eps`).
+penetrates (MuJoCo measures such a touch at 1.3-1.7 cm between its hulls, within
+`fidelity.robot_contact_eps`, the human's ε at hand scale).
 """
 
 from __future__ import annotations

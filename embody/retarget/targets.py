@@ -25,9 +25,11 @@ the nearest landmark changes. The blend weight rises from 0 (`anchor_far` body s
 Contact vs collision margin: an anchored touch aims the touching point at the robot's surface
 (offset ≈ 0), while the self-collision term keeps `collision_margin` between proxies. We keep the
 margin (no penetration, ever) and let it decide the last centimetre: the robot touches at the
-margin (MuJoCo measures it at 1.0-1.4 cm between its hulls: the proxies are larger), and the
-fidelity measure counts a robot contact within `fidelity.robot_contact_eps` (the human's ε) when
-it does not penetrate.
+margin (MuJoCo measures it at 1.3-1.7 cm between its hulls: the proxies are larger), and the
+fidelity measure counts a robot contact within `fidelity.robot_contact_eps` (the human's ε at
+hand scale) when it does not penetrate. Hand-hand: where the human's hands are apart the robot's
+keep the human's gap at hand scale (`hand_gaps`, `embody.retarget.hand_clearance`), so hands
+that only pass near each other do not touch on the robot's bigger hands.
 """
 
 from __future__ import annotations
@@ -47,7 +49,7 @@ from embody.retarget.shape_fit import ShapeFit
 from embody.robot import Robot
 
 _ARRAYS = ("wrist_pos", "wrist_rot", "elbow_pos", "torso_rot", "head_rot", "hand_q", "point_pos", "point_weight",
-           "wrist_weight", "wrist_rot_weight")
+           "wrist_weight", "wrist_rot_weight", "hand_gap")
 
 
 @dataclass
@@ -59,7 +61,10 @@ class Targets:
     wrist_weight (T,2): share of the wrist pose terms kept (1 − the anchored point weight ×
     `ik.touch_release`: at a touch the touching point, not the human's wrist position, decides);
     wrist_rot_weight (T,2): factor on the wrist orientation term (`ik.w_wrist_rot_touch` /
-    `ik.w_wrist_rot` at a touch: the anchored points must not twist the palm)."""
+    `ik.w_wrist_rot` at a touch: the anchored points must not twist the palm);
+    hand_gap (T,3): the least clearance (m) the robot must keep between its hands, and between
+    each hand and its chest (`hand_clearance.CHANNELS`), 0 where the human's touch or with
+    location preservation off (`embody.retarget.hand_clearance`)."""
 
     wrist_pos: np.ndarray
     wrist_rot: np.ndarray
@@ -76,6 +81,7 @@ class Targets:
     point_names: list[str] = field(default_factory=list)
     wrist_weight: np.ndarray | None = None
     wrist_rot_weight: np.ndarray | None = None
+    hand_gap: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         t = len(self.wrist_pos)
@@ -87,6 +93,8 @@ class Targets:
             self.wrist_weight = np.ones((t, 2))
         if self.wrist_rot_weight is None:
             self.wrist_rot_weight = np.ones((t, 2))
+        if self.hand_gap is None:
+            self.hand_gap = np.zeros((t, 3))
 
     @property
     def num_frames(self) -> int:
@@ -251,6 +259,33 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
                     np.concatenate(p_touch, 1))
 
 
+def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> np.ndarray:
+    """The robot's least clearance per frame (T,3) between its hands and between each hand and
+    its chest (`embody.retarget.hand_clearance.CHANNELS`): the human's mesh gap times the
+    hand-size ratio, capped at `hand_gap_max`, where the human's are apart (gap >
+    `hand_contact_eps`); 0 where they touch."""
+    t = motion.num_frames
+    if cfg.w_hand_clearance <= 0 or not all(f"{s}_wrist" in robot.spec.landmarks for s in ("left", "right")):
+        return np.zeros((t, 3))
+    from embody.metrics.embodiments import human_contacts  # the fidelity measure's own human gap
+    from embody.retarget.hand_clearance import CHANNELS, hand_ratio
+
+    pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
+    pose[:, 0] = 0.0
+    betas = np.asarray(motion.betas, dtype=np.float64)
+    hl = body_landmarks(body, betas)
+    with torch.no_grad():
+        tr = body.joint_transforms(pose, torch.as_tensor(betas)).numpy()
+        rest = body.joint_transforms(torch.zeros(1, pose.shape[1], 3, dtype=torch.float64),
+                                     torch.as_tensor(betas)).numpy()
+    gap = human_contacts(body, tr, betas, CHANNELS)
+    h_rest, _ = hl.positions(rest)
+    r_rest, _, r_names = robot.landmark_points(robot.tpose[None])
+    rho = hand_ratio(h_rest[0], hl.names, r_rest[0], r_names, robot.body_scale / hl.scale)
+    gap = np.where(np.isfinite(gap), gap, 0.0)
+    return np.where(gap > cfg.hand_contact_eps, np.minimum(rho * gap, cfg.hand_gap_max), 0.0)
+
+
 def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
                   cfg: IKConfig | None = None) -> Targets:
     """Targets for every frame of `motion` (its hands must be absolute, as `Motion` guarantees).
@@ -289,7 +324,8 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
                 release[:, k] -= cfg.touch_release * touch
                 hold[:, k] += (boost - 1.0) * touch
         points = dict(point_pos=anchored.point_pos, point_weight=anchored.point_weight,
-                      point_names=anchored.point_names, wrist_weight=release, wrist_rot_weight=hold)
+                      point_names=anchored.point_names, wrist_weight=release, wrist_rot_weight=hold,
+                      hand_gap=hand_gaps(motion, body, robot, cfg))
     else:
         points = {}
     return Targets(

@@ -1,0 +1,75 @@
+"""Hand clearance at hand scale: the term's Jacobian, and a two-handed sign whose human hands part
+after touching keeps the robot's hands apart by the human's gap at hand scale (no false contact),
+while the touch itself stays a touch without penetration."""
+
+import numpy as np
+import pytest
+
+from embody.body import load_body_model
+from embody.config import Config
+from embody.metrics.embodiments import robot_contacts
+from embody.motion import Motion
+from embody.retarget import build_targets, solve
+from embody.retarget.costs import Pose
+from embody.retarget.hand_clearance import HandClearanceTerm
+from embody.retarget.shape_fit import fit as run_fit
+from embody.robot import load_robot
+from embody.synth.generator import generate_sequence
+
+
+@pytest.fixture(scope="module")
+def setup():
+    cfg = Config()
+    robot, body = load_robot(cfg.robot), load_body_model(cfg.body)
+    return cfg, robot, body, run_fit(robot, body, cfg.ik.model_copy(update={"shape_iterations": 150}))
+
+
+def test_jacobian_matches_finite_differences(setup):
+    _, robot, _, _ = setup
+    rng = np.random.default_rng(0)
+    q = np.tile(robot.tpose, (3, 1))
+    ik = np.flatnonzero(robot.ik_mask)
+    q[:, ik] += rng.normal(0.0, 0.3, (3, len(ik)))
+    q = np.clip(q, robot.lower, robot.upper)
+    term = HandClearanceTerm(robot, np.full((3, 3), 0.5), 4.0)  # 50 cm: every hull row active
+    fk = robot.fk(term.bodies)
+    mask = fk.moves(list(ik))
+
+    def rows(qq):
+        rot, pos = fk.forward(qq)
+        return term.rows(Pose(rot, pos, fk.index, mask), 1.0)
+
+    r, jac = rows(q)
+    rot, pos = fk.forward(q)
+    z, o = fk.joint_frames(rot, pos, list(ik))
+    j = jac(z, o)
+    assert r.shape == (3, term.width) and (r > 0).sum() >= 2
+    h = 1e-6
+    for col in rng.choice(len(ik), 6, replace=False):
+        dq = np.zeros_like(q)
+        dq[:, ik[col]] = h
+        fd = (rows(q + dq)[0] - rows(q - dq)[0]) / (2 * h)
+        np.testing.assert_allclose(j[:, :, col], fd, atol=2e-4)  # a closest point may switch
+
+
+def test_parting_hands_keep_their_gap_at_hand_scale(setup):
+    """FRIEND (default sequence 6): the human's hands touch, then part by 2.5-3.6 cm."""
+    cfg, robot, body, fit = setup
+    m = generate_sequence(0, 6)
+    sl = slice(45, 95)
+    motion = Motion(pose=np.asarray(m.pose)[sl], transl=np.zeros((50, 3)), betas=np.asarray(m.betas), fps=m.fps)
+    targets = build_targets(motion, body, fit, robot, cfg.ik)
+    gap = targets.hand_gap[:, 0]
+    q = solve(robot, targets, cfg.ik).q
+    off = solve(robot, targets, cfg.ik.model_copy(update={"w_hand_clearance": 0.0})).q
+    d, d_off = robot_contacts(robot, q)[:, 0], robot_contacts(robot, off)[:, 0]
+    eps_r = 0.015 * 1.42  # the robot's contact ε at hand scale (Dex3)
+    parted = gap > 0.03  # the human's hands 2.1+ cm apart
+    assert parted.sum() >= 5 and gap.max() <= cfg.ik.hand_gap_max + 1e-12
+    assert np.all(d[parted] > eps_r)  # no false contact where the human's hands are apart
+    assert np.mean(d[parted] >= gap[parted] - 0.01) > 0.8  # and about the asked gap
+    near = parted & (gap < cfg.ik.hand_gap_max)  # the human's hands 2.1-3.5 cm apart
+    assert near.sum() >= 5 and np.mean(d_off[near] < eps_r) > 0.5  # without the term most "touch"
+    assert np.all(d > -0.002)  # no penetration anywhere
+    touching = gap == 0.0
+    assert np.mean(d[touching] < eps_r) > 0.9  # and the touches stay touches
