@@ -115,6 +115,21 @@ class IKConfig(Section):
     coarse_stride: int = Field(2, ge=1, le=8)
     #: Iterations with every term on (the only phase when warm-started).
     iterations: int = Field(24, ge=1, le=10_000)
+    #: Polish phase after the full one (cold or warm): the proxies, which chose the basin, make
+    #: way for MuJoCo's exact contacts (`retarget.exact_contacts`) at `polish_margin`, so hands and
+    #: arms may come as close to each other and the body as the targets ask. 0: no polish.
+    polish_iterations: int = Field(8, ge=0, le=10_000)
+    #: Clearance (m) the polish phase keeps between MuJoCo's collision geoms (counted pairs only).
+    polish_margin: float = Field(0.002, ge=0, le=0.05)
+    #: The polish asks MuJoCo only about frames within this many frames of one where the proxies
+    #: see a pair inside `collision_margin` (the rest are far from any contact).
+    polish_pad: int = Field(2, ge=0, le=1000)
+    #: Factor on `w_smooth`/`w_jerk` in the polish phase: the basin is chosen, so tracking may
+    #: take back what the smoothness cost on frames the robot reaches cleanly.
+    polish_smooth: float = Field(1.0, ge=0, le=1)
+    #: Δ³q (jerk) weight added in the polish phase: frequency-aware smoothness that lets slow
+    #: signing motion track closely while holding the jerk down.
+    polish_jerk: float = Field(0.0, ge=0)
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.
     tolerance: float = Field(3e-3, ge=0, le=1)
     # --- output ---
