@@ -154,12 +154,9 @@ class Residuals:
         r_rot = r_link[:, self.rot_cols]
         e_rot = rotation_log(r_rot @ np.swapaxes(self.target_rot, -1, -2)) * self.w_rot[..., None]
         res = [e_pos.reshape(len(q), -1), e_rot.reshape(len(q), -1)]
-        col = None
-        if exact and self.exact is not None:
-            r_ex, j_ex = self.exact.rows(q)
-            col = (r_ex, lambda z, o: j_ex)
-        elif self.proxies is not None and collision:
-            col = self._collision(rot, pos, float(collision))
+        col = self._collision(rot, pos, float(collision)) if self.proxies is not None and collision else None
+        if exact and self.exact is not None and col is not None:
+            col = self._exact_rows(q, col)
         self.n_task_rows = sum(x.shape[1] for x in res)  # rows before the collision rows
         if col is not None:
             res.append(col[0])
@@ -169,6 +166,19 @@ class Residuals:
             extra = [out for out in (term.rows(pose, float(collision)) for term in self.terms) if out is not None]
             res += [r for r, _ in extra]
         return np.concatenate(res, 1), lambda: self._jacobian(q, rot, pos, p_link, r_rot, col, extra)
+
+    def _exact_rows(self, q: np.ndarray, col: tuple[np.ndarray, Callable]) -> tuple[np.ndarray, Callable]:
+        """The polish phase's collision rows: MuJoCo's contacts on the frames `exact.frames` picks,
+        the proxies' rows on the others."""
+        frames = self.exact.frames if self.exact.frames is not None else np.ones(len(q), dtype=bool)
+        r_ex, j_ex = self.exact.rows(q)
+        r_px = np.where(frames[:, None], 0.0, col[0])
+
+        def jacobian(z: np.ndarray, o: np.ndarray) -> np.ndarray:
+            j_px = np.where(frames[:, None, None], 0.0, col[1](z, o))
+            return np.concatenate([j_px, j_ex], 1)
+
+        return np.concatenate([r_px, r_ex], 1), jacobian
 
     def _jacobian(self, q: np.ndarray, rot: np.ndarray, pos: np.ndarray, p_link: np.ndarray,
                   r_rot: np.ndarray, col: tuple[np.ndarray, Callable] | None,

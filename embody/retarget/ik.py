@@ -6,7 +6,9 @@ robot's rest pose (stronger on the waist: the torso stays upright unless the arm
 hinge on joint speeds past the velocity limits, plus Δ²q (and optionally Δ³q, `w_jerk`) smoothness coupling the frames.
 
 A cold start continues from a faint to a partial to the full collision term, its first two
-phases on every second frame (coarse to fine, `IKConfig.coarse_stride`).
+phases on every second frame (coarse to fine, `IKConfig.coarse_stride`). An optional polish
+phase (`IKConfig.polish_iterations`) then swaps the proxies for MuJoCo's exact contacts where
+they press (`exact_contacts.py`), so the 15 mm proxy margin no longer costs wrist accuracy.
 
 Frames couple only through the smoothness and velocity terms, so the normal matrix is banded and
 one LAPACK call (`banded.block_banded_solve`) solves all frames jointly in O(T·n³). Steps
@@ -106,7 +108,6 @@ class _Problem:
         self.dtd[:3] += _difference_normal(t, 2) * cfg.w_smooth
         self.dtd += _difference_normal(t, 3) * cfg.w_jerk
         self.dtd_polish = self.dtd * cfg.polish_smooth  # the polish phase's (the basin is chosen)
-        self.dtd_polish += _difference_normal(t, 3) * cfg.polish_jerk
         #: per-step joint change allowed by the velocity limits, with a little headroom
         self.step_limit = robot.velocity_limits[self.ik] / targets.fps * (1.0 - cfg.velocity_headroom)
 
@@ -168,6 +169,19 @@ class _Problem:
         """Marquardt's scaling: the diagonal of the Gauss-Newton matrix (T,n)."""
         return np.diagonal(h[0], axis1=1, axis2=2) + self.w_post + h[1] + 1e-9
 
+    def _polish_frames(self, qi: np.ndarray) -> np.ndarray:
+        """Frames (T,) bool the polish hands to MuJoCo: within `polish_pad` frames of one where a
+        proxy pair is inside the proxies' margin and a wrist is over `polish_near` off its target."""
+        r, _ = self.residuals.lazy(self.q_full(qi), collision=1.0)
+        pressed = r[:, self.residuals.n_task_rows:].max(1, initial=0.0) > 0
+        wrist = np.linalg.norm(r[:, :6].reshape(len(r), 2, 3), axis=-1).max(1)
+        idx = np.flatnonzero(pressed & (wrist > self.cfg.polish_near))
+        pad = self.cfg.polish_pad
+        cover = np.zeros(len(qi) + 2 * pad + 1, dtype=np.int64)  # +1 from idx − pad, −1 after idx + pad
+        np.add.at(cover, idx, 1)
+        np.subtract.at(cover, idx + 2 * pad + 1, 1)
+        return np.cumsum(cover)[pad: pad + len(qi)] > 0
+
     def solve(self, qi0: np.ndarray, cold: bool, full: bool = True, lam: float = LAMBDA0) -> np.ndarray:
         """Levenberg-Marquardt (Nielsen's damping rule). From a cold start the collision term comes
         on in full after a tracking phase: with it on from the rest pose, hands block each other and
@@ -194,14 +208,8 @@ class _Problem:
         smooth = self.dtd
         for collision, budget, exact in phases:
             self.dtd = self.dtd_polish if exact else smooth
-            if exact:  # MuJoCo only where the proxies see a pair within their margin (± a few frames)
-                r, _ = self.residuals.lazy(self.q_full(qi), collision=1.0)
-                near = np.abs(r[:, self.residuals.n_task_rows:]).max(1, initial=0.0) > 0
-                pad = self.cfg.polish_pad
-                cover = np.zeros(len(near) + 2 * pad + 1, dtype=np.int64)
-                np.add.at(cover, np.flatnonzero(near), 1)
-                np.subtract.at(cover, np.flatnonzero(near) + 2 * pad + 1, 1)
-                self.residuals.exact.frames = np.cumsum(cover)[pad: pad + len(near)] > 0
+            if exact:
+                self.residuals.exact.frames = self._polish_frames(qi)
             cost, normal = self.evaluate(qi, collision, exact)
             h, g = normal()
             nu = 2.0
