@@ -26,8 +26,9 @@ and upper arms against each other, the torso shell, the head, pelvis and thighs)
 pairs MuJoCo's verdict counts (`counted_geom_pairs`). Its clean/feasible frames are its own; the
 `feasible` keys of ours and mink's stay on the plain mink's feasible frames.
 
-Usage: python benchmarks/ik_vs_mink.py [--sequences 4] [--seed 0] [--profile ik.pstats]
-(`--profile`: cProfile of our solves only, saved there, top entries printed before the RESULT line).
+Usage: python benchmarks/ik_vs_mink.py [--sequences 4] [--seed 0] [--profile ik.pstats] [--ik KEY=VALUE ...]
+(`--profile`: cProfile of our solves only, saved there, top entries printed before the RESULT line;
+`--ik`: override an `ik` config field of our solver, e.g. `--ik polish_iterations=0` for an A/B).
 """
 
 from __future__ import annotations
@@ -156,11 +157,13 @@ def main() -> None:
     parser.add_argument("--sequences", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--profile", default=None, help="save a cProfile of our solves here")
+    parser.add_argument("--ik", action="append", default=[], metavar="KEY=VALUE",
+                        help="override an ik config field of our solver (repeatable)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     config = Config()
     robot, body = load_robot(config.robot), load_body_model(config.body)
-    cfg = config.ik
+    cfg = IKConfig.model_validate({**config.ik.model_dump(), **dict(kv.split("=", 1) for kv in args.ik)})
     other = "tree" if cfg.kinematics == "pytorch_kinematics" else "pytorch_kinematics"
     cfg_other = cfg.model_copy(update={"kinematics": other})
     other_key = {"tree": "tree", "pytorch_kinematics": "pk"}[other]

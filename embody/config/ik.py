@@ -124,6 +124,23 @@ class IKConfig(Section):
     coarse_stride: int = Field(2, ge=1, le=8)
     #: Iterations with every term on (the only phase when warm-started).
     iterations: int = Field(24, ge=1, le=10_000)
+    #: Polish phase after the full one (cold or warm): where the proxies press, they make way for
+    #: MuJoCo's exact contacts (`retarget.exact_contacts`) at `polish_margin`, so hands and arms may
+    #: come as close to each other and the body as the targets ask. Off by default: on
+    #: benchmarks/ik_vs_mink.py 8 iterations take the all-frame wrist error from 3.94 to 3.12 mm
+    #: (feasible frames 1.33 → 1.22, jerk 1017 → 843, 0 contacts) for ~1.5× the CPU time, which
+    #: puts the solve behind mink's (docs/performance.md, 2026-11-26 s4-ikacc). 0: no polish.
+    polish_iterations: int = Field(0, ge=0, le=10_000)
+    #: Clearance (m) the polish phase keeps between MuJoCo's collision geoms (counted pairs only).
+    polish_margin: float = Field(0.002, ge=0, le=0.05)
+    #: The polish asks MuJoCo about the frames (± `polish_pad`) where a proxy pair is inside the
+    #: proxies' margin and a wrist is more than `polish_near` (m) off its target; the other frames
+    #: keep the proxies' rows (MuJoCo is the costly part; 0.003 halves its frames, same accuracy).
+    polish_near: float = Field(0.003, ge=0, le=0.1)
+    polish_pad: int = Field(2, ge=0, le=1000)
+    #: Factor on `w_smooth`/`w_jerk` in the polish phase (the basin is chosen): 0.3 takes the
+    #: polished feasible-frame error from 1.22 to 0.96 mm, but the jerk from 843 to 1162.
+    polish_smooth: float = Field(1.0, ge=0, le=1)
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.
     tolerance: float = Field(3e-3, ge=0, le=1)
     # --- output ---

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from embody.config.ik import IKConfig
+from embody.retarget.exact_contacts import ExactContacts
 from embody.retarget.hand_clearance import hand_clearance_term
 from embody.retarget.hand_points import hand_point_term
 from embody.retarget.targets import Targets
@@ -135,6 +136,8 @@ class Residuals:
         hold = np.sqrt(np.asarray(targets.wrist_rot_weight, dtype=np.float64))  # (T,2), > 1 at a touch
         self.w_rot = self.w_rot * np.concatenate([hold, np.ones((len(hold), len(self.rot_links)))], 1)
         self.w_col = float(s(cfg.w_collision))
+        self.exact = (ExactContacts(robot, cfg.polish_margin, cfg.w_collision)
+                      if self.proxies is not None and cfg.polish_iterations else None)
 
     def __call__(self, q: np.ndarray, jacobian: bool = False,
                  collision: float = 1.0) -> tuple[np.ndarray, np.ndarray | None]:
@@ -142,8 +145,11 @@ class Residuals:
         r, jac = self.lazy(q, collision)
         return r, (jac() if jacobian else None)
 
-    def lazy(self, q: np.ndarray, collision: float = 1.0) -> tuple[np.ndarray, Callable[[], np.ndarray]]:
-        """r(q) now, J(q) on demand: a rejected step never pays for its Jacobian."""
+    def lazy(self, q: np.ndarray, collision: float = 1.0,
+             exact: bool = False) -> tuple[np.ndarray, Callable[[], np.ndarray]]:
+        """r(q) now, J(q) on demand: a rejected step never pays for its Jacobian. `exact`: the
+        polish phase's collision rows, MuJoCo's own contacts (`exact_contacts.py`), replace the
+        proxies'."""
         rot, pos = self.fk.forward(q)
         r_link = rot[:, self.link_body]
         p_link = pos[:, self.link_body] + np.einsum("tlab,lb->tla", r_link, self.link_offset)
@@ -152,6 +158,9 @@ class Residuals:
         e_rot = rotation_log(r_rot @ np.swapaxes(self.target_rot, -1, -2)) * self.w_rot[..., None]
         res = [e_pos.reshape(len(q), -1), e_rot.reshape(len(q), -1)]
         col = self._collision(rot, pos, float(collision)) if self.proxies is not None and collision else None
+        if exact and self.exact is not None and col is not None:
+            col = self._exact_rows(q, col)
+        self.n_task_rows = sum(x.shape[1] for x in res)  # rows before the collision rows
         if col is not None:
             res.append(col[0])
         extra = []
@@ -160,6 +169,19 @@ class Residuals:
             extra = [out for out in (term.rows(pose, float(collision)) for term in self.terms) if out is not None]
             res += [r for r, _ in extra]
         return np.concatenate(res, 1), lambda: self._jacobian(q, rot, pos, p_link, r_rot, col, extra)
+
+    def _exact_rows(self, q: np.ndarray, col: tuple[np.ndarray, Callable]) -> tuple[np.ndarray, Callable]:
+        """The polish phase's collision rows: MuJoCo's contacts on the frames `exact.frames` picks,
+        the proxies' rows on the others."""
+        frames = self.exact.frames if self.exact.frames is not None else np.ones(len(q), dtype=bool)
+        r_ex, j_ex = self.exact.rows(q)
+        r_px = np.where(frames[:, None], 0.0, col[0])
+
+        def jacobian(z: np.ndarray, o: np.ndarray) -> np.ndarray:
+            j_px = np.where(frames[:, None, None], 0.0, col[1](z, o))
+            return np.concatenate([j_px, j_ex], 1)
+
+        return np.concatenate([r_px, r_ex], 1), jacobian
 
     def _jacobian(self, q: np.ndarray, rot: np.ndarray, pos: np.ndarray, p_link: np.ndarray,
                   r_rot: np.ndarray, col: tuple[np.ndarray, Callable] | None,

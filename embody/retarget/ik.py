@@ -6,7 +6,9 @@ robot's rest pose (stronger on the waist: the torso stays upright unless the arm
 hinge on joint speeds past the velocity limits, plus Δ²q (and optionally Δ³q, `w_jerk`) smoothness coupling the frames.
 
 A cold start continues from a faint to a partial to the full collision term, its first two
-phases on every second frame (coarse to fine, `IKConfig.coarse_stride`).
+phases on every second frame (coarse to fine, `IKConfig.coarse_stride`). An optional polish
+phase (`IKConfig.polish_iterations`) then swaps the proxies for MuJoCo's exact contacts where
+they press (`exact_contacts.py`), so the 15 mm proxy margin no longer costs wrist accuracy.
 
 Frames couple only through the smoothness and velocity terms, so the normal matrix is banded and
 one LAPACK call (`banded.block_banded_solve`) solves all frames jointly in O(T·n³). Steps
@@ -105,6 +107,7 @@ class _Problem:
         self.dtd = np.zeros((4, t))
         self.dtd[:3] += _difference_normal(t, 2) * cfg.w_smooth
         self.dtd += _difference_normal(t, 3) * cfg.w_jerk
+        self.dtd_polish = self.dtd * cfg.polish_smooth  # the polish phase's (the basin is chosen)
         #: per-step joint change allowed by the velocity limits, with a little headroom
         self.step_limit = robot.velocity_limits[self.ik] / targets.fps * (1.0 - cfg.velocity_headroom)
 
@@ -122,10 +125,12 @@ class _Problem:
                 g[k:] += self.dtd[k, : len(qi) - k, None] * qi[:-k]
         return g
 
-    def evaluate(self, qi: np.ndarray, collision: float) -> tuple[float, Callable[[], tuple]]:
+    def evaluate(self, qi: np.ndarray, collision: float,
+                 exact: bool = False) -> tuple[float, Callable[[], tuple]]:
         """Cost now; on demand, the Gauss-Newton blocks (per-frame JᵀJ (T,n,n), velocity-hinge
-        diagonal (T,n) and off-diagonal (T-1,n)) and the gradient (T,n), linear terms included."""
-        r, jac = self.residuals.lazy(self.q_full(qi), collision=collision)
+        diagonal (T,n) and off-diagonal (T-1,n)) and the gradient (T,n), linear terms included.
+        `exact`: MuJoCo's contacts instead of the proxies (the polish phase)."""
+        r, jac = self.residuals.lazy(self.q_full(qi), collision=collision, exact=exact)
         dq = qi - self.rest
         sg = self._smooth_grad(qi)
         d = np.diff(qi, axis=0)
@@ -156,13 +161,26 @@ class _Problem:
         diag = jtj + (self.w_post + vdiag + lam * self.damping(h) + self.dtd[0][:, None])[:, :, None] * eye
         offs = [self.dtd[1, : t - 1, None] + voff]
         offs += [np.repeat(self.dtd[k, : max(t - k, 0), None], n, 1) for k in (2, 3)]
-        if not self.cfg.w_jerk:
+        if not self.dtd[3].any():
             offs.pop()  # pentadiagonal: a narrower band
         return -block_banded_solve(diag, offs, g)
 
     def damping(self, h: tuple[np.ndarray, ...]) -> np.ndarray:
         """Marquardt's scaling: the diagonal of the Gauss-Newton matrix (T,n)."""
         return np.diagonal(h[0], axis1=1, axis2=2) + self.w_post + h[1] + 1e-9
+
+    def _polish_frames(self, qi: np.ndarray) -> np.ndarray:
+        """Frames (T,) bool the polish hands to MuJoCo: within `polish_pad` frames of one where a
+        proxy pair is inside the proxies' margin and a wrist is over `polish_near` off its target."""
+        r, _ = self.residuals.lazy(self.q_full(qi), collision=1.0)
+        pressed = r[:, self.residuals.n_task_rows:].max(1, initial=0.0) > 0
+        wrist = np.linalg.norm(r[:, :6].reshape(len(r), 2, 3), axis=-1).max(1)
+        idx = np.flatnonzero(pressed & (wrist > self.cfg.polish_near))
+        pad = self.cfg.polish_pad
+        cover = np.zeros(len(qi) + 2 * pad + 1, dtype=np.int64)  # +1 from idx − pad, −1 after idx + pad
+        np.add.at(cover, idx, 1)
+        np.subtract.at(cover, idx + 2 * pad + 1, 1)
+        return np.cumsum(cover)[pad: pad + len(qi)] > 0
 
     def solve(self, qi0: np.ndarray, cold: bool, full: bool = True, lam: float = LAMBDA0) -> np.ndarray:
         """Levenberg-Marquardt (Nielsen's damping rule). From a cold start the collision term comes
@@ -184,14 +202,21 @@ class _Problem:
                 phases.append((self.cfg.ramp_collision, self.cfg.ramp_iterations))
         if full or not phases:
             phases.append((float(use_col), self.cfg.iterations))
-        for collision, budget in phases:
-            cost, normal = self.evaluate(qi, collision)
+        phases = [(c, n, False) for c, n in phases]
+        if full and self.residuals.exact is not None:
+            phases.append((1.0, self.cfg.polish_iterations, True))
+        smooth = self.dtd
+        for collision, budget, exact in phases:
+            self.dtd = self.dtd_polish if exact else smooth
+            if exact:
+                self.residuals.exact.frames = self._polish_frames(qi)
+            cost, normal = self.evaluate(qi, collision, exact)
             h, g = normal()
             nu = 2.0
             for _ in range(budget):
                 step = self.step(h, g, lam)
                 cand = np.clip(qi + step, lower, upper)
-                c_new, normal = self.evaluate(cand, collision)
+                c_new, normal = self.evaluate(cand, collision, exact)
                 predicted = 0.5 * float((step * (lam * self.damping(h) * step - g)).sum())
                 if c_new < cost:
                     rho = (cost - c_new) / max(predicted, 1e-300)
@@ -207,6 +232,7 @@ class _Problem:
                     nu *= 2.0
                     if lam > 1e8:
                         break
+        self.dtd = smooth
         self.lam = lam  # where the damping ended: a finer solve of the same problem goes on from it
         return qi
 

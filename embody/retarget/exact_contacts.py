@@ -1,0 +1,121 @@
+"""Self-collision residuals from MuJoCo's exact geometry, for the IK's final polish phase.
+
+The sphere/hull proxies need a 15 mm margin because they are sampled points and outer
+polytopes: MuJoCo's meshes touch between the points at smaller margins. That margin is what
+costs wrist accuracy wherever the targets bring a hand near the other hand or the body (the
+all-frame error of benchmarks/ik_vs_mink.py sits there). Once the proxies have chosen the
+basin, this term asks MuJoCo itself (the verdict of `embody.robot.contacts`): per frame,
+`mj_collision` with a small geom margin on a copy of the model reports every counted pair
+closer than `margin`, with its signed distance d, normal n (geom1 → geom2) and point; the
+residual is √w·(margin − d) and its Jacobian −√w·nᵀ(J₂ − J₁) over the IK joints (the
+separation rate used by `control.separate`). One row per geom pair and frame (its deepest
+distance), packed per frame (the k-th pair of a frame in slot k), like the proxy rows.
+"""
+
+from __future__ import annotations
+
+import mujoco
+import numpy as np
+
+from embody.robot import Robot
+from embody.robot.contacts import counted_geom_pairs, subtree_ids
+
+_MODELS: dict[tuple[int, float], tuple[mujoco.MjModel, np.ndarray]] = {}
+
+
+def _collision_model(robot: Robot, margin: float) -> tuple[mujoco.MjModel, np.ndarray]:
+    """A copy of the robot's model that collides only geoms in a counted pair whose relative pose
+    the IK joints can change, each with `margin`; and the counted-pair table."""
+    key = (id(robot), margin)
+    if key not in _MODELS:
+        model = robot.model.__copy__()
+        counted = counted_geom_pairs(robot)
+        ik_dofs = {int(model.jnt_dofadr[model.joint(n).id]) for n in np.asarray(robot.joint_names)[robot.ik_mask]}
+        moved = np.zeros((model.ngeom, len(ik_dofs)), dtype=bool)  # which IK dofs move each geom
+        order = sorted(ik_dofs)
+        for g in range(model.ngeom):
+            b = int(model.geom_bodyid[g])
+            while b > 0:
+                for j in range(model.body_jntnum[b]):
+                    dof = int(model.jnt_dofadr[model.body_jntadr[b] + j])
+                    if dof in ik_dofs:
+                        moved[g, order.index(dof)] = True
+                b = int(model.body_parentid[b])
+        differs = (moved[:, None, :] != moved[None, :, :]).any(-1)
+        relevant = counted & differs
+        used = relevant.any(1)
+        # collision bits: geoms inside one ignored subtree (a hand's fingers and palm) never
+        # reach the narrow phase together; every other pair keeps MuJoCo's own filtering
+        bits = np.ones(model.ngeom, dtype=np.int64)
+        for k, root in enumerate(robot.spec.collision.ignore_subtrees[:30]):
+            bits[np.isin(model.geom_bodyid, list(subtree_ids(model, root)))] = 2 << k
+        every = int(np.bitwise_or.reduce(np.unique(bits)))
+        model.geom_contype[:] = np.where(used, bits, 0)
+        model.geom_conaffinity[:] = np.where(used, np.where(bits == 1, every, every & ~bits), 0)
+        model.geom_margin[used] = margin
+        _MODELS[key] = (model, relevant)
+    return _MODELS[key]
+
+
+class ExactContacts:
+    """Residual rows √w·relu(margin − d) over MuJoCo's contacts of every frame, with Jacobians."""
+
+    def __init__(self, robot: Robot, margin: float, weight: float) -> None:
+        self.robot, self.margin, self.w = robot, margin, float(np.sqrt(weight))
+        self.model, self.relevant = _collision_model(robot, margin)
+        self.data = mujoco.MjData(self.model)
+        jid = [self.model.joint(n).id for n in np.asarray(robot.joint_names)[robot.ik_mask]]
+        self.cols = self.model.jnt_dofadr[jid]
+        #: frames MuJoCo checks (None: all); the solver narrows it to frames near a contact
+        self.frames: np.ndarray | None = None
+        self.jac1 = np.zeros((3, self.model.nv))
+        self.jac2 = np.zeros((3, self.model.nv))
+
+    def rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals (T,K) and their Jacobian (T,K,n_ik) at full joint vectors q (T,n)."""
+        m, d = self.model, self.data
+        found: list[tuple[int, float, np.ndarray]] = []
+        d.qpos[:] = m.qpos0
+        for t in range(len(q)) if self.frames is None else np.flatnonzero(self.frames):
+            d.qpos[self.robot.qpos_adr] = q[t]
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_collision(m, d)
+            n = d.ncon
+            if not n:
+                continue
+            geom = d.contact.geom[:n]
+            hit = np.flatnonzero((d.contact.dist[:n] < self.margin) & self.relevant[geom[:, 0], geom[:, 1]])
+            if not len(hit):
+                continue
+            mujoco.mj_comPos(m, d)
+            for i in hit:
+                c = d.contact[i]
+                mujoco.mj_jac(m, d, self.jac1, None, c.pos, m.geom_bodyid[c.geom[0]])
+                mujoco.mj_jac(m, d, self.jac2, None, c.pos, m.geom_bodyid[c.geom[1]])
+                rate = c.frame[:3] @ (self.jac2 - self.jac1)[:, self.cols]
+                found.append((t, float(c.dist), rate, (int(c.geom[0]), int(c.geom[1]))))
+        # one row per geom pair and frame: MuJoCo reports up to several points of one mesh pair
+        # at the same depth; the pair's row is its deepest distance with the mean separation rate
+        # of the points at that depth (each pair weighs the same, however many points it has)
+        pairs: dict[tuple[int, int, int], list] = {}
+        for t, dist, rate, (g1, g2) in found:
+            key = (t, min(g1, g2), max(g1, g2))
+            best = pairs.get(key)
+            if best is None or dist < best[0] - 1e-9:
+                pairs[key] = [dist, [rate]]
+            elif dist < best[0] + 1e-9:
+                best[1].append(rate)
+        frames = [key[0] for key in pairs]
+        count = np.bincount(frames, minlength=len(q)) if pairs else np.zeros(len(q), np.int64)
+        k = int(count.max()) if pairs else 0
+        r = np.zeros((len(q), k))
+        jac = np.zeros((len(q), k, len(self.cols)))
+        #: the (geom, geom) pair of each row (T,K,2), −1 where a frame has fewer rows
+        self.pairs = np.full((len(q), k, 2), -1, dtype=np.int64)
+        slot = np.zeros(len(q), dtype=np.int64)
+        for (t, g1, g2), (dist, rates) in sorted(pairs.items()):
+            r[t, slot[t]] = self.w * (self.margin - dist)
+            jac[t, slot[t]] = -self.w * np.mean(rates, axis=0)
+            self.pairs[t, slot[t]] = (g1, g2)
+            slot[t] += 1
+        return r, jac
