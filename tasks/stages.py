@@ -309,7 +309,9 @@ COLLIDE = Step("collide", "5", ("body", "collision"), _collide, _collision_resul
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
 # v3: hand-hand and hand-chest clearance at hand scale (targets.hand_gap, retarget/hand_clearance.py).
-RETARGET = Step("retarget", "3", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v4: hand clearance's exact cull (a few planes' lower bound against the gap): same rows to ~1e-17,
+#     which moves the chaotic solve off a bad basin on synth seq 3 (21 self-contact frames → 0).
+RETARGET = Step("retarget", "4", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.

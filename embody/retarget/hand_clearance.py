@@ -77,6 +77,10 @@ class HandClearanceTerm:
         self.bodies = sorted(used)
         #: one row per (pair, hull)
         self.width = sum(len(h) for _, _, h in self.pairs)
+        #: per hull, a few planes of well-spread normals: their max is a lower bound of the
+        #: hull's max-plane value (every plane is), so points it puts at ≥ the gap are culled exactly
+        self.bound_planes = {h: px.hull_planes[h][_spread(px.hull_planes[h][:, :3], _BOUND_PLANES)]
+                             for _, _, hulls in self.pairs for h in hulls}
 
     def _points(self, pose, frames: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         px = self.px
@@ -115,26 +119,35 @@ class HandClearanceTerm:
                 row += len(hulls)
                 continue
             x, pcol = self._points(pose, frames, pts)
-            f_idx = np.arange(len(frames))
+            radii, gap = px.radii[pts], self.gap[frames, c]
             for h in hulls:
                 hcol = pose.index[px.bodies[px.hull_body[h]]]
                 r_h, p_h = pose.rot[frames, hcol], pose.pos[frames, hcol]
-                xl = np.einsum("fba,fpb->fpa", r_h, x - p_h[:, None])  # hull-body frame
-                planes = px.hull_planes[h]
-                sd = xl @ planes[:, :3].T + planes[:, 3]  # (F,P,planes)
-                face = sd.argmax(-1)
-                value = np.take_along_axis(sd, face[..., None], -1)[..., 0] - px.radii[pts][None]
-                k = value.argmin(1)
-                short = np.maximum(self.gap[frames, c] - value[f_idx, k], 0.0)
-                r[frames, row] = sw * short
-                a = np.flatnonzero(short > 0)
-                if len(a):
-                    act_f.append(frames[a])
-                    act_row.append(np.full(len(a), row))
-                    act_x.append(x[a, k[a]])
-                    act_n.append(np.einsum("fab,fb->fa", r_h[a], planes[face[a, k[a]], :3]))
-                    act_pb.append(pcol[k[a]])
-                    act_hb.append(np.full(len(a), hcol))
+                planes, bound = px.hull_planes[h], self.bound_planes[h]
+                # exact cull: a point whose lower bound is ≥ the gap cannot shorten it (the bound
+                # planes taken to the world, n_w = R n, d_w = d − n_w·p, so no point is moved)
+                n_w = np.einsum("fab,kb->fka", r_h, bound[:, :3])
+                d_w = bound[:, 3] - np.einsum("fka,fa->fk", n_w, p_h)
+                lb = (np.matmul(x, n_w.transpose(0, 2, 1)) + d_w[:, None]).max(-1) - radii[None]
+                fi, pi = np.nonzero(lb < gap[:, None])
+                if len(fi):
+                    xl = np.einsum("nba,nb->na", r_h[fi], x[fi, pi] - p_h[fi])  # hull-body frame
+                    sd = xl @ planes[:, :3].T + planes[:, 3]
+                    face = sd.argmax(-1)
+                    value = sd[np.arange(len(fi)), face] - radii[pi]
+                    order = np.lexsort((pi, value, fi))  # per frame: the least value, first point
+                    first = order[np.r_[True, fi[order][1:] != fi[order][:-1]]]
+                    a_f, a_p = fi[first], pi[first]
+                    short = np.maximum(gap[a_f] - value[first], 0.0)
+                    r[frames[a_f], row] = sw * short
+                    a = short > 0
+                    if a.any():
+                        act_f.append(frames[a_f[a]])
+                        act_row.append(np.full(int(a.sum()), row))
+                        act_x.append(x[a_f[a], a_p[a]])
+                        act_n.append(np.einsum("fab,fb->fa", r_h[a_f[a]], planes[face[first[a]], :3]))
+                        act_pb.append(pcol[a_p[a]])
+                        act_hb.append(np.full(int(a.sum()), hcol))
                 row += 1
         cat = lambda v, shape: np.concatenate(v) if v else np.zeros(shape)  # noqa: E731
         f, rows_, x, n = cat(act_f, 0).astype(np.int64), cat(act_row, 0).astype(np.int64), cat(act_x, (0, 3)), cat(act_n, (0, 3))
@@ -149,6 +162,21 @@ class HandClearanceTerm:
             return jac
 
         return r, jacobian
+
+
+#: planes per hull in the exact cull's lower bound
+_BOUND_PLANES = 14
+
+
+def _spread(normals: np.ndarray, n: int) -> np.ndarray:
+    """Indices of `n` planes whose normals are spread over the sphere (farthest-point order)."""
+    _, keep = np.unique(np.round(normals, 9), axis=0, return_index=True)
+    chosen = [int(keep[0])]
+    d = np.full(len(normals), np.inf)
+    for _ in range(min(n, len(keep)) - 1):
+        d = np.minimum(d, np.linalg.norm(normals - normals[chosen[-1]], axis=1))
+        chosen.append(int(d.argmax()))
+    return np.array(sorted(set(chosen)), dtype=np.int64)
 
 
 def hand_clearance_term(robot: Robot, targets, w: float) -> HandClearanceTerm | None:
