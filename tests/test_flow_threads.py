@@ -1,0 +1,33 @@
+"""A run with several workers runs BLAS single-threaded and gives the setting back afterwards
+(two workers' concurrent OpenBLAS matmuls deadlocked an `embody run`)."""
+
+import threading
+
+import numpy as np
+from threadpoolctl import threadpool_info, threadpool_limits
+
+from embody.flows.threads import worker_blas
+
+
+def _blas_threads() -> list[int]:
+    return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+
+def test_several_workers_get_one_blas_thread_and_the_setting_returns():
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert _blas_threads() and all(n == 2 for n in _blas_threads())
+        with worker_blas(2):
+            assert all(n == 1 for n in _blas_threads())
+            # two threads' float32 matmuls at once (the metrics step's skinning shape) finish
+            a = np.random.default_rng(0).random((3000, 60), dtype=np.float32)
+            b = np.random.default_rng(1).random((64, 60, 12), dtype=np.float32)
+            out: list[np.ndarray] = []
+            threads = [threading.Thread(target=lambda: out.append(a @ b)) for _ in range(2)]
+            for t in threads:
+                t.start()
+            for t in threads:
+                t.join(timeout=60)
+            assert len(out) == 2 and np.array_equal(out[0], out[1])
+        assert all(n == 2 for n in _blas_threads())
+        with worker_blas(1):
+            assert all(n == 2 for n in _blas_threads())
