@@ -120,8 +120,11 @@ def plan_sequence(rng: np.random.Generator, signs: list[Sign] | None = None) -> 
         duration = float(rng.uniform(14, 24))
         place = space.location(sign.location, "right")
         end_shape = sign.handshape if rng.random() < 0.7 else str(rng.choice(HANDSHAPES))
-        wrist = rng.uniform(-0.5, 0.5, size=3) * (1.0 if j in inject else space.WRIST_SPREAD.get(sign.location, 1.0))
+        wrist = rng.uniform(-0.5, 0.5, size=3)
         wrists = np.stack([wrist * (MIRROR if sign.hands == "mirror" else rng.uniform(0.2, 0.6)), wrist])
+        if j not in inject and sign.location in space.WRIST_TURNS:  # a hand that lies on the body
+            turn, spread = space.WRIST_TURNS[sign.location]
+            wrists[1] = np.asarray(turn) + spread * wrist
         path = _path(sign.movement, rng)
         pen_targets: np.ndarray | None = None
         if j in inject:
