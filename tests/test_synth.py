@@ -151,3 +151,35 @@ def test_synth_cli(tmp_path, capsys):
     assert not (tmp_path / "bad").exists()
     (tmp_path / "file").write_text("x")
     assert main(["synth", str(tmp_path / "file"), "--n", "1"]) == 2
+
+
+def test_shoulder_sign_holds_the_palm_at_the_opposite_shoulder_without_penetrating():
+    """SHOULDER's palm is at the left shoulder during the hold (its nearest landmark by far),
+    and the arm reaching across does not go through the chest (the elbow is lifted)."""
+    from embody.body.landmarks import BODY_LANDMARKS
+    from embody.collision.depth import motion_depths
+    from embody.metrics.embodiments import human_track
+    from embody.synth import generate_sequence
+    from embody.synth.lexicon import LEXICON
+
+    body = load_body_model()
+    sign = next(s for s in LEXICON if s.gloss == "SHOULDER")
+    for seed, index in ((1, 1000 + LEXICON.index(sign)), (0, 5000), (1, 5001)):
+        m = generate_sequence(seed, index, signs=[sign])
+        track = human_track(m, body, with_contacts=False)
+        s = m.meta["signs"][0]
+        hold = slice(s["start"] + (s["end"] - s["start"]) // 3, s["end"] - (s["end"] - s["start"]) // 3)
+        names = list(track.names)
+        palm = track.points[hold, names.index("right_palm")]
+        lms = np.stack([track.points[hold, names.index(n)] for n in BODY_LANDMARKS], 1)
+        dist = np.linalg.norm(lms - palm[:, None], axis=-1)
+        shoulder = dist[:, BODY_LANDMARKS.index("left_shoulder")]
+        assert np.all(dist.argmin(1) == BODY_LANDMARKS.index("left_shoulder")), (seed, index)
+        assert shoulder.mean() < 0.06, (seed, index, shoulder.mean())
+        others = np.delete(dist, BODY_LANDMARKS.index("left_shoulder"), axis=1).min(1)
+        assert np.all(others - shoulder > 0.05)  # not a face sign in disguise
+        # the palm lies on the shoulder: no other hand point is nearer (the thumb does not touch)
+        for point in ("thumb_tip", "index_tip", "middle_tip"):
+            tip = track.points[hold, names.index(f"right_{point}")] - lms[:, BODY_LANDMARKS.index("left_shoulder")]
+            assert np.all(np.linalg.norm(tip, axis=-1) > shoulder + 0.03), (seed, index, point)
+        assert motion_depths(body, m.pose, m.betas).max() < 0.003, (seed, index)

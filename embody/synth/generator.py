@@ -15,7 +15,7 @@ from scipy.interpolate import PchipInterpolator
 from embody.motion import LEFT_HAND, RIGHT_HAND, Motion, MotionSource
 from embody.synth import artifacts, space
 from embody.synth.handshapes import HANDSHAPES, MIRROR, handshape
-from embody.synth.kinematics import ArmIK
+from embody.synth.kinematics import SHOULDER_PRIOR, ArmIK
 from embody.synth.lexicon import LEXICON, Sign
 
 GENERATOR_VERSION = "embody-synth-1"
@@ -35,6 +35,8 @@ class Key:
     shapes: np.ndarray           # (2,15,3)
     wrists: np.ndarray           # (2,3) local wrist axis-angle
     sign: int = -1               # index into the sequence's signs, -1 for rest/transitions
+    #: (2,3) shoulder priors for the arm IK; None: the default elbow-down posture
+    shoulders: np.ndarray | None = None
 
 
 @dataclass
@@ -88,6 +90,14 @@ def _nondominant(sign: Sign, right: np.ndarray, place: np.ndarray) -> np.ndarray
     return space.location("rest", "left")
 
 
+def _shoulders(sign: Sign) -> np.ndarray | None:
+    """Shoulder priors (2,3) for the dominant arm at a place that needs its own posture."""
+    prior = space.SHOULDER_PRIORS.get(sign.location)
+    if prior is None:
+        return None
+    return np.stack([SHOULDER_PRIOR["left"], np.asarray(prior, dtype=np.float64)])
+
+
 def plan_sequence(rng: np.random.Generator, signs: list[Sign] | None = None) -> Plan:
     """Choose signs, artifacts and keyframes (times in unscaled frames). Given `signs`, those
     are signed, without artifacts (e.g. one sequence per lexicon location)."""
@@ -112,6 +122,9 @@ def plan_sequence(rng: np.random.Generator, signs: list[Sign] | None = None) -> 
         end_shape = sign.handshape if rng.random() < 0.7 else str(rng.choice(HANDSHAPES))
         wrist = rng.uniform(-0.5, 0.5, size=3)
         wrists = np.stack([wrist * (MIRROR if sign.hands == "mirror" else rng.uniform(0.2, 0.6)), wrist])
+        if j not in inject and sign.location in space.WRIST_TURNS:  # a hand that lies on the body
+            turn, spread = space.WRIST_TURNS[sign.location]
+            wrists[1] = np.asarray(turn) + spread * wrist
         path = _path(sign.movement, rng)
         pen_targets: np.ndarray | None = None
         if j in inject:
@@ -130,7 +143,8 @@ def plan_sequence(rng: np.random.Generator, signs: list[Sign] | None = None) -> 
             shape = sign.handshape if frac < 1.0 else end_shape
             base = sign.base_shape if sign.hands != "one" else "relaxed"
             shapes = np.stack([handshape(base, "left"), handshape(shape, "right")])
-            plan.keys.append(Key(t + frac * duration, targets, shapes, wrists.copy(), sign=j))
+            plan.keys.append(Key(t + frac * duration, targets, shapes, wrists.copy(), sign=j,
+                                 shoulders=_shoulders(sign) if pen_targets is None else None))
         t += duration
     t += float(rng.uniform(8, 14))
     plan.keys.append(_rest_key(t))
@@ -149,7 +163,11 @@ def _key_poses(plan: Plan, rng: np.random.Generator, ik: ArmIK) -> tuple[np.ndar
     for i, key in enumerate(plan.keys):
         pose[i, LEFT_HAND], pose[i, RIGHT_HAND] = key.shapes
         pose[i, WRIST["left"]], pose[i, WRIST["right"]] = key.wrists
-    solved, err = ik.solve(pose, np.stack([key.targets for key in plan.keys]))
+    shoulders = None
+    if any(key.shoulders is not None for key in plan.keys):
+        default = np.stack([SHOULDER_PRIOR["left"], SHOULDER_PRIOR["right"]])
+        shoulders = np.stack([default if key.shoulders is None else key.shoulders for key in plan.keys])
+    solved, err = ik.solve(pose, np.stack([key.targets for key in plan.keys]), shoulders=shoulders)
     return solved, float(err.max())
 
 

@@ -58,14 +58,19 @@ class ArmIK:
         return self._wrists(pose).reshape(-1, 2, 3)
 
     def solve(self, pose: np.ndarray, targets: np.ndarray, iters: int = 20,
-              prior: float = 0.04, eps: float = 1e-4) -> tuple[np.ndarray, np.ndarray]:
+              prior: float = 0.04, eps: float = 1e-4,
+              shoulders: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Poses (K,55,3) with arms set so wrists reach `targets` (K,2,3); returns (pose, error m).
 
         Everything but shoulders and elbows (spine, head, wrists, hands) is taken from `pose`.
+        `shoulders` (K,2,3), left then right: per-keyframe shoulder priors instead of
+        `SHOULDER_PRIOR` (a place the elbow-down posture cannot reach without crossing the body).
         """
         k = pose.shape[0]
-        prior_q = np.concatenate([SHOULDER_PRIOR["left"], [1.2], SHOULDER_PRIOR["right"], [1.2]])
-        q = np.tile(prior_q, (k, 1))
+        prior_q = np.tile(np.concatenate([SHOULDER_PRIOR["left"], [1.2], SHOULDER_PRIOR["right"], [1.2]]), (k, 1))
+        if shoulders is not None:
+            prior_q[:, 0:3], prior_q[:, 4:7] = shoulders[:, 0], shoulders[:, 1]
+        q = prior_q.copy()
         goal = targets.reshape(k, 6)
         weights = np.array([1, 1, 1, 0, 1, 1, 1, 0], dtype=np.float64) * prior
         eye = np.eye(8)

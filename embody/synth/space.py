@@ -20,7 +20,21 @@ LOCATIONS: dict[str, tuple[float, float, float]] = {
     "chin": (-0.05, 0.14, 0.28),
     "forehead": (-0.08, 0.32, 0.30),
     "cheek": (-0.17, 0.24, 0.24),
-    "opposite_shoulder": (0.10, 0.05, 0.26),
+    # the palm on the left shoulder's top, 3-5 cm from its landmark (the old (0.10, 0.05, 0.26)
+    # held it 27 cm out, nearer the chin than the shoulder)
+    "opposite_shoulder": (0.14, 0.19, 0.06),
+}
+#: Upper-arm posture (shoulder axis-angle) the arm IK starts from and is pulled toward at a place,
+#: where the default elbow-down posture does not fit: reaching across to the opposite shoulder
+#: with the elbow down drives the forearm ~7 cm into the chest; lifted forward it clears it.
+SHOULDER_PRIORS: dict[str, tuple[float, float, float]] = {
+    "opposite_shoulder": (0.6, -0.2, 0.3),
+}
+#: Dominant wrist turn (local axis-angle) at a place the palm lies on, and the share of the
+#: random turn (±0.5 rad per axis) kept around it: a full random turn drives the fingers ~3 cm
+#: into the shoulder.
+WRIST_TURNS: dict[str, tuple[tuple[float, float, float], float]] = {
+    "opposite_shoulder": ((-0.8, 0.0, 0.0), 0.3),  # palm down onto the shoulder, thumb clear
 }
 #: Where a hand waits when it is not signing.
 REST = (-0.20, -0.32, 0.18)
