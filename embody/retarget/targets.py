@@ -41,7 +41,7 @@ import numpy as np
 import torch
 
 from embody.body.base import BodyModel
-from embody.body.landmarks import body_landmarks
+from embody.body.landmarks import LandmarkSet, body_landmarks
 from embody.config.ik import IKConfig
 from embody.motion import Motion
 from embody.retarget.hands import retarget_hands
@@ -190,13 +190,7 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
     if not lm_names:
         return Anchored(np.zeros((t, 2, 3)), np.zeros((t, 2)), [], np.zeros((t, 0, 3)), np.zeros((t, 0)),
                         np.zeros((t, 0)))
-    # the human, on its own shape, relative to its pelvis (root rotation removed as above)
-    pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
-    pose[:, 0] = 0.0
-    betas = np.asarray(motion.betas, dtype=np.float64)
-    hl = body_landmarks(body, betas)
-    with torch.no_grad():
-        tr = body.joint_transforms(pose, torch.as_tensor(betas)).numpy()
+    tr, betas, hl = _human(motion, body)
     hp, _ = hl.positions(tr)
     axes = fit.rotation
     hp = hp @ axes.T
@@ -259,6 +253,17 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
                     np.concatenate(p_touch, 1))
 
 
+def _human(motion: Motion, body: BodyModel) -> tuple[np.ndarray, np.ndarray, LandmarkSet]:
+    """The human on its own shape, relative to its pelvis (root rotation removed, as the targets
+    are): joint transforms (T,J,4,4), its betas and its landmark table."""
+    pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
+    pose[:, 0] = 0.0
+    betas = np.asarray(motion.betas, dtype=np.float64)
+    with torch.no_grad():
+        tr = body.joint_transforms(pose, torch.as_tensor(betas)).numpy()
+    return tr, betas, body_landmarks(body, betas)
+
+
 def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> np.ndarray:
     """The robot's least clearance per frame (T,3) between its hands and between each hand and
     its chest (`embody.retarget.hand_clearance.CHANNELS`): the human's mesh gap times the
@@ -270,13 +275,9 @@ def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> n
     from embody.metrics.embodiments import human_contacts  # the fidelity measure's own human gap
     from embody.retarget.hand_clearance import CHANNELS, hand_ratio
 
-    pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
-    pose[:, 0] = 0.0
-    betas = np.asarray(motion.betas, dtype=np.float64)
-    hl = body_landmarks(body, betas)
+    tr, betas, hl = _human(motion, body)
     with torch.no_grad():
-        tr = body.joint_transforms(pose, torch.as_tensor(betas)).numpy()
-        rest = body.joint_transforms(torch.zeros(1, pose.shape[1], 3, dtype=torch.float64),
+        rest = body.joint_transforms(torch.zeros(1, np.shape(motion.pose)[1], 3, dtype=torch.float64),
                                      torch.as_tensor(betas)).numpy()
     gap = human_contacts(body, tr, betas, CHANNELS)
     h_rest, _ = hl.positions(rest)
