@@ -88,12 +88,11 @@ class HandClearanceTerm:
         x = pose.pos[frames][:, col] + np.einsum("fpab,pb->fpa", pose.rot[frames][:, col], px.centres[pts])
         return x, col
 
-    def _near(self, pose, frames: np.ndarray, pts: np.ndarray, hulls: np.ndarray, gap: np.ndarray,
-              slack: float = 0.01) -> np.ndarray:
-        """Broad phase: which of `frames` have the points' bounding sphere within `gap` (+ slack)
-        of some hull's bounding sphere."""
+    def _near(self, pose, frames: np.ndarray, x: np.ndarray, pts: np.ndarray, hulls: np.ndarray,
+              gap: np.ndarray, slack: float = 0.01) -> np.ndarray:
+        """Broad phase: which of `frames` have the bounding sphere of the points `x` (F,P,3) within
+        `gap` (+ slack) of some hull's bounding sphere."""
         px = self.px
-        x, _ = self._points(pose, frames, pts)
         c = x.mean(1)
         r = np.linalg.norm(x - c[:, None], axis=-1).max(1) + px.radii[pts].max(initial=0.0)
         hcol = np.array([pose.index[px.bodies[px.hull_body[h]]] for h in hulls])
@@ -113,12 +112,13 @@ class HandClearanceTerm:
         row = 0
         for c, pts, hulls in self.pairs:
             frames = np.flatnonzero(self.gap[:, c] > 0)
+            x, pcol = self._points(pose, frames, pts)  # once: the broad phase and the rows share it
             if len(frames):
-                frames = frames[self._near(pose, frames, pts, hulls, self.gap[frames, c])]
+                near = self._near(pose, frames, x, pts, hulls, self.gap[frames, c])
+                frames, x = frames[near], x[near]
             if not len(frames):
                 row += len(hulls)
                 continue
-            x, pcol = self._points(pose, frames, pts)
             radii, gap = px.radii[pts], self.gap[frames, c]
             for h in hulls:
                 hcol = pose.index[px.bodies[px.hull_body[h]]]
