@@ -183,3 +183,25 @@ def test_shoulder_sign_holds_the_palm_at_the_opposite_shoulder_without_penetrati
             tip = track.points[hold, names.index(f"right_{point}")] - lms[:, BODY_LANDMARKS.index("left_shoulder")]
             assert np.all(np.linalg.norm(tip, axis=-1) > shoulder + 0.03), (seed, index, point)
         assert motion_depths(body, m.pose, m.betas).max() < 0.003, (seed, index)
+
+
+def test_default_dataset_from_another_generator_is_regenerated(tmp_path):
+    """A folder left by an older generator (e.g. before the SHOULDER sign moved to the shoulder)
+    is replaced, not silently reused; a current one is reused."""
+    from embody.io import save
+
+    root = default_dataset(tmp_path, n=2, seed=3)
+    fresh = load(root / "seq_001.npz")
+    old = load(root / "seq_000.npz")
+    old.meta["generator"] = "embody-synth-0"
+    old.pose[:] = 0.0  # the old generator's (different) motion
+    save(old, root / "seq_000.npz")
+    assert default_dataset(tmp_path, n=2, seed=3) == root
+    again = load(root / "seq_000.npz")
+    assert again.meta["generator"] == GENERATOR_VERSION
+    assert np.abs(again.pose).max() > 0.1
+    np.testing.assert_array_equal(load(root / "seq_001.npz").pose, fresh.pose)
+    assert [p.name for p in tmp_path.iterdir()] == [root.name]  # nothing stale or temporary left
+    stamp = (root / "seq_000.npz").stat().st_mtime_ns
+    assert default_dataset(tmp_path, n=2, seed=3) == root
+    assert (root / "seq_000.npz").stat().st_mtime_ns == stamp

@@ -18,7 +18,7 @@ from embody.synth.handshapes import HANDSHAPES, MIRROR, handshape
 from embody.synth.kinematics import SHOULDER_PRIOR, ArmIK
 from embody.synth.lexicon import LEXICON, Sign
 
-GENERATOR_VERSION = "embody-synth-1"
+GENERATOR_VERSION = "embody-synth-2"
 FPS = 30.0
 MIN_FRAMES, MAX_FRAMES = 90, 180
 SPINE, NECK, HEAD = 9, 12, 15
