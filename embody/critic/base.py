@@ -46,6 +46,9 @@ class CritiqueContext:
     #: of the palm's offset from it, `palm_deg` (palm-normal angle error): the numbers a VLM
     #: critic reads next to the images.
     hand_fidelity: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: (T,2) frames where the robot hand stands at its clearance from the face or chest, so the
+    #: part of `location_offset` toward that surface was dropped (`embody.critic.reach`).
+    reach_blocked: np.ndarray | None = None
     #: Filled by the critic: request/response record for this round (JSON-able).
     record: dict[str, Any] = field(default_factory=dict)
 
