@@ -76,7 +76,9 @@ class GeometricCritic(Critic):
             scale = context.body_scale if human else context.arm_length
             ratio = float(np.linalg.norm(dominant)) / scale
             threshold = cfg.accept_location if human else cfg.accept_position
-            yaw = mean_yaw_deg(context.reference_rot[:, s], context.robot_rot[:, s])
+            hand = context.hand_fidelity.get(side, {}) if human else {}
+            yaw = (float(hand["yaw_deg"]) if "yaw_deg" in hand
+                   else mean_yaw_deg(context.reference_rot[:, s], context.robot_rot[:, s]))
             held = (int(np.count_nonzero(context.reach_blocked[:, s]))
                     if human and context.reach_blocked is not None else 0)
             notes.append(f"{side}: offset {ratio:.3f} {'body scales from the landmark' if human else 'arm lengths'}"
@@ -91,11 +93,11 @@ class GeometricCritic(Critic):
                     if amount > 0:
                         name = f"move_{side}_{positive if value > 0 else negative}"
                         prims.append(Primitive(name, amount, window))
-            # against the human, orientation is judged by the palm normal: a yaw off the IK
-            # target alone neither rejects nor asks for a turn (on the wristless H1 such turns
-            # move the forearm: default run, seq_010's right-hand turns took its palm error
-            # 20.9 → 23.7 → 27.7 deg and its location error 0.137 → 0.155)
-            side_palm = float(context.hand_fidelity.get(side, {}).get("palm_deg", palm_all))
+            # against the human, orientation is judged by the palm normal, and the turn is the
+            # yaw toward the human's palm and pointing direction (`hand_fidelity[side]
+            # ["yaw_deg"]`), asked for only where the palm is off: turns that cancelled the IK
+            # target's yaw took H1 seq_010's palm error 20.9 → 23.7 → 27.7 deg (default run)
+            side_palm = float(hand.get("palm_deg", palm_all))
             if abs(yaw) >= cfg.accept_yaw_deg and (not human or side_palm >= cfg.accept_palm_deg):
                 amount = min(_quantise(abs(yaw), cfg.angle_quantum_deg), cfg.max_angle_deg)
                 # a positive yaw about +z turns the hand toward +y: inward for the right hand

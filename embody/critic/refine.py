@@ -335,7 +335,8 @@ class _HumanJudge:
             err = float(frames["location_err"][:, s].mean())
             self.hands[side] = {"landmark": names[int(counts.argmax())], "share": float(counts.max() / len(q)),
                                 "location_err": err, "location_cm": err * robot.scale * 100.0,
-                                "palm_deg": float(frames["palm_deg"][:, s].mean())}
+                                "palm_deg": float(frames["palm_deg"][:, s].mean()),
+                                "yaw_deg": _yaw_to_human(self.human, robot, side)}
         hips = [i for i, n in enumerate(names) if n.endswith("_hip")]
         offset = np.zeros((len(q), 2, 3))
         toward = np.zeros((len(q), 2, 3))  # robot palm → the robot's landmark of the human's nearest
@@ -354,6 +355,26 @@ class _HumanJudge:
                     "palm_deg": m["palm_deg"], "handshape_err": m["handshape_err"],
                     "fidelity_score": m["location_err"] + m["palm_deg"] / 180.0}
         return offset, fidelity
+
+
+def _yaw_to_human(human, robot, side: str) -> float:
+    """The turn about the torso's up axis (deg, + = about +z) that best brings the robot hand's
+    palm normal and pointing direction (each in its own torso frame) onto the human's: the
+    least-squares yaw of their horizontal parts over the sequence. The IK target's rotation is no
+    reference here: on the wristless H1 its yaw disagrees with the human palm, and turns that
+    cancelled it raised the palm error round after round (default run, 2026-11-26)."""
+    s = ("left", "right").index(side)
+    tip = f"{side}_middle_tip" if human.has(f"{side}_middle_tip") and robot.has(f"{side}_middle_tip") \
+        else f"{side}_palm"
+    pairs = [(human.local(human.normals[:, s]), robot.local(robot.normals[:, s]))]
+    pairs += [tuple(t.local(t.point(tip) - t.point(f"{side}_wrist")) for t in (human, robot))]
+    cross = dot = 0.0
+    for h, r in pairs:
+        h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
+        r = r / np.maximum(np.linalg.norm(r, axis=-1, keepdims=True), 1e-12)
+        cross += float((r[:, 0] * h[:, 1] - r[:, 1] * h[:, 0]).sum())
+        dot += float((r[:, 0] * h[:, 0] + r[:, 1] * h[:, 1]).sum())
+    return float(np.degrees(np.arctan2(cross, dot)))
 
 
 _TABLE_METRICS = ("wrist_mm_mean", "wrist_mm_p95", "wrist_deg_mean", "wrist_deg_p95",
