@@ -121,3 +121,16 @@ def test_a_revise_without_primitives_ends_the_loop(robot):
     result = refine(_motion(6), None, None, robot, reference, solve(robot, reference, IK),
                     CriticConfig(rounds=2), IK, RENDER, critic=NothingToDo())
     assert len(result.rounds) == 1 and not result.accepted
+
+
+def test_the_vlm_prompt_says_where_a_hand_stands_at_its_clearance():
+    from embody.critic.vlm import _fidelity_facts
+
+    ctx = _human_context(0.0, 5.0)
+    ctx.hand_fidelity = {}
+    assert _fidelity_facts(ctx) == ""
+    ctx.reach_blocked = np.zeros((30, 2), dtype=bool)
+    ctx.reach_blocked[4:16, 1] = True
+    text = _fidelity_facts(ctx)
+    assert "In 12 frames the robot's right hand already stands at its clearance" in text
+    assert "left hand" not in text
