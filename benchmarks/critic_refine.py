@@ -68,7 +68,7 @@ def main() -> None:
         print(f"{sid} before: accepted={old.accepted} round {old.final.index} "
               f"loc={m_old['location_err']:.4f} palm={m_old['palm_deg']:.2f} | after: "
               f"accepted={new.accepted} round {new.final.index} loc={m_new['location_err']:.4f} "
-              f"palm={m_new['palm_deg']:.2f} ({len(new.rounds) - 1} critique rounds)", flush=True)
+              f"palm={m_new['palm_deg']:.2f} ({len(new.rounds) - 1} re-solves)", flush=True)
         if args.rounds_detail:
             for r in new.rounds:
                 act = r.action or {}
