@@ -317,7 +317,7 @@ RETARGET = Step("retarget", "5", ("body", "robot", "ik"), _retarget, _ik_solutio
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
 # v6: the export's contact repair gets up to 32 passes (was 12).
-REFINE = Step("refine", "6", ("body", "robot", "ik", "render", "critic"), _refine,
+REFINE = Step("refine", "7", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.

@@ -43,9 +43,13 @@ class CritiqueContext:
     body_scale: float = 0.0
     #: Per hand ("left", "right"): `landmark` (the human palm's most frequent nearest landmark),
     #: `share` of frames it is nearest, `location_err` (body scales) and `location_cm` (robot cm)
-    #: of the palm's offset from it, `palm_deg` (palm-normal angle error): the numbers a VLM
-    #: critic reads next to the images.
+    #: of the palm's offset from it, `palm_deg` (palm-normal angle error), `yaw_deg` (the turn
+    #: about torso z toward the human's palm and pointing direction): the numbers a VLM critic
+    #: reads next to the images.
     hand_fidelity: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: (T,2) frames where the robot hand stands at its clearance from the face or chest, so the
+    #: part of `location_offset` toward that surface was dropped (`embody.critic.reach`).
+    reach_blocked: np.ndarray | None = None
     #: Filled by the critic: request/response record for this round (JSON-able).
     record: dict[str, Any] = field(default_factory=dict)
 

@@ -3,8 +3,10 @@
 It judges against the human. When the loop gives it the landmark-relative location offsets
 (`CritiqueContext.location_offset`: where the robot palm must move so that it sits relative to
 the robot's chin, cheek, sternum ... as the human's palm sits relative to the human's), it uses
-those, judged in body scales (`critic.accept_location`), and accepts only when the location error
-and the palm-orientation error (`critic.accept_palm_deg`) are under their thresholds. Without
+those (less what the robot's clearances forbid, `embody.critic.reach`), judged in body scales
+(`critic.accept_location`), and accepts only when the location error and the palm-orientation
+error (`critic.accept_palm_deg`) are under their thresholds; it asks for a yaw turn only for a
+hand whose palm error is over its threshold. Without
 them (no body or robot landmarks) it falls back to the reference wrists (IK targets), judged in
 arm lengths. Either way, per side it takes the offset over the whole sequence or over the worst
 window when one window is clearly worse, plus the mean yaw offset, and answers with the position
@@ -57,6 +59,7 @@ class GeometricCritic(Critic):
         prims: list[Primitive] = []
         notes: list[str] = []
         human = context.location_offset is not None and context.body_scale > 0
+        palm_all = context.fidelity.get("palm_deg", 0.0) if human else 0.0
         for s, side in enumerate(SIDES):
             if human:
                 offset = np.asarray(context.location_offset[:, s], np.float64)
@@ -73,9 +76,14 @@ class GeometricCritic(Critic):
             scale = context.body_scale if human else context.arm_length
             ratio = float(np.linalg.norm(dominant)) / scale
             threshold = cfg.accept_location if human else cfg.accept_position
-            yaw = mean_yaw_deg(context.reference_rot[:, s], context.robot_rot[:, s])
+            hand = context.hand_fidelity.get(side, {}) if human else {}
+            yaw = (float(hand["yaw_deg"]) if "yaw_deg" in hand
+                   else mean_yaw_deg(context.reference_rot[:, s], context.robot_rot[:, s]))
+            held = (int(np.count_nonzero(context.reach_blocked[:, s]))
+                    if human and context.reach_blocked is not None else 0)
             notes.append(f"{side}: offset {ratio:.3f} {'body scales from the landmark' if human else 'arm lengths'}"
                          + (f" in frames {window[0]}-{window[1]}" if window else "")
+                         + (f" ({held} frames at the face/chest clearance)" if held else "")
                          + f", yaw {yaw:+.1f} deg")
             if ratio >= threshold:
                 for axis, (positive, negative) in enumerate(_AXES):
@@ -85,13 +93,18 @@ class GeometricCritic(Critic):
                     if amount > 0:
                         name = f"move_{side}_{positive if value > 0 else negative}"
                         prims.append(Primitive(name, amount, window))
-            if abs(yaw) >= cfg.accept_yaw_deg:
+            # against the human, orientation is judged by the palm normal, and the turn is the
+            # yaw toward the human's palm and pointing direction (`hand_fidelity[side]
+            # ["yaw_deg"]`), asked for only where the palm is off: turns that cancelled the IK
+            # target's yaw took H1 seq_010's palm error 20.9 → 23.7 → 27.7 deg (default run)
+            side_palm = float(hand.get("palm_deg", palm_all))
+            if abs(yaw) >= cfg.accept_yaw_deg and (not human or side_palm >= cfg.accept_palm_deg):
                 amount = min(_quantise(abs(yaw), cfg.angle_quantum_deg), cfg.max_angle_deg)
                 # a positive yaw about +z turns the hand toward +y: inward for the right hand
                 turn_in = (yaw > 0) == (side == "right")
                 if amount > 0:
                     prims.append(Primitive(f"{side}_yaw_{'in' if turn_in else 'out'}", amount))
-        palm = context.fidelity.get("palm_deg", 0.0) if human else 0.0
+        palm = palm_all
         if human:
             notes.append(f"location error {context.fidelity.get('location_err', float('nan')):.3f} "
                          f"body scales, palm {palm:.1f} deg")

@@ -212,7 +212,8 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
 
     out = Path(out_dir) if out_dir is not None else None
     critic = critic or make_critic(cfg_critic)
-    judge = _HumanJudge(motion, body, robot, targets.fps) if body is not None and robot.spec.landmarks else None
+    judge = (_HumanJudge(motion, body, robot, targets, cfg_critic, cfg_ik)
+             if body is not None and robot.spec.landmarks else None)
     ref_pos = np.asarray(targets.wrist_pos, dtype=np.float64)
     ref_rot = np.asarray(targets.wrist_rot, dtype=np.float64)
     limits = Limits(targets.num_frames, cfg_critic.position_step_m, cfg_critic.angle_step_deg,
@@ -239,7 +240,8 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
                                       pos, rot, limits, keyframes=keyframes.tolist(),
                                       text=str(motion.meta.get("text", "")), location_offset=location_offset,
                                       fidelity=fidelity, body_scale=robot.body_scale if judge else 0.0,
-                                      hand_fidelity=judge.hands if judge is not None else {})
+                                      hand_fidelity=judge.hands if judge is not None else {},
+                                      reach_blocked=judge.blocked if judge is not None else None)
             if critic.needs_images:
                 comp = renders.comparison(q)
                 context.sheet_png = comp.sheet_png(f"round {index}")
@@ -255,7 +257,9 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
             if action.accepted or last:
                 break
             if not action.primitives:
-                continue  # invalid or empty: no action this round, the solution stands
+                if action.valid:  # nothing to change: the next critique would see the same robot
+                    break
+                continue  # invalid: no action this round, the solution stands
             new_pos, new_rot = apply_primitives(working.wrist_pos, working.wrist_rot,
                                                 action.primitives, blend)
             working = working.with_wrists(new_pos, new_rot)  # hand-point targets move along
@@ -283,23 +287,40 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
 
 
 def _chosen_round(rounds: list[RoundRecord], cfg: CriticConfig) -> int:
-    """The result round per `critic.keep` (see CriticConfig); ties go to the earlier round."""
+    """The result round per `critic.keep` (see CriticConfig); ties go to the earlier round.
+
+    `best` picks among the rounds the critic accepted when it accepted any (so a sequence
+    reported accepted exports an accepted round), else among all."""
     keep = cfg.keep if cfg.keep != "auto" else ("best" if cfg.kind == "geometric" else "last")
     if keep == "last":
         return len(rounds) - 1
     key = "fidelity_score" if all("fidelity_score" in r.metrics for r in rounds) else "wrist_mm_mean"
-    return int(np.argmin([r.metrics[key] for r in rounds]))
+    pool = [i for i, r in enumerate(rounds) if r.accepted] or list(range(len(rounds)))
+    return min(pool, key=lambda i: (rounds[i].metrics[key], i))
 
 
 class _HumanJudge:
     """The human as the critic's reference: landmark-relative palm offsets and fidelity per round."""
 
-    def __init__(self, motion, body, robot, fps: float) -> None:
+    def __init__(self, motion, body, robot, targets, cfg: CriticConfig, cfg_ik) -> None:
         from embody.metrics.embodiments import human_track
 
-        self.robot, self.fps = robot, fps
+        self.robot, self.fps = robot, targets.fps
         self.human = human_track(motion, body, with_contacts=False)
         self.hands: dict[str, dict] = {}
+        #: (T,2) frames whose offset toward the face or chest was dropped (`embody.critic.reach`)
+        self.blocked: np.ndarray | None = None
+        self.reach, self.slack = None, cfg.reach_slack_m
+        if cfg.reachable:
+            from embody.critic.reach import Reach
+
+            self.reach = Reach(robot)
+            # the clearance the IK keeps per frame, hand and surface (face, chest): the collision
+            # margin, and at the chest the human's gap at hand scale (`Targets.hand_gap`)
+            margin = float(cfg_ik.collision_margin)
+            gap = np.zeros((targets.num_frames, 3)) if targets.hand_gap is None else np.asarray(targets.hand_gap)
+            self.required = np.full((targets.num_frames, 2, 2), margin)
+            self.required[:, :, 1] = np.maximum(gap[:, 1:3], margin)
 
     def __call__(self, q: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
         from embody.metrics.embodiments import robot_track
@@ -314,19 +335,46 @@ class _HumanJudge:
             err = float(frames["location_err"][:, s].mean())
             self.hands[side] = {"landmark": names[int(counts.argmax())], "share": float(counts.max() / len(q)),
                                 "location_err": err, "location_cm": err * robot.scale * 100.0,
-                                "palm_deg": float(frames["palm_deg"][:, s].mean())}
+                                "palm_deg": float(frames["palm_deg"][:, s].mean()),
+                                "yaw_deg": _yaw_to_human(self.human, robot, side)}
         hips = [i for i, n in enumerate(names) if n.endswith("_hip")]
         offset = np.zeros((len(q), 2, 3))
+        toward = np.zeros((len(q), 2, 3))  # robot palm → the robot's landmark of the human's nearest
         for s, side in enumerate(("left", "right")):
             k, d = nearest_landmark(self.human, side, names)
             diff = relative_location(self.human, side, names, k) - relative_location(robot, side, names, k)
             move = np.einsum("tab,tb->ta", robot.torso, diff) * robot.scale  # robot torso frame, m
             near = (d < 0.5) & ~np.isin(k, hips)  # a sign's place; not a hand resting by the thigh
             offset[:, s] = np.where(near[:, None], move, 0.0)
+            toward[:, s] = np.take_along_axis(robot.points[:, [robot.names.index(n) for n in names]],
+                                              k[:, None, None], 1)[:, 0] - robot.point(f"{side}_palm")
+        if self.reach is not None:
+            toward /= np.maximum(np.linalg.norm(toward, axis=-1, keepdims=True), 1e-9)
+            offset, self.blocked = self.reach.clamp(q, offset, self.required, self.slack, toward)
         fidelity = {"location_err": m["location_err"], "location_err_mm": m["location_err_mm"],
                     "palm_deg": m["palm_deg"], "handshape_err": m["handshape_err"],
                     "fidelity_score": m["location_err"] + m["palm_deg"] / 180.0}
         return offset, fidelity
+
+
+def _yaw_to_human(human, robot, side: str) -> float:
+    """The turn about the torso's up axis (deg, + = about +z) that best brings the robot hand's
+    palm normal and pointing direction (each in its own torso frame) onto the human's: the
+    least-squares yaw of their horizontal parts over the sequence. The IK target's rotation is no
+    reference here: on the wristless H1 its yaw disagrees with the human palm, and turns that
+    cancelled it raised the palm error round after round (default run, 2026-11-26)."""
+    s = ("left", "right").index(side)
+    tip = f"{side}_middle_tip" if human.has(f"{side}_middle_tip") and robot.has(f"{side}_middle_tip") \
+        else f"{side}_palm"
+    pairs = [(human.local(human.normals[:, s]), robot.local(robot.normals[:, s]))]
+    pairs += [tuple(t.local(t.point(tip) - t.point(f"{side}_wrist")) for t in (human, robot))]
+    cross = dot = 0.0
+    for h, r in pairs:
+        h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
+        r = r / np.maximum(np.linalg.norm(r, axis=-1, keepdims=True), 1e-12)
+        cross += float((r[:, 0] * h[:, 1] - r[:, 1] * h[:, 0]).sum())
+        dot += float((r[:, 0] * h[:, 0] + r[:, 1] * h[:, 1]).sum())
+    return float(np.degrees(np.arctan2(cross, dot)))
 
 
 _TABLE_METRICS = ("wrist_mm_mean", "wrist_mm_p95", "wrist_deg_mean", "wrist_deg_p95",

@@ -28,6 +28,8 @@ import urllib.request
 from pathlib import Path
 from typing import Any, Callable
 
+import numpy as np
+
 from embody.config.critic import VLMConfig
 from embody.critic.action import ACTION_SCHEMA, Action
 from embody.critic.base import Critic, CritiqueContext
@@ -211,6 +213,12 @@ def _fidelity_facts(context: CritiqueContext) -> str:
                 f"({100 * h['share']:.0f}% of frames); palm location error {h['location_cm']:.1f} cm "
                 f"({h['location_err']:.2f} body scales) from where the human's palm sits relative to it; "
                 f"palm orientation error {h['palm_deg']:.1f} deg.")
+    if context.reach_blocked is not None:  # what the geometric critic does not ask for either
+        for s, side in enumerate(("left", "right")):
+            n = int(np.count_nonzero(context.reach_blocked[:, s]))
+            if n:
+                out += (f" In {n} frames the robot's {side} hand already stands at its clearance from "
+                        "the face or chest: it cannot move closer to them there.")
     return out
 
 
