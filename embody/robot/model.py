@@ -64,6 +64,13 @@ class Robot:
         return self.joint_names.index(name)
 
     @cached_property
+    def derived(self) -> dict:
+        """Models and tables derived from this robot by other modules, built on first use and
+        keyed by what built them (e.g. `contacts.collision_model`): they live as long as the
+        robot, not in module dicts keyed by `id(robot)`, which a new robot may reuse."""
+        return {}
+
+    @cached_property
     def kinematics(self) -> Kinematics:
         """The pytorch-kinematics chain, built on first use (float64)."""
         return Kinematics(self.mjcf_path, self.model, self.spec.root_body, self.joint_names)
