@@ -206,7 +206,8 @@ class Residuals:
         body: a cheap first broad phase, so per-point tests run only where a part is near a hull."""
         px = self.proxies
         proxy_bodies = px.bodies if px is not None else []
-        fk = robot.fk(link_bodies + proxy_bodies + [b for b in term_bodies if b not in link_bodies], backend)
+        fk = robot.fk(link_bodies + proxy_bodies + [b for b in term_bodies if b not in link_bodies], backend,
+                      variable=list(self.ik))  # the other joints are fixed per solve (fingers, legs)
         out: dict[str, object] = {"fk": fk, "link_body": [fk.index[b] for b in link_bodies],
                                   "mask": fk.moves(list(self.ik))}  # mask (J, bodies)
         if px is None:

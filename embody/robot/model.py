@@ -95,11 +95,13 @@ class Robot:
         t[:3, 3] = data.xpos[b]
         return np.linalg.inv(t)
 
-    def fk(self, bodies: list[str], backend: str = "tree") -> BodyFK:
+    def fk(self, bodies: list[str], backend: str = "tree", variable: list[int] | None = None) -> BodyFK:
         """FK of `bodies` (and ancestors) in the torso frame for the IK: `backend` is
-        "pytorch_kinematics" (the pk chain, cut down to those bodies) or "tree" (NumPy)."""
+        "pytorch_kinematics" (the pk chain, cut down to those bodies) or "tree" (NumPy).
+        `variable`: the joints that change between calls (the pk chain then reuses the others' bodies)."""
         if backend == "pytorch_kinematics":
-            return ChainFK(self.kinematics, self.model, self.joint_names, self.torso_from_world, bodies)
+            return ChainFK(self.kinematics, self.model, self.joint_names, self.torso_from_world, bodies,
+                           variable=variable)
         if backend == "tree":
             return KinematicTree(self.model, self.joint_names, self.torso_from_world, bodies)
         raise ConfigError("ik.kinematics", f"unknown kinematics backend {backend!r}")
