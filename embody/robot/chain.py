@@ -17,6 +17,8 @@ walked bodies.
 
 from __future__ import annotations
 
+import threading
+
 import mujoco
 import numpy as np
 import torch
@@ -61,8 +63,9 @@ class ChainFK(BodyFK):
                     keep=np.flatnonzero(keep), anchored=static[anchor[static] >= 0],
                     anchor=anchor[static][anchor[static] >= 0], absolute=static[anchor[static] < 0],
                     fixed=np.array(sorted(set(self.cols.tolist()) - set(variable)), dtype=np.int64))
-        #: (fixed joint values, anchored bodies' relative rot, pos, unanchored bodies' rot, pos)
-        self._static: tuple[np.ndarray, ...] | None = None
+        #: per thread (pipeline workers share one solver geometry and solve different
+        #: sequences): fixed joint values, anchored bodies' relative rot, pos, the others' rot, pos
+        self._static: dict[int, tuple[np.ndarray, ...]] = {}
 
     def _subchain(self, kinematics: Kinematics, names: list[str],
                   joint_names: list[str]) -> tuple[object, torch.Tensor, torch.Tensor]:
@@ -86,14 +89,17 @@ class ChainFK(BodyFK):
         if red is None:
             return self._chain_forward((self.chain, self.cols, self.frames), q)
         fixed = np.asarray(q)[:, red["fixed"]]
-        cache = self._static
+        cache = self._static.get(threading.get_ident())
         if cache is None or cache[0].shape != fixed.shape or not np.array_equal(cache[0], fixed):
             rot, pos = self._chain_forward((self.chain, self.cols, self.frames), q)
             # static bodies relative to their anchor, and those with no anchor as they are
             a_rt = np.swapaxes(rot[:, red["anchor"]], -1, -2)
             rel_rot = a_rt @ rot[:, red["anchored"]]
             rel_pos = (a_rt @ (pos[:, red["anchored"]] - pos[:, red["anchor"]])[..., None])[..., 0]
-            self._static = (fixed.copy(), rel_rot, rel_pos, rot[:, red["absolute"]], pos[:, red["absolute"]])
+            if len(self._static) >= 8:  # threads come and go: keep the latest few
+                self._static.pop(next(iter(self._static)))
+            self._static[threading.get_ident()] = (fixed.copy(), rel_rot, rel_pos,
+                                                    rot[:, red["absolute"]], pos[:, red["absolute"]])
             return rot, pos
         _, rel_rot, rel_pos, abs_rot, abs_pos = cache
         rot = np.empty((len(q), len(self.names), 3, 3))
