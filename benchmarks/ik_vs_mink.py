@@ -26,6 +26,10 @@ and upper arms against each other, the torso shell, the head, pelvis and thighs)
 pairs MuJoCo's verdict counts (`counted_geom_pairs`). Its clean/feasible frames are its own; the
 `feasible` keys of ours and mink's stay on the plain mink's feasible frames.
 
+Frames per second are wall clock (`*_fps`, `fps_ratio*`, as the issue states them) and process
+CPU time (`*_cpu_fps`, `fps_ratio*_cpu`: every solver runs single-threaded, so on a shared,
+loaded machine the CPU ratio is the one that does not move with the other processes).
+
 Usage: python benchmarks/ik_vs_mink.py [--sequences 4] [--seed 0] [--profile ik.pstats] [--ik KEY=VALUE ...]
 (`--profile`: cProfile of our solves only, saved there, top entries printed before the RESULT line;
 `--ik`: override an `ik` config field of our solver, e.g. `--ik polish_iterations=0` for an A/B).
@@ -179,6 +183,7 @@ def main() -> None:
     run_mink(robot, model, all_targets[0], iterations=1, collision_pairs=geom_pairs)
     profiler = cProfile.Profile() if args.profile else None
     totals = {k: 0.0 for k in ("ours_t", "other_t", "mink_t", "mink_col_t", "frames")}
+    cpu = {k: 0.0 for k in ("ours", "mink", "mink_col")}  # process CPU time: robust to other load
     max_dq = 0.0
     rows: dict[str, list[dict]] = {"ours": [], "mink": [], "mink_col": []}
     errs: dict[str, dict[str, list[np.ndarray]]] = {
@@ -189,17 +194,20 @@ def main() -> None:
     for i, targets in enumerate(all_targets):
         if profiler is not None:
             profiler.enable()
-        t0 = time.perf_counter()
+        c0, t0 = time.process_time(), time.perf_counter()
         ours = solve(robot, targets, cfg)
-        t1 = time.perf_counter()
+        c1, t1 = time.process_time(), time.perf_counter()
         if profiler is not None:
             profiler.disable()
         theirs = run_mink(robot, model, targets)
-        t2 = time.perf_counter()
+        c2, t2 = time.process_time(), time.perf_counter()
         again = solve(robot, targets, cfg_other)
-        t3 = time.perf_counter()
+        c3, t3 = time.process_time(), time.perf_counter()
         theirs_col = run_mink(robot, model, targets, collision_pairs=geom_pairs)
-        t4 = time.perf_counter()
+        c4, t4 = time.process_time(), time.perf_counter()
+        cpu["ours"] += c1 - c0
+        cpu["mink"] += c2 - c1
+        cpu["mink_col"] += c4 - c3
         totals["ours_t"] += t1 - t0
         totals["mink_t"] += t2 - t1
         totals["other_t"] += t3 - t2
@@ -278,7 +286,11 @@ def main() -> None:
           f"mink_collision_frames_with_limit={coll['mink_col']} "
           f"mink_collision_feasible_wrist_mm={frames_mean('mink_col', 'feasible_col'):.2f} "
           f"ours_collision_feasible_wrist_mm={frames_mean('ours', 'feasible_col'):.2f} "
-          f"mink_collision_vel_viol={mean('mink_col', 'velocity_violations'):.1f}")
+          f"mink_collision_vel_viol={mean('mink_col', 'velocity_violations'):.1f} "
+          f"ours_cpu_fps={totals['frames'] / cpu['ours']:.1f} mink_cpu_fps={totals['frames'] / cpu['mink']:.1f} "
+          f"mink_collision_cpu_fps={totals['frames'] / cpu['mink_col']:.1f} "
+          f"fps_ratio_cpu={cpu['mink'] / cpu['ours']:.3f} "
+          f"fps_ratio_mink_collision_cpu={cpu['mink_col'] / cpu['ours']:.3f}")
 
 
 if __name__ == "__main__":

@@ -312,12 +312,15 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 # v4: hand clearance's exact cull (a few planes' lower bound against the gap): same rows to ~1e-17,
 #     which moves the chaotic solve off a bad basin on synth seq 3 (21 self-contact frames → 0).
 # v5: up to 32 contact-repair passes (was 12; `retarget.control.PASSES`).
-RETARGET = Step("retarget", "5", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v6: the IK's damping floor (`retarget.ik.LAMBDA_MIN`): fewer rejected trials, slightly other solves.
+RETARGET = Step("retarget", "6", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
 # v6: the export's contact repair gets up to 32 passes (was 12).
-REFINE = Step("refine", "7", ("body", "robot", "ik", "render", "critic"), _refine,
+# v7: the critic judges against what the robot can reach (`critic.reach`), palm against the human.
+# v8: the IK's damping floor (`retarget.ik.LAMBDA_MIN`) changes every solve slightly.
+REFINE = Step("refine", "8", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.

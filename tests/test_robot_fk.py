@@ -89,3 +89,25 @@ def test_fk_backends_agree_with_each_other_and_mujoco(name):
 def test_unknown_fk_backend_is_a_config_error():
     with pytest.raises(ConfigError, match="ik.kinematics"):
         load_robot().fk(["torso_link"], "numba")
+
+
+def test_chain_reuses_bodies_no_variable_joint_moves():
+    """`variable` joints: the fingers and legs come from the cached relative transforms while
+    the other joints keep their values, and are recomputed as soon as one of them changes."""
+    robot = load_robot()
+    ik = list(np.flatnonzero(robot.ik_mask))
+    bodies = ["left_hand_index_1_link", "right_hand_thumb_2_link", "left_hip_roll_link", "torso_link",
+              "left_elbow_link", "right_wrist_yaw_link"]
+    full = robot.fk(bodies, "pytorch_kinematics")
+    fast = robot.fk(bodies, "pytorch_kinematics", variable=ik)
+    assert 0 < len(fast.reduced["keep"]) < len(fast.names)
+    rng = np.random.default_rng(1)
+    q = rng.uniform(robot.lower, robot.upper, size=(20, robot.n_joints))
+    for step in range(3):
+        if step == 1:  # only the IK joints move: the cached part is reused
+            q[:, ik] = rng.uniform(robot.lower[ik], robot.upper[ik], size=(20, len(ik)))
+        if step == 2:  # a finger moves: the cache is rebuilt
+            j = robot.joint_index("left_hand_index_1_joint")
+            q[:, j] = rng.uniform(robot.lower[j], robot.upper[j], size=20)
+        for a, b in zip(full.forward(q), fast.forward(q)):
+            np.testing.assert_allclose(b, a, atol=1e-12)

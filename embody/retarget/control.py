@@ -24,7 +24,7 @@ import numpy as np
 
 from embody.retarget.limits import clamp_velocity, resample
 from embody.robot import Robot
-from embody.robot.contacts import counted_geom_pairs
+from embody.robot.contacts import collision_model
 
 #: Clearance (m) a repaired sample gets between the geoms that penetrated.
 CLEARANCE = 0.002
@@ -45,9 +45,9 @@ class _Separator:
     """Per-sample contact repair on one robot (one MjData, reused)."""
 
     def __init__(self, robot: Robot, clearance: float = CLEARANCE) -> None:
-        self.robot, self.model, self.clearance = robot, robot.model, clearance
+        self.robot, self.clearance = robot, clearance
+        self.model, self.counted = collision_model(robot)  # the counted pairs' collisions only
         self.data = mujoco.MjData(self.model)
-        self.counted = counted_geom_pairs(robot)
         jid = [self.model.joint(n).id for n in robot.joint_names]
         self.dof = self.model.jnt_dofadr[jid]
         hands = {j for side in robot.spec.hands for j in robot.hand_joint_names(side)}

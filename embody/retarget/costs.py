@@ -30,7 +30,6 @@ from embody.robot import Robot
 from embody.robot.proxies import robot_proxies
 
 WRIST_ELBOW = ["left_wrist", "right_wrist", "left_elbow", "right_elbow"]
-_GEOMETRY: dict[tuple, dict[str, object]] = {}
 
 
 @dataclass
@@ -100,10 +99,10 @@ class Residuals:
         refs = [robot.spec.links[n] for n in links]
         self.link_offset = np.array([r.offset for r in refs])
         self.rot_cols = [0, 1] + list(range(4, 4 + len(self.rot_links)))
-        key = (id(robot), tuple(links), tuple(term_bodies), self.proxies is not None, cfg.kinematics)
-        if key not in _GEOMETRY:  # the static part, once per robot and task set
-            _GEOMETRY[key] = self._geometry(robot, [r.body for r in refs], cfg.kinematics, term_bodies)
-        for name, value in _GEOMETRY[key].items():
+        key = ("ik_geometry", tuple(links), tuple(term_bodies), self.proxies is not None, cfg.kinematics)
+        if key not in robot.derived:  # the static part, once per robot and task set
+            robot.derived[key] = self._geometry(robot, [r.body for r in refs], cfg.kinematics, term_bodies)
+        for name, value in robot.derived[key].items():
             setattr(self, name, value)
         if self.proxies is not None:
             px = self.proxies
@@ -206,7 +205,8 @@ class Residuals:
         body: a cheap first broad phase, so per-point tests run only where a part is near a hull."""
         px = self.proxies
         proxy_bodies = px.bodies if px is not None else []
-        fk = robot.fk(link_bodies + proxy_bodies + [b for b in term_bodies if b not in link_bodies], backend)
+        fk = robot.fk(link_bodies + proxy_bodies + [b for b in term_bodies if b not in link_bodies], backend,
+                      variable=list(self.ik))  # the other joints are fixed per solve (fingers, legs)
         out: dict[str, object] = {"fk": fk, "link_body": [fk.index[b] for b in link_bodies],
                                   "mask": fk.moves(list(self.ik))}  # mask (J, bodies)
         if px is None:

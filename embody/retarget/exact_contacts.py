@@ -18,43 +18,7 @@ import mujoco
 import numpy as np
 
 from embody.robot import Robot
-from embody.robot.contacts import counted_geom_pairs, subtree_ids
-
-_MODELS: dict[tuple[int, float], tuple[mujoco.MjModel, np.ndarray]] = {}
-
-
-def _collision_model(robot: Robot, margin: float) -> tuple[mujoco.MjModel, np.ndarray]:
-    """A copy of the robot's model that collides only geoms in a counted pair whose relative pose
-    the IK joints can change, each with `margin`; and the counted-pair table."""
-    key = (id(robot), margin)
-    if key not in _MODELS:
-        model = robot.model.__copy__()
-        counted = counted_geom_pairs(robot)
-        ik_dofs = {int(model.jnt_dofadr[model.joint(n).id]) for n in np.asarray(robot.joint_names)[robot.ik_mask]}
-        moved = np.zeros((model.ngeom, len(ik_dofs)), dtype=bool)  # which IK dofs move each geom
-        order = sorted(ik_dofs)
-        for g in range(model.ngeom):
-            b = int(model.geom_bodyid[g])
-            while b > 0:
-                for j in range(model.body_jntnum[b]):
-                    dof = int(model.jnt_dofadr[model.body_jntadr[b] + j])
-                    if dof in ik_dofs:
-                        moved[g, order.index(dof)] = True
-                b = int(model.body_parentid[b])
-        differs = (moved[:, None, :] != moved[None, :, :]).any(-1)
-        relevant = counted & differs
-        used = relevant.any(1)
-        # collision bits: geoms inside one ignored subtree (a hand's fingers and palm) never
-        # reach the narrow phase together; every other pair keeps MuJoCo's own filtering
-        bits = np.ones(model.ngeom, dtype=np.int64)
-        for k, root in enumerate(robot.spec.collision.ignore_subtrees[:30]):
-            bits[np.isin(model.geom_bodyid, list(subtree_ids(model, root)))] = 2 << k
-        every = int(np.bitwise_or.reduce(np.unique(bits)))
-        model.geom_contype[:] = np.where(used, bits, 0)
-        model.geom_conaffinity[:] = np.where(used, np.where(bits == 1, every, every & ~bits), 0)
-        model.geom_margin[used] = margin
-        _MODELS[key] = (model, relevant)
-    return _MODELS[key]
+from embody.robot.contacts import collision_model
 
 
 class ExactContacts:
@@ -62,7 +26,8 @@ class ExactContacts:
 
     def __init__(self, robot: Robot, margin: float, weight: float) -> None:
         self.robot, self.margin, self.w = robot, margin, float(np.sqrt(weight))
-        self.model, self.relevant = _collision_model(robot, margin)
+        # only the counted pairs the IK joints can move, each geom with `margin`
+        self.model, self.relevant = collision_model(robot, margin, movable_only=True)
         self.data = mujoco.MjData(self.model)
         jid = [self.model.joint(n).id for n in np.asarray(robot.joint_names)[robot.ik_mask]]
         self.cols = self.model.jnt_dofadr[jid]

@@ -84,6 +84,13 @@ def _difference_normal(t: int, order: int = 2) -> np.ndarray:
 #: Initial Marquardt damping, carried across phases: the first Gauss-Newton step from the rest
 #: pose overshoots badly, and a phase change needs no fresh start.
 LAMBDA0 = 1.0
+#: Smallest damping after a rejected step, and at the start of a phase. The damping is
+#: relative (Marquardt's scaling); a converged phase leaves it near Gauss-Newton (1e-7), and
+#: the next phase's first step (a heavier collision term, all frames after the coarse pass)
+#: overshoots: doubling from there took 5-10 rejected trials, each a full residual evaluation,
+#: before a step was accepted (benchmarks/ik_vs_mink.py: 162 evaluations for 109 accepted
+#: steps). With the floor: 1.13× CPU frames/s, same accuracy (docs/performance.md, s6-ik).
+LAMBDA_MIN = 1e-3
 
 
 class _Problem:
@@ -213,6 +220,7 @@ class _Problem:
             cost, normal = self.evaluate(qi, collision, exact)
             h, g = normal()
             nu = 2.0
+            lam = max(lam, LAMBDA_MIN)
             for _ in range(budget):
                 step = self.step(h, g, lam)
                 cand = np.clip(qi + step, lower, upper)
@@ -228,7 +236,7 @@ class _Problem:
                         break
                     h, g = normal()
                 else:
-                    lam *= nu
+                    lam = max(lam * nu, LAMBDA_MIN)
                     nu *= 2.0
                     if lam > 1e8:
                         break

@@ -64,6 +64,13 @@ class Robot:
         return self.joint_names.index(name)
 
     @cached_property
+    def derived(self) -> dict:
+        """Models and tables derived from this robot by other modules, built on first use and
+        keyed by what built them (e.g. `contacts.collision_model`): they live as long as the
+        robot, not in module dicts keyed by `id(robot)`, which a new robot may reuse."""
+        return {}
+
+    @cached_property
     def kinematics(self) -> Kinematics:
         """The pytorch-kinematics chain, built on first use (float64)."""
         return Kinematics(self.mjcf_path, self.model, self.spec.root_body, self.joint_names)
@@ -88,11 +95,13 @@ class Robot:
         t[:3, 3] = data.xpos[b]
         return np.linalg.inv(t)
 
-    def fk(self, bodies: list[str], backend: str = "tree") -> BodyFK:
+    def fk(self, bodies: list[str], backend: str = "tree", variable: list[int] | None = None) -> BodyFK:
         """FK of `bodies` (and ancestors) in the torso frame for the IK: `backend` is
-        "pytorch_kinematics" (the pk chain, cut down to those bodies) or "tree" (NumPy)."""
+        "pytorch_kinematics" (the pk chain, cut down to those bodies) or "tree" (NumPy).
+        `variable`: the joints that change between calls (the pk chain then reuses the others' bodies)."""
         if backend == "pytorch_kinematics":
-            return ChainFK(self.kinematics, self.model, self.joint_names, self.torso_from_world, bodies)
+            return ChainFK(self.kinematics, self.model, self.joint_names, self.torso_from_world, bodies,
+                           variable=variable)
         if backend == "tree":
             return KinematicTree(self.model, self.joint_names, self.torso_from_world, bodies)
         raise ConfigError("ik.kinematics", f"unknown kinematics backend {backend!r}")

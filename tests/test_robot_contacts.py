@@ -1,0 +1,55 @@
+"""MuJoCo's self-collision verdict on the narrowed collision model (`contacts.collision_model`)."""
+
+import mujoco
+import numpy as np
+import pytest
+
+from embody.robot import load_robot
+from embody.robot.contacts import collision_model, counted_geom_pairs
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot()
+
+
+def _counted_contacts(model, counted, robot, q):
+    data = mujoco.MjData(model)
+    data.qpos[:] = model.qpos0
+    out = []
+    for qt in q:
+        data.qpos[robot.qpos_adr] = qt
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_collision(model, data)
+        n = data.ncon
+        geom, dist = data.contact.geom[:n], data.contact.dist[:n]
+        keep = counted[geom[:, 0], geom[:, 1]] & (dist < 0.0)
+        out.append(sorted((int(a), int(b), round(float(d), 12)) for (a, b), d in zip(geom[keep], dist[keep])))
+    return out
+
+
+def test_narrowed_model_gives_the_full_models_counted_contacts(robot):
+    rng = np.random.default_rng(3)
+    ik = np.flatnonzero(robot.ik_mask)
+    q = np.tile(robot.rest, (150, 1))
+    q[:, ik] = rng.uniform(robot.lower[ik], robot.upper[ik], size=(150, len(ik)))
+    full = _counted_contacts(robot.model, counted_geom_pairs(robot), robot, q)
+    model, counted = collision_model(robot)
+    narrow = _counted_contacts(model, counted, robot, q)
+    assert sum(map(len, full)) > 100  # random arm poses collide a lot
+    assert narrow == full
+    assert collision_model(robot) is collision_model(robot)  # cached on the robot
+
+
+def test_movable_only_keeps_pairs_the_ik_moves(robot):
+    _, every = collision_model(robot)
+    _, movable = collision_model(robot, 0.002, movable_only=True)
+    assert movable.sum() < every.sum() and not (movable & ~every).any()
+    left = robot.model.body("left_hand_index_1_link").id
+    torso = robot.model.body("torso_link").id
+    pelvis = robot.model.body("pelvis").id
+    geoms = lambda b: np.flatnonzero(robot.model.geom_bodyid == b)  # noqa: E731
+    assert movable[np.ix_(geoms(left), geoms(torso))].any()  # an arm moves the hand off the torso
+    legs = [robot.model.body(n).id for n in ("left_knee_link", "right_knee_link")]
+    assert not movable[np.ix_(geoms(legs[0]), geoms(legs[1]))].any()  # legs are pinned
+    assert not movable[np.ix_(geoms(pelvis), geoms(legs[0]))].any()
