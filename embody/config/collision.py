@@ -75,6 +75,8 @@ class CollisionConfig(Section):
     solver_lambda_growth: float = Field(4.0, ge=1, le=1000)
     #: Accepted LM steps between broad-phase refreshes of the near (point, piece) pairs.
     solver_refresh_every: int = Field(2, ge=1, le=1000)
+    #: Damping trials (solves) per LM iteration before it gives up on a step.
+    solver_trials: int = Field(8, ge=1, le=100)
     #: Stop (once every frame is clear) when an LM step lowers the objective by less than this.
     solver_rtol: float = Field(1e-3, ge=0, le=1)
     #: Adam's second moment per `parameter` (torch's Adam, the paper's) or shared per `frame`
