@@ -132,7 +132,8 @@ def _external_planes(model: CollisionModel, ext: np.ndarray, dtype: torch.dtype
     """Each piece's external planes (a list, for `_piece_planes`) and the same packed into a
     padded (P,F,4) tensor, so a plane index of the list addresses it."""
     cache = model.__dict__.setdefault("_external", {})
-    if dtype not in cache:
+    key = (dtype, ext.tobytes())
+    if key not in cache:
         planes = model.planes
         packed = np.tile(np.array(_PAD_PLANE), (planes.shape[0], planes.shape[1], 1))
         own = []
@@ -140,8 +141,8 @@ def _external_planes(model: CollisionModel, ext: np.ndarray, dtype: torch.dtype
             rows = planes[k, ext[k]]
             packed[k, :len(rows)] = rows
             own.append(torch.as_tensor(np.ascontiguousarray(rows), dtype=dtype))
-        cache[dtype] = (own, torch.as_tensor(packed, dtype=dtype))
-    return cache[dtype]
+        cache[key] = (own, torch.as_tensor(packed, dtype=dtype))
+    return cache[key]
 
 
 @dataclass
