@@ -309,7 +309,7 @@ def _solve(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.ndarr
     wn = weight[lo:hi]
     live = wn > 0
     tol_opt = cfg.tolerance - cfg.clearance
-    lam = np.full(t, float(cfg.lambda_col))
+    lam = np.full(t, float(cfg.solver_lambda_col))
     lc, ls, cw = cfg.lambda_close / t, cfg.lambda_smooth / t, cfg.capsule_weight
     d2w, smooth_n = _smooth_ops(wn)
     x0m = pb.x0[:, mask_pose].numpy().reshape(t, -1)                 # (t, 3K)
