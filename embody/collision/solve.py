@@ -16,24 +16,35 @@ second-order step converges in ~5–15 iterations.
 - *Structure*: collision residuals couple the joints of one frame, closeness is diagonal and
   smoothness couples one coordinate over t ± 2, so the normal matrix ordered frame-major is
   banded (half-bandwidth 2P) and solved with a banded Cholesky (`scipy.linalg.solveh_banded`).
-- *Cheap evaluations*: the broad phase runs on refreshes only; in between, the candidate
-  (point, piece) pairs within `refresh_margin` are re-evaluated point by point (all planes of
-  their piece, deepest piece per part), which is what the inner LM iterations need.
-- λ continuation as in the Adam path: a frame's λ grows while it still penetrates beyond
-  `tolerance`; the solve does not stop while any frame does (the iteration budget bounds it).
+- *Cheap evaluations*: the broad phase (`contacts`, margin `solver_refresh_margin`) runs
+  every `solver_refresh_every` LM steps; in between its point rows are re-evaluated (skinned,
+  planes of their piece by one small matmul per piece, deepest piece per (point, part)) and
+  the Jacobian is built only for the rows deeper than the target, over the arm chain (the
+  finger joints stay out). Kinematics, depths and Jacobians are float32, the normal
+  equations float64; BLAS runs on `threads` (OpenBLAS's spinning threads made the small
+  products ~100x slower on a loaded machine).
+- *External faces* (`external_faces`): inside a piece the depth is measured to the piece's
+  faces that are on the outside of the body, not to faces where two torso pieces abut. The
+  nearest-face push of a forearm deep in the chest at the spine1/spine3 seam pointed through
+  the seam from both sides and cancelled (the saddle that stalled seq_000/seq_003 at 14/58 mm).
+- λ continuation: a frame's λ (from `solver_lambda_col`) grows by `solver_lambda_growth`
+  while it still penetrates beyond `tolerance`, but only once the LM step at the current λ
+  has settled (`solver_rtol`): growing it every iteration overshot (Pose MSE 2-6x, ΔAccel
+  10-100x Adam's on seqs 0, 1, 3). The solve does not stop while a frame penetrates (the
+  iteration budget bounds it).
 
-Status (opt-in, `collision.solver: gauss_newton`; measured on a loaded 2-core machine, 2026-11-23):
-seq_002 of the default set is cleared in 7 iterations (mesh depth 15.9 → 0.0 mm, Pose MSE
-0.00018, as Adam); seq_000 and seq_003 stall after ~10 iterations with 14 mm / 58 mm of
-residual depth: there a forearm sits ~58 mm inside two torso parts at once (spine1 and
-spine3), whose nearest-face pushes cancel (a saddle, like crossed forearms), and each
-iteration still costs ~1 s of CPU (the per-point evaluation of ~20–60k near (point, part)
-groups dominates, not the banded solve). Open: why those residuals stall, and a cheaper
-evaluation (float32, fewer candidates) before this can replace Adam.
+Status (opt-in, `collision.solver: gauss_newton`; 2026-11-26, one thread, CPU seconds by
+`time.process_time`, `depth_metrics` off so the optimiser alone): on default seqs 0-3 1.39 CPU s
+per 150 frames against Adam's 7.08 (100 vs 909 iterations), Pose MSE 0.0204/0.0096/0.0002/0.0355
+(Adam 0.0229/0.0093/0.0002/0.0280). Not yet the default: seq_000's hands interlocked by the
+fingers (the finger joints are not variables) oscillate until the 40-iteration cap, seq_003's
+correction has kinks (ΔAccel +1.6e-2) and the ≤ 1 s per 150 frames target needs ~2x fewer
+iterations; the 24-sequence figures are in docs/performance.md (2026-11-26, s6-gn).
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,7 +60,7 @@ from embody.collision.volumes import part_volumes
 from embody.config.collision import CollisionConfig
 from embody.motion import JOINT_NAMES, Motion
 
-import os
+#: Print one line per LM iteration (set EMBODY_SOLVE_DEBUG=1).
 _DEBUG = bool(os.environ.get("EMBODY_SOLVE_DEBUG"))
 #: Precision of the kinematics, depths and Jacobians (the normal equations are float64):
 #: float32 gave the same iterations and metrics to 4 digits on seqs 0-3 at 26 % less CPU.
@@ -439,16 +450,6 @@ def _solve(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.ndarr
             print(f"it {it} acc {accepted} mu {mu:.1e} cost {cost(ev):.4g} "
                   f"raw_max {ev['raw'].max()*1e3:.2f}mm pen {pen.sum()} var {len(var)} "
                   f"rows {rows.t.numel()}", flush=True)
-        if _DEBUG and it % 10 == 0:
-            x_ = pb.pose(ev["u"]); tr_ = body.joint_transforms(x_, pb.betas)
-            sl = _select(model, ext, rows, tr_, tol_opt)
-            dd = model.tensors(dt, None)
-            deep = sl.depth > cfg.tolerance + 0.003
-            pa = dd["chunk_part"][sl.h[deep]]
-            import collections
-            print(collections.Counter(zip(sl.t[deep].tolist(), [model.part_names[i] for i in pa.tolist()], [model.part_names[i] for i in sl.b[deep].tolist()])).most_common(8))
-            if pb.caps is not None:
-                ov, fc, _ = _capsule_terms(pb, tr_, x_, False); print("caps", ov.max() if len(ov) else None, len(ov))
         converged = (not accepted) or rel < cfg.solver_rtol
         if pen.any() and converged:
             # λ continuation once the step at this λ has settled (growing it at every
