@@ -157,6 +157,13 @@ def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> Collisio
             caps = arm_capsules(body, motion.betas, cfg.allow_pairs) \
                 if cfg.capsule_weight > 0 else None
             best_pose, steps = solve(body, fine, motion, idx, weight, cfg, caps)
+            # frames the LM path leaves penetrating (a saddle it cannot leave, e.g. hands
+            # interlocked by the fingers, which are not its variables): Adam, warm-started
+            left = _exact(body, fine, best_pose, motion.betas, cfg.tolerance) > 0
+            if left.any():
+                best_pose, more = _optimise(body, fine, motion.with_pose(best_pose), idx,
+                                            blend_weights(left, window), cfg)
+                steps += more
         else:
             best_pose, steps = _optimise(body, fine, motion, idx, weight, cfg)
     fixed = motion.with_pose(best_pose)

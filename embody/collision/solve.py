@@ -445,7 +445,7 @@ def _solve(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.ndarr
                 break
             mu *= 4
         since_refresh += 1
-        pen = ev["raw"] > cfg.tolerance
+        pen = ev["raw"] > 0
         if _DEBUG:
             print(f"it {it} acc {accepted} mu {mu:.1e} cost {cost(ev):.4g} "
                   f"raw_max {ev['raw'].max()*1e3:.2f}mm pen {pen.sum()} var {len(var)} "
@@ -462,7 +462,7 @@ def _solve(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.ndarr
             ev = evaluate(ev["u"])
             since_refresh = 0
             record(ev)
-            if converged and not (ev["raw"] > cfg.tolerance).any():
+            if converged and not (ev["raw"] > 0).any():
                 break
     out = motion.pose.copy()
     delta = torch.zeros_like(pb.x0)
