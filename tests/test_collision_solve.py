@@ -109,7 +109,9 @@ def test_gauss_newton_clears_a_planted_collision(body):
     cfg = CollisionConfig(solver="gauss_newton", depth_metrics=False, solver_iterations=8)
     r = mitigate(motion, body, cfg)
     m = r.metrics
-    assert m["improved"] and m["reduction_pct"] >= 90.0 and 0 < m["steps"] <= 8
+    # 8 LM iterations, then Adam from there on the frames they leave penetrating
+    assert m["improved"] and m["reduction_pct"] >= 90.0 and m["steps"] > 0
+    assert m["energy_after"] == 0.0
     frozen = np.setdiff1d(np.arange(55), mask_joints("arms"))
     assert np.array_equal(r.motion.pose[:, frozen], motion.pose[:, frozen])
 
