@@ -66,8 +66,9 @@ class CollisionConfig(Section):
     joints: list[str] = []
     #: `adam`: the first-order path (`lr`, `steps`), the measured default. `gauss_newton`:
     #: Levenberg-Marquardt with analytic Jacobians and a banded solve
-    #: (`embody.collision.solve`), opt-in: 3-5x less CPU than Adam on the benchmark's first
-    #: sequences, but not yet at Adam's Pose MSE / ΔAccel on all of them (its module docstring).
+    #: (`embody.collision.solve`); frames it leaves penetrating go on to Adam from its pose.
+    #: Opt-in: on the 24 default sequences it meets the depth targets at ~40 % less CPU than
+    #: Adam, but its Pose MSE median is 0.0225 (Adam 0.0218; docs/performance.md, s6-gn).
     solver: Literal["gauss_newton", "adam"] = "adam"
     #: LM iterations (each one banded solve + re-evaluation of the near points).
     solver_iterations: int = Field(40, ge=1, le=10_000)
