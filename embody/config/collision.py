@@ -67,8 +67,9 @@ class CollisionConfig(Section):
     #: `adam`: the first-order path (`lr`, `steps`), the measured default. `gauss_newton`:
     #: Levenberg-Marquardt with analytic Jacobians and a banded solve
     #: (`embody.collision.solve`); frames it leaves penetrating go on to Adam from its pose.
-    #: Opt-in: on the 24 default sequences it meets the depth targets at ~40 % less CPU than
-    #: Adam, but its Pose MSE median is 0.0225 (Adam 0.0218; docs/performance.md, s6-gn).
+    #: Opt-in: it meets the depth targets on the 24 default sequences with less CPU (seqs 0-3:
+    #: optimiser 7.1 → 2.0 s per 150 frames, whole call with the mesh judge 12.6 → 10.3), but
+    #: its Pose MSE median is 0.0225 (Adam 0.0218; docs/performance.md, s6-gn).
     solver: Literal["gauss_newton", "adam"] = "adam"
     #: LM iterations (each one banded solve + re-evaluation of the near points).
     solver_iterations: int = Field(40, ge=1, le=10_000)
