@@ -14,6 +14,7 @@ two colliding windows, cross-faded; 0 skips it). `--sweep` first prints one row 
 clearance in `SWEEP` (how the default was picked; see `embody.config.collision`).
 
     python benchmarks/collision.py [--data DIR] [--n 24] [--paper-n 6] [--long-n 8] [--sweep]
+        [--solver gauss_newton] [--set lambda_col=300 ...]
 """
 
 from __future__ import annotations
@@ -160,6 +161,8 @@ def main() -> None:
     ap.add_argument("--sweep", action="store_true", help="first print the SWEEP rows")
     ap.add_argument("--solver", choices=("adam", "gauss_newton"), default=None,
                     help="override collision.solver (default: the config's)")
+    ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                    help="override a collision config field (YAML value), repeatable")
     args = ap.parse_args()
     torch.set_num_threads(1)
     paths = sorted(default_dataset(args.data).glob("seq_*.npz"))[: args.n]
@@ -167,7 +170,10 @@ def main() -> None:
     t = time.perf_counter()
     part_volumes(body)
     print(f"part volumes ready in {time.perf_counter() - t:.1f}s (cached after the first run)")
-    default = CollisionConfig() if args.solver is None else CollisionConfig(solver=args.solver)
+    over = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.set)}
+    if args.solver is not None:
+        over["solver"] = args.solver
+    default = CollisionConfig.model_validate({**CollisionConfig().model_dump(), **over})
     if args.sweep:
         for close, clearance, stall in SWEEP:
             cfg = CollisionConfig.model_validate({**default.model_dump(), "lambda_close": close,

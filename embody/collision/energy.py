@@ -418,17 +418,19 @@ def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: flo
 
 
 def _piece_planes(model: CollisionModel, d: dict[str, torch.Tensor], k: torch.Tensor,
-                  q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+                  q: torch.Tensor, own: list[torch.Tensor] | None = None
+                  ) -> tuple[torch.Tensor, torch.Tensor]:
     """max_f(n_f·q + d_f) and its plane index per row (points q (R,3) in the frame of piece
     k (R,)), one small matmul per piece with its own planes: gathering the padded (R,F,4)
-    planes per row cost more than the arithmetic."""
+    planes per row cost more than the arithmetic. `own` replaces each piece's planes (a
+    subset of them, as `solve` uses)."""
     f = q.new_empty(len(k))
     arg = torch.empty(len(k), dtype=torch.long)
     if len(k) == 0:
         return f, arg
     pieces, order = torch.sort(k, stable=True)
     ids, counts = torch.unique_consecutive(pieces, return_counts=True)
-    own = _own_planes(model, d)
+    own = _own_planes(model, d) if own is None else own
     start = 0
     for piece, n in zip(ids.tolist(), counts.tolist()):
         rows = order[start:start + n]

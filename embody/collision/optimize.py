@@ -157,6 +157,14 @@ def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> Collisio
             caps = arm_capsules(body, motion.betas, cfg.allow_pairs) \
                 if cfg.capsule_weight > 0 else None
             best_pose, steps = solve(body, fine, motion, idx, weight, cfg, caps)
+            # frames the LM path leaves penetrating (a saddle it cannot leave, e.g. hands
+            # interlocked by the fingers, which are not its variables): Adam, warm-started
+            # (within the first window: frames far from any input penetration stay x0)
+            left = _exact(body, fine, best_pose, motion.betas, cfg.tolerance) > 0
+            if left.any():
+                w2 = np.minimum(blend_weights(left, window), weight)
+                best_pose, more = _optimise(body, fine, motion.with_pose(best_pose), idx, w2, cfg)
+                steps += more
         else:
             best_pose, steps = _optimise(body, fine, motion, idx, weight, cfg)
     fixed = motion.with_pose(best_pose)
