@@ -44,7 +44,7 @@ from embody.body.base import BodyModel
 from embody.body.landmarks import LandmarkSet, body_landmarks
 from embody.config.ik import IKConfig
 from embody.motion import Motion
-from embody.retarget.hands import retarget_hands
+from embody.retarget.hands import fold_thumbs, retarget_hands
 from embody.retarget.shape_fit import ShapeFit
 from embody.robot import Robot
 
@@ -264,6 +264,30 @@ def _human(motion: Motion, body: BodyModel) -> tuple[np.ndarray, np.ndarray, Lan
     return tr, betas, body_landmarks(body, betas)
 
 
+def palm_rest(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> np.ndarray:
+    """(T,2) [left, right]: how much each human palm rests on the body, facing it, with a free
+    thumb (`hands.palm_rest_weight`; distances to the nearest `ANCHOR_LANDMARKS` per body scale,
+    within `cfg.touch_radius`): the weight `hands.fold_thumbs` lays the robot thumb down by."""
+    from embody.retarget.hands import finger_curls, palm_rest_weight
+    t = motion.num_frames
+    lm_names = [n for n in ANCHOR_LANDMARKS if n in robot.spec.landmarks]
+    if not lm_names or not robot.spec.hands:
+        return np.zeros((t, 2))
+    tr, _, hl = _human(motion, body)
+    hp, normals = hl.positions(tr)
+    lm = np.stack([hp[:, hl.index(n)] for n in lm_names], 1)  # (T,L,3)
+    out = np.zeros((t, 2))
+    for k, side in enumerate(("left", "right")):
+        rel = lm - hp[:, hl.index(f"{side}_palm"), None]  # palm → landmark
+        dist = np.linalg.norm(rel, axis=-1)
+        near = dist.argmin(1)
+        d = dist[np.arange(t), near]
+        facing = np.einsum("ta,ta->t", normals[:, k], rel[np.arange(t), near]) / np.maximum(d, 1e-12)
+        out[:, k] = palm_rest_weight(d / hl.scale, facing, finger_curls(np.asarray(motion.pose), side)
+                                     ["thumb_opposition"], cfg.touch_radius)
+    return out
+
+
 def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> np.ndarray:
     """The robot's least clearance per frame (T,3) between its hands and between each hand and
     its chest (`embody.retarget.hand_clearance.CHANNELS`): the human's mesh gap times the
@@ -314,6 +338,8 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
     wrist_rot = np.stack([mapped_rot(f"{s}_wrist", f"{s}_wrist") for s in sides], axis=1)
     torso_rot = mapped_rot("spine3", "spine3") if "spine3" in robot.spec.links else identity
     if cfg is not None and cfg.location_preserving and robot.spec.landmarks:
+        # a palm laid on the body: the robot thumb lies down too (`hands.fold_thumbs`)
+        hand_q = fold_thumbs(hand_q, hand_joints, robot, palm_rest(motion, body, robot, cfg))
         anchored = anchored_targets(motion, body, fit, robot, wrist_rot, torso_rot, hand_q, hand_joints, cfg)
         wrist_pos = wrist_pos + anchored.weight[..., None] * (anchored.wrist - wrist_pos)
         release, hold = np.ones((motion.num_frames, 2)), np.ones((motion.num_frames, 2))
