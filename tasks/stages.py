@@ -313,7 +313,8 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 #     which moves the chaotic solve off a bad basin on synth seq 3 (21 self-contact frames → 0).
 # v5: up to 32 contact-repair passes (was 12; `retarget.control.PASSES`).
 # v6: a human palm resting on the body, facing it, with a free thumb folds the robot thumb along
-#     the palm (`hands.fold_thumbs`; location-preserving targets only): the opposite-shoulder sign.
+#     the palm (`hands.fold_thumbs`; location-preserving targets only): the opposite-shoulder sign;
+#     hand-face clearance at hand scale too (`Targets.hand_gap` (T,5), `hand_clearance.CHANNELS`).
 RETARGET = Step("retarget", "6", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.

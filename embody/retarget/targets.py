@@ -62,8 +62,8 @@ class Targets:
     `ik.touch_release`: at a touch the touching point, not the human's wrist position, decides);
     wrist_rot_weight (T,2): factor on the wrist orientation term (`ik.w_wrist_rot_touch` /
     `ik.w_wrist_rot` at a touch: the anchored points must not twist the palm);
-    hand_gap (T,3): the least clearance (m) the robot must keep between its hands, and between
-    each hand and its chest (`hand_clearance.CHANNELS`), 0 where the human's touch or with
+    hand_gap (T,5): the least clearance (m) the robot must keep between its hands, and between
+    each hand and its chest and face (`hand_clearance.CHANNELS`), 0 where the human's touch or with
     location preservation off (`embody.retarget.hand_clearance`)."""
 
     wrist_pos: np.ndarray
@@ -94,7 +94,7 @@ class Targets:
         if self.wrist_rot_weight is None:
             self.wrist_rot_weight = np.ones((t, 2))
         if self.hand_gap is None:
-            self.hand_gap = np.zeros((t, 3))
+            self.hand_gap = np.zeros((t, 5))
 
     @property
     def num_frames(self) -> int:
@@ -289,13 +289,13 @@ def palm_rest(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> n
 
 
 def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> np.ndarray:
-    """The robot's least clearance per frame (T,3) between its hands and between each hand and
-    its chest (`embody.retarget.hand_clearance.CHANNELS`): the human's mesh gap times the
+    """The robot's least clearance per frame (T,5) between its hands and between each hand and
+    its chest and its face (`embody.retarget.hand_clearance.CHANNELS`): the human's mesh gap times the
     hand-size ratio, capped at `hand_gap_max`, where the human's are apart (gap >
     `hand_contact_eps`); 0 where they touch."""
     t = motion.num_frames
     if cfg.w_hand_clearance <= 0 or not all(f"{s}_wrist" in robot.spec.landmarks for s in ("left", "right")):
-        return np.zeros((t, 3))
+        return np.zeros((t, 5))
     from embody.metrics.embodiments import human_contacts  # the fidelity measure's own human gap
     from embody.retarget.hand_clearance import CHANNELS, hand_ratio
 
