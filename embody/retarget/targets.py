@@ -288,6 +288,14 @@ def palm_rest(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> n
     return out
 
 
+#: The hand-face clearance asked (m, proxies) at most: enough that a hand passing near the face is
+#: not a robot contact (`fidelity.robot_contact_eps` 2.1 cm on G1), not the full hand-scale gap
+#: (`ik.hand_gap_max`): face signs are placed by landmark offsets at body scale, and a 5 cm
+#: face clearance pushed hands near the chin off their landmark (location agreement 88 → 56 %
+#: on synth sequence 8).
+FACE_GAP_MAX = 0.025
+
+
 def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> np.ndarray:
     """The robot's least clearance per frame (T,5) between its hands and between each hand and
     its chest and its face (`embody.retarget.hand_clearance.CHANNELS`): the human's mesh gap times the
@@ -308,7 +316,8 @@ def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> n
     r_rest, _, r_names = robot.landmark_points(robot.tpose[None])
     rho = hand_ratio(h_rest[0], hl.names, r_rest[0], r_names, robot.body_scale / hl.scale)
     gap = np.where(np.isfinite(gap), gap, 0.0)
-    return np.where(gap > cfg.hand_contact_eps, np.minimum(rho * gap, cfg.hand_gap_max), 0.0)
+    cap = np.array([FACE_GAP_MAX if c.endswith("_face") else cfg.hand_gap_max for c in CHANNELS])
+    return np.where(gap > cfg.hand_contact_eps, np.minimum(rho * gap, cap), 0.0)
 
 
 def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
