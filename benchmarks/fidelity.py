@@ -52,6 +52,7 @@ from embody.body import load_body_model
 from embody.collision import mitigate
 from embody.config import Config
 from embody.critic import refine
+from embody.metrics import mean_jerk
 from embody.metrics.embodiments import human_track, robot_track
 from embody.metrics.fidelity import CONTACTS, LOCATION_LANDMARKS, compare_with, contact_events, event_f1, relative_location
 from embody.retarget import build_targets, shape_fit, solve
@@ -171,6 +172,7 @@ def run_sequence(motion, cfg: Config, body, robot, fit, do_refine: bool,
         out.update({f"{name}.{k}": v for k, v in m.items()})
         v = validation_counts(robot, q, motion.fps)
         out.update({f"{name}.{k}": v[k] for k in v})
+        out[f"{name}.mean_jerk"] = float(mean_jerk(q, motion.fps))
     return out, {"human": human, **tracks, "motion": motion, "q": qs}
 
 
@@ -333,7 +335,8 @@ def main() -> None:
     print(" ".join(f"{row}: self_coll={sum(r[f'{row}.self_collision_frames'] for r in rows):.0f} "
                    f"limit={sum(r[f'{row}.joint_limit_violations'] for r in rows):.0f} "
                    f"vel={sum(r[f'{row}.velocity_violations'] for r in rows):.0f} "
-                   f"contact_f1={pooled_f1(rows, f'{row}.'):.3f}"
+                   f"contact_f1={pooled_f1(rows, f'{row}.'):.3f} "
+                   f"mean_jerk={np.mean([r[f'{row}.mean_jerk'] for r in rows]):.1f}"
                    for row in ("ik", "preserving", *([] if args.no_refine else ["refined"]))))
     refined = mean("refined.location_err") if not args.no_refine else float("nan")
     total = lambda key: sum(r[f"{final}.{key}"] for r in rows)  # noqa: E731
