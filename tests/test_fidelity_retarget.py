@@ -104,7 +104,8 @@ def test_hand_point_residual_jacobian_matches_finite_differences(setup):
     from embody.retarget.costs import Residuals
 
     cfg, body, robot, fit = setup
-    ik = cfg.ik.model_copy(update={"w_collision": 0.0})
+    # no clearance term: its rows (hand-face apart here) would follow the hand-point rows
+    ik = cfg.ik.model_copy(update={"w_collision": 0.0, "w_hand_clearance": 0.0})
     targets = build_targets(_motion(_touching_pose(body, "right_index_tip", 0.005), frames=2), body, fit, robot, ik)
     assert targets.point_weight[:, targets.point_names.index("right_index_tip")].min() > 0.9  # a touch
     assert targets.wrist_weight[:, 1].max() < 0.1  # the wrist position lets go there

@@ -31,7 +31,7 @@ def test_jacobian_matches_finite_differences(setup):
     ik = np.flatnonzero(robot.ik_mask)
     q[:, ik] += rng.normal(0.0, 0.3, (3, len(ik)))
     q = np.clip(q, robot.lower, robot.upper)
-    term = HandClearanceTerm(robot, np.full((3, 3), 0.5), 4.0)  # 50 cm: every hull row active
+    term = HandClearanceTerm(robot, np.full((3, 5), 0.5), 4.0)  # 50 cm: every hull row active (face too)
     fk = robot.fk(term.bodies)
     mask = fk.moves(list(ik))
 
@@ -104,3 +104,28 @@ def test_culled_rows_equal_the_brute_force_rows(setup):
     # the term's own broad phase (`_near`) only drops frames whose rows are 0 anyway
     assert (expected > 0).sum() > 10 and len(term.bound_planes[term.pairs[0][2][0]]) < px.hull_planes.shape[1]
     np.testing.assert_allclose(r, expected, atol=1e-12)
+
+
+def test_a_hand_passing_the_face_does_not_brush_the_robot_face(setup, monkeypatch):
+    """SHOULDER (default sequence 7): the human's right hand passes 2.6-2.9 cm from the face on its
+    way to the left shoulder (no contact); the robot's bigger hand kept the face channel's gap
+    (capped at `FACE_GAP_MAX`) and is not a robot contact there, where without the face channel
+    it was; no penetration."""
+    import embody.retarget.targets as targets_mod
+    cfg, robot, body, fit = setup
+    m = generate_sequence(0, 7)
+    sl = slice(70, 100)
+    motion = Motion(pose=np.asarray(m.pose)[sl], transl=np.zeros((30, 3)), betas=np.asarray(m.betas), fps=m.fps)
+    targets = build_targets(motion, body, fit, robot, cfg.ik)
+    gap = targets.hand_gap[:, 4]  # right_face
+    assert gap.max() <= targets_mod.FACE_GAP_MAX + 1e-12
+    q = solve(robot, targets, cfg.ik).q
+    monkeypatch.setattr(targets_mod, "FACE_GAP_MAX", 0.0)
+    off = solve(robot, build_targets(motion, body, fit, robot, cfg.ik), cfg.ik).q
+    d, d_off = robot_contacts(robot, q)[:, 2], robot_contacts(robot, off)[:, 2]  # right_face
+    eps_r = 0.015 * 1.42
+    apart = gap > 0.0
+    assert apart.sum() >= 5
+    assert np.mean(d[apart] > eps_r) > 0.9
+    assert np.sum(d_off[apart] < eps_r) > np.sum(d[apart] < eps_r)
+    assert np.all(d > -0.002)

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from embody.io.hands import absolute_to_relative, relative_to_absolute
-from embody.retarget.hands import OPPOSE_RANGE, retarget_hands
+from embody.retarget.hands import OPPOSE_RANGE, fold_thumbs, palm_rest_weight, retarget_hands
 from embody.robot import load_robot
 from embody.synth.handshapes import handshape
 
@@ -72,3 +72,63 @@ def test_opposition_brings_the_thumb_to_the_fingers(robot):
         p, _, _ = robot.landmark_points(q[None], ["right_thumb_tip", "right_index_tip"])
         gaps[shape] = np.linalg.norm(p[0, 0] - p[0, 1])
     assert gaps["pinch"] < gaps["y"] - 0.02
+
+
+def _thumb_protrusion_mm(robot, q_full) -> float:
+    """How far the right Dex3 thumb's collision meshes stand out of the palm face (along the palm
+    normal, from the palm landmark), in mm."""
+    import mujoco
+    m, d = robot.model, mujoco.MjData(robot.model)
+    d.qpos[:] = robot.qpos(q_full)
+    mujoco.mj_kinematics(m, d)
+    pts, nrm, names = robot.landmark_points(q_full[None])
+    world = robot.torso_from_world
+    p, n = pts[0, names.index("right_palm")], nrm[0, 1]
+    groups = list(robot.spec.collision.geom_groups)
+    out = []
+    for g in range(m.ngeom):
+        if m.geom_group[g] not in groups or not m.body(m.geom_bodyid[g]).name.startswith("right_hand_thumb"):
+            continue
+        mid = m.geom_dataid[g]
+        v = m.mesh_vert[m.mesh_vertadr[mid]: m.mesh_vertadr[mid] + m.mesh_vertnum[mid]]
+        v = v @ d.geom_xmat[g].reshape(3, 3).T + d.geom_xpos[g]
+        out.append((((v @ world[:3, :3].T + world[:3, 3]) - p) @ n).max())
+    return 1000.0 * float(max(out))
+
+
+def test_a_palm_laid_on_the_body_lays_the_dex3_thumb_along_the_palm(robot):
+    """Flat hand: unfolded, the Dex3 thumb stands ~10 cm out of the palm face; fully folded it
+    lies along the palm (< 3 cm proud). Weight 0 changes nothing; a thumb flexed further than the
+    weight keeps its value; opposition (thumb_0) and the fingers are kept."""
+    hq, names = retarget_hands(_pose("flat"), robot)
+    hq = np.repeat(hq, 3, 0)
+    w = np.array([[0.0, 0.0], [0.0, 1.0], [0.0, 0.3]])
+    folded = fold_thumbs(hq, names, robot, w)
+    np.testing.assert_array_equal(folded[0], hq[0])
+    thumb = [names.index(f"right_hand_thumb_{k}_joint") for k in (1, 2)]
+    others = [i for i in range(len(names)) if i not in thumb]
+    np.testing.assert_array_equal(folded[:, others], hq[:, others])
+    for c in thumb:
+        j = robot.joint_index(names[c])
+        closed = robot.lower[j] if abs(robot.lower[j]) >= abs(robot.upper[j]) else robot.upper[j]
+        assert folded[1, c] == pytest.approx(closed)
+        assert folded[2, c] == pytest.approx(0.3 * closed)
+    fist, _ = retarget_hands(_pose("fist"), robot)
+    np.testing.assert_array_equal(fold_thumbs(fist, names, robot, np.array([[0.0, 0.3]])), fist)
+
+    def full(h):
+        q = robot.tpose.copy()
+        q[[robot.joint_index(n) for n in names]] = h
+        return q
+    assert _thumb_protrusion_mm(robot, full(hq[0])) > 80.0
+    assert _thumb_protrusion_mm(robot, full(folded[1])) < 30.0
+
+
+def test_palm_rest_weight_needs_near_facing_and_a_free_thumb():
+    near, radius = 0.05, 0.2
+    assert palm_rest_weight(np.array([near]), np.array([0.9]), np.array([0.1]), radius)[0] == pytest.approx(1.0)
+    assert palm_rest_weight(np.array([radius]), np.array([0.9]), np.array([0.1]), radius)[0] == 0.0
+    assert palm_rest_weight(np.array([near]), np.array([-0.2]), np.array([0.1]), radius)[0] == 0.0
+    assert palm_rest_weight(np.array([near]), np.array([0.9]), np.array([0.8]), radius)[0] == 0.0
+    w = palm_rest_weight(np.linspace(0.0, 0.3, 31), np.full(31, 0.9), np.zeros(31), radius)
+    assert np.all(np.diff(w) <= 1e-12)  # no more fold further away

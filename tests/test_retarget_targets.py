@@ -48,3 +48,33 @@ def test_root_rotation_removed_and_elbow_bend(setup):
     # the bent forearm points forward (+x in the torso frame) and the wrist comes in towards y=elbow
     moved = base.wrist_pos[1, 0] - base.elbow_pos[1, 0]
     assert moved[0] > 0.15 and abs(moved[1]) < 0.05
+
+
+def test_a_palm_on_the_opposite_shoulder_folds_the_robot_thumb_only_there(setup):
+    """The generator's SHOULDER sign rests the flat right palm on the left shoulder: with
+    location-preserving targets the right Dex3 thumb is folded during the hold (so the palm, not
+    the thumb, touches); a flat palm held off the body (HELLO at the forehead) and the
+    plain shape-fit targets keep the finger mapping as it was."""
+    from embody.retarget.hands import retarget_hands
+    from embody.synth.generator import generate_sequence
+    from embody.synth.lexicon import LEXICON
+    robot, body, fit = setup
+    by_gloss = {s.gloss: s for s in LEXICON}
+    on = IKConfig(location_preserving=True)
+    shoulder = generate_sequence(1, 1024, signs=[by_gloss["SHOULDER"]])
+    targets = build_targets(shoulder, body, fit, robot, on)
+    mapped, names = retarget_hands(shoulder.pose, robot)
+    sign = shoulder.meta["signs"][0]
+    a, b = sign["start"], sign["end"]
+    hold = slice(a + (b - a) // 3, b - (b - a) // 3)
+    c = names.index("right_hand_thumb_1_joint")
+    lower = robot.lower[robot.joint_index("right_hand_thumb_1_joint")]
+    assert np.all(targets.hand_q[hold, c] < 0.9 * lower)  # near its closed limit
+    assert np.all(mapped[hold, c] > 0.2 * lower)  # the human's flat thumb: barely flexed
+    left = [i for i, n in enumerate(names) if n.startswith("left_")]
+    np.testing.assert_array_equal(targets.hand_q[:, left], mapped[:, left])
+    plain = build_targets(shoulder, body, fit, robot, IKConfig(location_preserving=False))
+    np.testing.assert_array_equal(plain.hand_q, mapped)
+    hello = generate_sequence(1, 1000, signs=[by_gloss["HELLO"]])
+    np.testing.assert_array_equal(build_targets(hello, body, fit, robot, on).hand_q,
+                                  retarget_hands(hello.pose, robot)[0])

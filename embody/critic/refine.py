@@ -316,11 +316,14 @@ class _HumanJudge:
 
             self.reach = Reach(robot)
             # the clearance the IK keeps per frame, hand and surface (face, chest): the collision
-            # margin, and at the chest the human's gap at hand scale (`Targets.hand_gap`)
+            # margin, or more where the human's hand is apart from that surface (`Targets.hand_gap`,
+            # columns `hand_clearance.CHANNELS`: hands, left/right chest, left/right face)
             margin = float(cfg_ik.collision_margin)
-            gap = np.zeros((targets.num_frames, 3)) if targets.hand_gap is None else np.asarray(targets.hand_gap)
+            gap = np.zeros((targets.num_frames, 5)) if targets.hand_gap is None else np.asarray(targets.hand_gap)
             self.required = np.full((targets.num_frames, 2, 2), margin)
             self.required[:, :, 1] = np.maximum(gap[:, 1:3], margin)
+            if gap.shape[1] >= 5:
+                self.required[:, :, 0] = np.maximum(gap[:, 3:5], margin)
 
     def __call__(self, q: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
         from embody.metrics.embodiments import robot_track

@@ -1,5 +1,5 @@
-"""IK residual keeping the robot's hands apart (from each other and from the chest) where the
-human's are apart, at hand scale.
+"""IK residual keeping the robot's hands apart (from each other, from the chest and from the face)
+where the human's are apart, at hand scale.
 
 Why: the shape fit maps wrist positions with the arm-span ratio (G1: 0.76 of the human), but a
 Dex3 hand is as long as 1.4 human hands (wrist → middle tip). Two human hands 3-5 cm apart become
@@ -16,7 +16,9 @@ collision term uses, an underestimate near polytope edges, so the hands stay at 
 Where the human's hands touch, g* = 0 and the term is silent: the collision term's margin makes
 the touch a touch without penetration. The same holds between each hand and the chest (the torso
 hulls at the sternum and belly landmarks): a G1 torso is thin and its arms short, so a human hand
-3-5 cm before the chest otherwise rests on the robot's. The fidelity measure judges robot contacts at the same
+3-5 cm before the chest otherwise rests on the robot's; and between each hand and the face (the
+head hulls at the face landmarks): a hand passing 2-3 cm from the human's face (the opposite-
+shoulder sign, the chin signs' approach) otherwise brushes the robot's. The fidelity measure judges robot contacts at the same
 hand scale (ε·ρ, `embody.metrics.fidelity`), so a gap the human calls a contact maps to one the
 robot's measure calls a contact, and a gap it does not call one maps to one it does not.
 """
@@ -34,9 +36,11 @@ from embody.robot.proxies import robot_proxies
 
 SIDES = ("left", "right")
 #: Gap columns of `Targets.hand_gap`: the human contact channels they come from.
-CHANNELS = ("hands", "left_chest", "right_chest")
-#: Chest hulls: torso-body hulls within this (m) of the sternum or belly landmark.
+CHANNELS = ("hands", "left_chest", "right_chest", "left_face", "right_face")
+#: Chest (face) hulls: hulls of the landmark's body within this (m) of the sternum or belly
+#: (a face) landmark.
 _CHEST_REACH = 0.03
+_FACE = ("forehead", "nose", "mouth", "chin", "left_cheek", "right_cheek")
 
 
 class HandClearanceTerm:
@@ -56,19 +60,23 @@ class HandClearanceTerm:
         in_hand = lambda names, s: np.array([px.bodies[b] in hand[s] for b in names], dtype=bool)  # noqa: E731
         points = {s: np.flatnonzero(in_hand(px.sphere_body, s)) for s in SIDES}
         hulls = {s: np.flatnonzero(in_hand(px.hull_body, s)) for s in SIDES}
-        chest = []
-        lms = [robot.spec.landmarks[n] for n in ("sternum", "belly") if n in robot.spec.landmarks]
-        for h in range(len(px.hull_body)):
-            for lm in lms:
-                if px.bodies[px.hull_body[h]] == lm.body:
-                    planes = px.hull_planes[h]
-                    if (planes[:, :3] @ np.asarray(lm.offset) + planes[:, 3]).max() < _CHEST_REACH:
-                        chest.append(h)
-                        break
-        chest = np.array(chest, dtype=np.int64)
+        def near(names: tuple[str, ...]) -> np.ndarray:
+            lms = [robot.spec.landmarks[n] for n in names if n in robot.spec.landmarks]
+            out = []
+            for h in range(len(px.hull_body)):
+                for lm in lms:
+                    if px.bodies[px.hull_body[h]] == lm.body:
+                        planes = px.hull_planes[h]
+                        if (planes[:, :3] @ np.asarray(lm.offset) + planes[:, 3]).max() < _CHEST_REACH:
+                            out.append(h)
+                            break
+            return np.array(out, dtype=np.int64)
+
+        chest, face = near(("sternum", "belly")), near(_FACE)
         #: (gap column, proxy points, hulls) per direction
         self.pairs = [(0, points["left"], hulls["right"]), (0, points["right"], hulls["left"]),
-                      (1, points["left"], chest), (2, points["right"], chest)]
+                      (1, points["left"], chest), (2, points["right"], chest),
+                      (3, points["left"], face), (4, points["right"], face)]
         self.pairs = [(c, p, h) for c, p, h in self.pairs if c < self.gap.shape[1] and len(p) and len(h)]
         self.px = px
         used = {px.bodies[b] for _, p, h in self.pairs for b in np.r_[px.sphere_body[p]]}

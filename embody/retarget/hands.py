@@ -23,6 +23,16 @@ the side that brings the half-closed thumb's tip nearer the index fingertip).
 
 A flexion joint's value is `curl × closed`, with `closed` its limit farther from zero (the
 closing direction on both Dex3 hands), so outputs are always within the limits.
+
+A palm laid on the body (`fold_thumbs`): a flat human thumb lies alongside the palm, but the
+Dex3 thumb at zero flexion stands ~9.7 cm out of the palm face (thumb_0 turns it about an axis
+near the palm normal and does not lower it). Fully flexed (thumb_1 at its closed limit) it lies
+along the palm, 2.8 cm proud of the palm landmark, the least of any thumb pose (measured on the
+collision meshes over a grid of all three joints). So where the human's palm rests against the
+body, facing it, with a free (unopposed) thumb, the thumb's flexion is raised towards closed:
+otherwise the thumb, not the palm, touches, and the collision margin holds the palm ~4 cm off
+(the opposite-shoulder sign). The handshape measure then reads a flexed thumb where the
+human's is flat: the price of the palm's contact.
 """
 
 from __future__ import annotations
@@ -108,6 +118,50 @@ def opposition_sign(robot: Robot, side: str, joint: str) -> float:
         else:
             _OPPOSE[key] = float(np.sign(_closed(robot, joint)) or 1.0)
     return _OPPOSE[key]
+
+
+#: A palm within this fraction of `ik.touch_radius` of a landmark is fully laid on it (the
+#: thumb fully folded); beyond `touch_radius` the thumb is untouched (smoothstep between).
+FOLD_NEAR = 0.7
+#: Thumb opposition curls of a free thumb (fully folded at or below the first; a relaxed flat
+#: hand's is ≈0.13) and of an opposed one (never folded).
+FREE_THUMB = (0.3, 0.7)
+
+
+def _smoothstep(x: np.ndarray) -> np.ndarray:
+    x = np.clip(x, 0.0, 1.0)
+    return x * x * (3.0 - 2.0 * x)
+
+
+def palm_rest_weight(distance: np.ndarray, facing: np.ndarray, opposition: np.ndarray,
+                     radius: float) -> np.ndarray:
+    """How much a human palm rests on the body (T,): near its nearest landmark (`distance` in
+    body scales, full within `FOLD_NEAR`·`radius`, none beyond `radius`), facing it (`facing`: the
+    cosine between the palm normal and the palm → landmark direction, none at ≤ 0) and with a
+    free thumb (`opposition`, the thumb's opposition curl: full below `FREE_THUMB[0]`, none above
+    `FREE_THUMB[1]`; an opposed thumb makes a pinch or a fist and keeps its mapping)."""
+    near = _smoothstep((radius - np.asarray(distance)) / max(radius * (1.0 - FOLD_NEAR), 1e-12))
+    lo, hi = FREE_THUMB
+    free = 1.0 - _smoothstep((np.asarray(opposition) - lo) / (hi - lo))
+    return near * _smoothstep(np.asarray(facing) / 0.5) * free
+
+
+def fold_thumbs(hand_q: np.ndarray, hand_joints: list[str], robot: Robot, weight: np.ndarray) -> np.ndarray:
+    """`hand_q` with each thumb's flexion joints (thumb_1, thumb_2) raised towards closed by
+    `weight` (T,2) [left, right]: curl → max(curl, weight), so a thumb already flexed further
+    keeps its value; opposition (thumb_0) is kept. See the module docstring for why."""
+    q = np.array(hand_q, dtype=np.float64, copy=True)
+    for k, side in enumerate(("left", "right")):
+        for jn in robot.spec.hands.get(side, {}).get("thumb", [])[1:]:
+            if jn not in hand_joints:
+                continue
+            c, closed = hand_joints.index(jn), _closed(robot, jn)
+            if closed == 0.0:
+                continue
+            curl = np.maximum(q[:, c] / closed, weight[:, k])
+            j = robot.joint_index(jn)
+            q[:, c] = np.clip(curl * closed, robot.lower[j], robot.upper[j])
+    return q
 
 
 def retarget_hands(pose: np.ndarray, robot: Robot) -> tuple[np.ndarray, list[str]]:

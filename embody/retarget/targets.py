@@ -44,7 +44,7 @@ from embody.body.base import BodyModel
 from embody.body.landmarks import LandmarkSet, body_landmarks
 from embody.config.ik import IKConfig
 from embody.motion import Motion
-from embody.retarget.hands import retarget_hands
+from embody.retarget.hands import fold_thumbs, retarget_hands
 from embody.retarget.shape_fit import ShapeFit
 from embody.robot import Robot
 
@@ -62,8 +62,8 @@ class Targets:
     `ik.touch_release`: at a touch the touching point, not the human's wrist position, decides);
     wrist_rot_weight (T,2): factor on the wrist orientation term (`ik.w_wrist_rot_touch` /
     `ik.w_wrist_rot` at a touch: the anchored points must not twist the palm);
-    hand_gap (T,3): the least clearance (m) the robot must keep between its hands, and between
-    each hand and its chest (`hand_clearance.CHANNELS`), 0 where the human's touch or with
+    hand_gap (T,5): the least clearance (m) the robot must keep between its hands, and between
+    each hand and its chest and face (`hand_clearance.CHANNELS`), 0 where the human's touch or with
     location preservation off (`embody.retarget.hand_clearance`)."""
 
     wrist_pos: np.ndarray
@@ -94,7 +94,7 @@ class Targets:
         if self.wrist_rot_weight is None:
             self.wrist_rot_weight = np.ones((t, 2))
         if self.hand_gap is None:
-            self.hand_gap = np.zeros((t, 3))
+            self.hand_gap = np.zeros((t, 5))
 
     @property
     def num_frames(self) -> int:
@@ -264,14 +264,46 @@ def _human(motion: Motion, body: BodyModel) -> tuple[np.ndarray, np.ndarray, Lan
     return tr, betas, body_landmarks(body, betas)
 
 
+def palm_rest(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> np.ndarray:
+    """(T,2) [left, right]: how much each human palm rests on the body, facing it, with a free
+    thumb (`hands.palm_rest_weight`; distances to the nearest `ANCHOR_LANDMARKS` per body scale,
+    within `cfg.touch_radius`): the weight `hands.fold_thumbs` lays the robot thumb down by."""
+    from embody.retarget.hands import finger_curls, palm_rest_weight
+    t = motion.num_frames
+    lm_names = [n for n in ANCHOR_LANDMARKS if n in robot.spec.landmarks]
+    if not lm_names or not robot.spec.hands:
+        return np.zeros((t, 2))
+    tr, _, hl = _human(motion, body)
+    hp, normals = hl.positions(tr)
+    lm = np.stack([hp[:, hl.index(n)] for n in lm_names], 1)  # (T,L,3)
+    out = np.zeros((t, 2))
+    for k, side in enumerate(("left", "right")):
+        rel = lm - hp[:, hl.index(f"{side}_palm"), None]  # palm → landmark
+        dist = np.linalg.norm(rel, axis=-1)
+        near = dist.argmin(1)
+        d = dist[np.arange(t), near]
+        facing = np.einsum("ta,ta->t", normals[:, k], rel[np.arange(t), near]) / np.maximum(d, 1e-12)
+        out[:, k] = palm_rest_weight(d / hl.scale, facing, finger_curls(np.asarray(motion.pose), side)
+                                     ["thumb_opposition"], cfg.touch_radius)
+    return out
+
+
+#: The hand-face clearance asked (m, proxies) at most: enough that a hand passing near the face is
+#: not a robot contact (`fidelity.robot_contact_eps` 2.1 cm on G1), not the full hand-scale gap
+#: (`ik.hand_gap_max`): face signs are placed by landmark offsets at body scale, and a 5 cm
+#: face clearance pushed hands near the chin off their landmark (location agreement 88 → 56 %
+#: on synth sequence 8).
+FACE_GAP_MAX = 0.025
+
+
 def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> np.ndarray:
-    """The robot's least clearance per frame (T,3) between its hands and between each hand and
-    its chest (`embody.retarget.hand_clearance.CHANNELS`): the human's mesh gap times the
+    """The robot's least clearance per frame (T,5) between its hands and between each hand and
+    its chest and its face (`embody.retarget.hand_clearance.CHANNELS`): the human's mesh gap times the
     hand-size ratio, capped at `hand_gap_max`, where the human's are apart (gap >
     `hand_contact_eps`); 0 where they touch."""
     t = motion.num_frames
     if cfg.w_hand_clearance <= 0 or not all(f"{s}_wrist" in robot.spec.landmarks for s in ("left", "right")):
-        return np.zeros((t, 3))
+        return np.zeros((t, 5))
     from embody.metrics.embodiments import human_contacts  # the fidelity measure's own human gap
     from embody.retarget.hand_clearance import CHANNELS, hand_ratio
 
@@ -284,7 +316,8 @@ def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> n
     r_rest, _, r_names = robot.landmark_points(robot.tpose[None])
     rho = hand_ratio(h_rest[0], hl.names, r_rest[0], r_names, robot.body_scale / hl.scale)
     gap = np.where(np.isfinite(gap), gap, 0.0)
-    return np.where(gap > cfg.hand_contact_eps, np.minimum(rho * gap, cfg.hand_gap_max), 0.0)
+    cap = np.array([FACE_GAP_MAX if c.endswith("_face") else cfg.hand_gap_max for c in CHANNELS])
+    return np.where(gap > cfg.hand_contact_eps, np.minimum(rho * gap, cap), 0.0)
 
 
 def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
@@ -314,6 +347,8 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
     wrist_rot = np.stack([mapped_rot(f"{s}_wrist", f"{s}_wrist") for s in sides], axis=1)
     torso_rot = mapped_rot("spine3", "spine3") if "spine3" in robot.spec.links else identity
     if cfg is not None and cfg.location_preserving and robot.spec.landmarks:
+        # a palm laid on the body: the robot thumb lies down too (`hands.fold_thumbs`)
+        hand_q = fold_thumbs(hand_q, hand_joints, robot, palm_rest(motion, body, robot, cfg))
         anchored = anchored_targets(motion, body, fit, robot, wrist_rot, torso_rot, hand_q, hand_joints, cfg)
         wrist_pos = wrist_pos + anchored.weight[..., None] * (anchored.wrist - wrist_pos)
         release, hold = np.ones((motion.num_frames, 2)), np.ones((motion.num_frames, 2))
