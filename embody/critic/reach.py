@@ -3,7 +3,8 @@
 Why: the critic's location offsets scale the human palm's offset from its nearest landmark by the
 body-scale ratio (G1: 0.76 of the human), but the IK keeps the robot's hand off its chest by the
 human's hand-chest gap at *hand* scale (min(ρ·g, `ik.hand_gap_max`), ρ = 1.42 on G1:
-`embody.retarget.hand_clearance`) and off its face by the collision margin, and a Dex3 palm
+`embody.retarget.hand_clearance`) and off its face by the collision margin or, where the human's
+hand is apart from the face, by its gap at hand scale up to 2.5 cm (`targets.FACE_GAP_MAX`), and a Dex3 palm
 centre sits deeper inside a thicker hand. So where the human's hand is a few centimetres before
 the chest, or touches the face, the robot palm sits 2-4 cm further forward than the rescaled
 human's while its hand already stands at its clearance: the critic asked for "back" moves the
