@@ -254,9 +254,11 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
         return pose, depth
     limit = np.maximum(depth, cfg.pull_back_depth) + 1e-12
 
+    def scaled(frames: np.ndarray, s: np.ndarray) -> np.ndarray:
+        return (x0[frames] + s[:, None, None] * delta[frames]).astype(pose.dtype)
+
     def deep(frames: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        d = motion_depths(body, x0[frames] + s[:, None, None] * delta[frames], motion.betas,
-                          cfg.allow_pairs)
+        d = motion_depths(body, scaled(frames, s), motion.betas, cfg.allow_pairs)
         return d > limit[frames], d
 
     # frames whose correction is small (the blend's fade-in/out, < 1 % of the largest squared
@@ -283,7 +285,7 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
         bad, d = deep(part, s[part])
         if not bad.any():
             new = pose.copy()  # s = 1 keeps `pose` bit for bit (x0 + (x − x0) may round)
-            new[part] = x0[part] + s[part, None, None] * delta[part]
+            new[part] = scaled(part, s[part])  # the poses `deep` measured
             d_new = depth.copy()
             d_new[part] = d
             return new, d_new
