@@ -20,7 +20,9 @@ points on either side push opposite ways); the limb core capsules (`capsules`, w
 After the optimiser, frames the mesh judge still finds deeper than `depth_polish` (the
 `contact_stride` subsample can straddle a fingertip inside the other hand) are optimised once
 more against every vertex, blended over `blend_s` (`polish`); the judge picks frames only, the
-energy minimised is still L_col.
+energy minimised is still L_col. Last, `pull_back` shrinks each frame's correction towards the
+input to the smallest fraction the judge still finds within `pull_back_depth` (the optimiser's
+clearance and Adam's overshoot are measured on the convex pieces, which overfill the skin).
 
 The paper's energy columns (before/after) use the `vertex_stride` subsample, for comparison;
 the independent judge is `depth` (mesh penetration depth, every vertex and triangle), whose

@@ -50,6 +50,12 @@ class CollisionConfig(Section):
     5e-3, λ growth 1.5, a 1 mm clearance or a 2–4 mm residual depth allowance did not do
     better (docs/performance.md, 2026-11-26).
 
+    Since 2026-11-26 (s6-adam) a last `pull_back` shrinks each frame's correction towards the
+    input to the smallest fraction the mesh judge still finds within `pull_back_depth` (1 mm,
+    the `tolerance`): the clearance and Adam's overshoot are measured on the convex pieces,
+    which overfill the skin, so the mesh stays clear down to s ≈ 0.97–0.98 (Table I Pose MSE
+    median 0.0218 → see docs/performance.md, 2026-11-26 (s6-adam)).
+
     With per-parameter Adam (the paper preset's), each parameter's step is normalised alone,
     so with a weak closeness term joints barely touched by a collision still drift by ~lr per
     step; a strong pull returns them once the collision
