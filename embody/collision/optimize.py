@@ -264,8 +264,8 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
         return d > limit[frames], d
 
     # frames whose correction is small (the blend's fade-in/out, < 1 % of the largest squared
-    # norm) are not searched: the envelope of their neighbours covers them, and they are
-    # checked below like every other frame
+    # norm) are not searched: they take the nearest searched frame's s (so s(t) does not steepen
+    # the blend's fade), and are checked below like every other frame
     norm = (delta.reshape(len(pose), -1) ** 2).sum(1)
     big = live[norm[live] >= 0.01 * norm.max()]
     need = np.zeros(len(pose))
@@ -278,6 +278,8 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
         bad, _ = deep(big, mid)
         lo, hi = np.where(bad, mid, lo), np.where(bad, hi, mid)
     need[big] = hi
+    small = np.setdiff1d(live, big)  # the nearest searched frame's s: no steeper fade
+    need[small] = hi[np.abs(small[:, None] - big[None, :]).argmin(1)]
     window = int(round(cfg.pull_back_window_s * motion.fps))
     for _ in range(8):
         s = np.minimum(_bumps(need, window), 1.0)
