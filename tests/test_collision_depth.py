@@ -157,3 +157,31 @@ def test_batched_depths_equal_the_per_frame_reference(body):
     ref = np.array([frame_depth(mesh, x) for x in v])
     np.testing.assert_array_equal(ours, ref)
     assert ours[1] > 0.01 and (ours > 0).sum() >= 2
+
+
+def test_pull_back_shrinks_the_correction_and_keeps_frames_clear(body):
+    """`pull_back` scales each frame's correction by s(t) ∈ [0, 1] (never away from the
+    input), never leaves a frame deeper than `pull_back_depth` (or its depth before), lowers
+    Pose MSE, and leaves uncorrected frames bit for bit."""
+    from embody.collision.metrics import accel_mse, pose_mse
+    from embody.collision.optimize import pull_back
+
+    motion = planted(44, slice(20, 24))
+    cfg = CollisionConfig()
+    pose = mitigate(motion, body, cfg.model_copy(update={"pull_back": False})).motion.pose
+    depth = motion_depths(body, pose, motion.betas)
+    new, d = pull_back(body, motion, pose, depth, cfg)
+    np.testing.assert_allclose(d, motion_depths(body, new, motion.betas), atol=1e-12)
+    assert (d <= np.maximum(depth, cfg.pull_back_depth) + 1e-9).all()
+    c0 = (pose - motion.pose).reshape(44, -1)
+    c1 = (new - motion.pose).reshape(44, -1)
+    n0 = (c0 ** 2).sum(1)
+    s = (c0 * c1).sum(1) / np.where(n0 > 0, n0, 1.0)
+    np.testing.assert_allclose(c1, s[:, None] * c0, atol=1e-6)  # along the correction
+    assert (s >= 0).all() and (s <= 1 + 1e-9).all() and (s[n0 > 0] < 1).any()
+    assert pose_mse(new, motion.pose) < 0.99 * pose_mse(pose, motion.pose)
+    assert accel_mse(new) - accel_mse(motion.pose) <= 5.71e-3
+    still = n0 == 0
+    assert still.any() and new[still].tobytes() == pose[still].tobytes()
+    off, d_off = pull_back(body, motion, pose, depth, cfg.model_copy(update={"pull_back": False}))
+    assert off is pose and d_off is depth

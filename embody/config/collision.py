@@ -50,6 +50,12 @@ class CollisionConfig(Section):
     5e-3, λ growth 1.5, a 1 mm clearance or a 2–4 mm residual depth allowance did not do
     better (docs/performance.md, 2026-11-26).
 
+    Since 2026-11-26 (s6-adam) a last `pull_back` shrinks each frame's correction towards the
+    input to the smallest fraction the mesh judge still finds within `pull_back_depth` (1 mm,
+    the `tolerance`): the clearance and Adam's overshoot are measured on the convex pieces,
+    which overfill the skin, so the mesh stays clear down to s ≈ 0.97–0.98 (Table I Pose MSE
+    median 0.0218 → see docs/performance.md, 2026-11-26 (s6-adam)).
+
     With per-parameter Adam (the paper preset's), each parameter's step is normalised alone,
     so with a weak closeness term joints barely touched by a collision still drift by ~lr per
     step; a strong pull returns them once the collision
@@ -127,6 +133,15 @@ class CollisionConfig(Section):
     #: subsample can straddle a thin finger) within `blend_s` of them; the judge only picks
     #: the frames, the energy minimised stays L_col. Needs `depth_metrics`.
     depth_polish: float = Field(0.002, ge=0, le=0.05)
+    #: Pull-back (`optimize.pull_back`, needs `depth_metrics`): after the optimiser and the
+    #: polish, each frame's correction is shrunk towards the input to the smallest fraction
+    #: at which the mesh judge finds it no deeper than `pull_back_depth` (m; or than before,
+    #: if deeper), found by `pull_back_iterations` bisection steps and smoothed in time over
+    #: `pull_back_window_s` (s).
+    pull_back: bool = True
+    pull_back_depth: float = Field(0.001, ge=0, le=0.05)
+    pull_back_iterations: int = Field(5, ge=1, le=50)
+    pull_back_window_s: float = Field(0.25, ge=0, le=10)
     #: Penetration (m) below which a vertex counts as touching (below the mesh resolution).
     tolerance: float = Field(1e-3, ge=0, le=0.05)
     #: The optimiser pushes points this far (m) beyond the tolerance, so the closeness pull
