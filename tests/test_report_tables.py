@@ -24,6 +24,9 @@ def test_format_cell() -> None:
     assert format_cell(math.nan) == "" and format_cell(None) == ""
     assert format_cell(88.8888) == "88.89"
     assert format_cell(6.8e-4) == "6.80e-04"
+    # below 1: three significant digits (a median of 0.0197 against a 0.0206 target stays legible)
+    assert format_cell(0.019745) == "0.0197" and format_cell(0.5) == "0.500"
+    assert format_cell(-0.8234) == "-0.823" and format_cell(0.99949) == "0.999"
     assert format_cell(3.0) == "3" and format_cell(7) == "7"
     assert format_cell(123456.0) == "123456" and format_cell(123456.7) == "1.23e+05"
 

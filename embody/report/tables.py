@@ -52,6 +52,8 @@ def format_cell(value: Any) -> str:
             return str(int(v))
         if abs(v) < 1e-2 or abs(v) >= 1e5:
             return f"{v:.2e}"
+        if abs(v) < 1:  # three significant digits: a Pose MSE of 0.0197 must not read "0.02"
+            return f"{v:.{2 - math.floor(math.log10(abs(v)))}f}"
         return f"{v:.2f}"
     return str(value)
 
