@@ -405,16 +405,23 @@ def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: flo
             return None
         r, f, plane = r[inside], f[inside], plane[inside]
         # a part's SDF is the min over its pieces: keep the deepest piece per (frame, point, part)
-        n_chunks, n_parts = d["chunk_part"].shape[0], d["part_radius"].shape[0]
-        size = d["chunk_mask"].shape[1]
-        key = ((p.t[r] * n_chunks + p.h[r]) * size + p.n[r]) * n_parts + p.b[r]
-        order = torch.sort(f, stable=True).indices                  # deepest first
-        order = order[torch.sort(key[order], stable=True).indices]  # grouped by key
-        first = torch.ones_like(order, dtype=torch.bool)
-        first[1:] = key[order][1:] != key[order][:-1]
-        keep = order[first]
+        keep = deepest_per_point(d, p.t[r], p.h[r], p.n[r], p.b[r], f)
         rk = r[keep]
         return Penetrations(p.t[rk], p.h[rk], p.n[rk], p.b[rk], d["planes"][p.k[rk], plane[keep]])
+
+
+def deepest_per_point(d: dict[str, torch.Tensor], t: torch.Tensor, h: torch.Tensor, n: torch.Tensor,
+                      b: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+    """Indices of the rows with the least `f` (the deepest piece) per (frame, chunk, point, part):
+    a part's signed distance is the minimum over its convex pieces."""
+    n_chunks, n_parts = d["chunk_part"].shape[0], d["part_radius"].shape[0]
+    size = d["chunk_mask"].shape[1]
+    key = ((t * n_chunks + h) * size + n) * n_parts + b
+    order = torch.sort(f, stable=True).indices                  # deepest first
+    order = order[torch.sort(key[order], stable=True).indices]  # grouped by key
+    first = torch.ones_like(order, dtype=torch.bool)
+    first[1:] = key[order][1:] != key[order][:-1]
+    return order[first]
 
 
 def _piece_planes(model: CollisionModel, d: dict[str, torch.Tensor], k: torch.Tensor,

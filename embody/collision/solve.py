@@ -57,7 +57,8 @@ from threadpoolctl import threadpool_limits
 from embody.body.base import BodyModel
 from embody.collision.capsules import Capsules, segment_closest
 from embody.collision.energy import (_PAD_PLANE, CollisionModel, PointRows, _affine, _blend,
-                                     _box_distance, _piece_planes, _skin, _to_part, contacts)
+                                     _box_distance, _piece_planes, _skin, _to_part, contacts,
+                                     deepest_per_point)
 from embody.collision.volumes import part_volumes
 from embody.config.collision import CollisionConfig
 from embody.motion import JOINT_NAMES, Motion
@@ -196,14 +197,7 @@ def _select(model: CollisionModel, ext: tuple[list[torch.Tensor], torch.Tensor],
     inside = f <= 0
     fsel = torch.where(inside, fe, f)
     plane = torch.where(inside[:, None], packed[k, arge], d["planes"][k, arg])
-    n_chunks, n_parts = d["chunk_part"].shape[0], d["part_radius"].shape[0]
-    size = d["chunk_mask"].shape[1]
-    key = ((rows.t[r] * n_chunks + rows.h[r]) * size + rows.n[r]) * n_parts + rows.b[r]
-    order = torch.sort(fsel, stable=True).indices                  # deepest first
-    order = order[torch.sort(key[order], stable=True).indices]     # grouped by key
-    first = torch.ones_like(order, dtype=torch.bool)
-    first[1:] = key[order][1:] != key[order][:-1]
-    w = order[first]
+    w = deepest_per_point(d, rows.t[r], rows.h[r], rows.n[r], rows.b[r], fsel)
     rw = r[w]
     return _Selection(rows.t[rw], rows.h[rw], rows.n[rw], rows.b[rw], plane[w], -fsel[w])
 
