@@ -330,11 +330,8 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
     norm = (delta.reshape(len(pose), -1) ** 2).sum(1)
     big = live[norm[live] >= 0.01 * norm.max()]
     need = np.zeros(len(pose))
-    if depth0 is None:
-        depth0 = motion_depths(body, x0[big], motion.betas, cfg.allow_pairs)
-        d_lo = depth0
-    else:
-        d_lo = np.asarray(depth0)[big]
+    d_lo = (motion_depths(body, x0[big], motion.betas, cfg.allow_pairs) if depth0 is None
+            else np.asarray(depth0)[big])  # the input's depth: the search's s = 0 end
     hi = _regula_falsi(lambda f, s: deep(big[f], s)[1], d_lo, depth[big], limit[big],
                        cfg.pull_back_iterations)
     need[big] = hi
