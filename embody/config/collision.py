@@ -136,8 +136,8 @@ class CollisionConfig(Section):
     #: Pull-back (`optimize.pull_back`, needs `depth_metrics`): after the optimiser and the
     #: polish, each frame's correction is shrunk towards the input to the smallest fraction
     #: at which the mesh judge finds it no deeper than `pull_back_depth` (m; or than before,
-    #: if deeper), found by `pull_back_iterations` bisection steps and smoothed in time over
-    #: `pull_back_window_s` (s).
+    #: if deeper), found by at most `pull_back_iterations` regula-falsi steps (each judging
+    #: only the frames not yet settled) and smoothed in time over `pull_back_window_s` (s).
     pull_back: bool = True
     pull_back_depth: float = Field(0.001, ge=0, le=0.05)
     pull_back_iterations: int = Field(5, ge=1, le=50)
