@@ -280,6 +280,15 @@ def _row_points(d: dict[str, torch.Tensor], blend: torch.Tensor, t: torch.Tensor
     return _skin(d, blend, uniq // n_h, uniq % n_h)[inv]
 
 
+def rows_in_part(d: dict[str, torch.Tensor], transforms: torch.Tensor, rows: PointRows) -> torch.Tensor:
+    """Each candidate row's skinned point (R,3) in the joint frame of its part b (each distinct
+    (frame, chunk, point) skinned once): what a row's piece planes are evaluated on."""
+    g = transforms[:, d["part_joints"]]
+    u = rows.first
+    world = _skin(d, _blend(d, transforms), rows.t[u], rows.h[u], rows.n[u])[rows.inverse]
+    return _to_part(g[..., :3, :3], g[..., :3, 3], rows.t, rows.b, world)
+
+
 def _chunk_spheres(d: dict[str, torch.Tensor],
                    blend: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """Per-frame spheres (T,H,3), (T,H) that contain every skinned point of each chunk.
@@ -392,12 +401,7 @@ def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: flo
     if p.t.numel() == 0:
         return None
     with torch.no_grad():
-        g = transforms[:, d["part_joints"]]
-        rot, trans = g[..., :3, :3], g[..., :3, 3]
-        blend = _blend(d, transforms)
-        u = p.first
-        world = _skin(d, blend, p.t[u], p.h[u], p.n[u])[p.inverse]
-        q = _to_part(rot, trans, p.t, p.b, world)
+        q = rows_in_part(d, transforms, p)
         r = torch.nonzero(_box_distance(q, d["piece_box"][p.k]) <= reach).squeeze(1)
         f, plane = _piece_planes(model, d, p.k[r], q[r])
         inside = torch.nonzero(f < -tolerance).squeeze(1)

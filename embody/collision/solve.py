@@ -57,8 +57,8 @@ from threadpoolctl import threadpool_limits
 from embody.body.base import BodyModel
 from embody.collision.capsules import Capsules, segment_closest
 from embody.collision.energy import (_PAD_PLANE, CollisionModel, PointRows, _affine, _blend,
-                                     _box_distance, _piece_planes, _skin, _to_part, contacts,
-                                     deepest_per_point)
+                                     _box_distance, _piece_planes, contacts, deepest_per_point,
+                                     rows_in_part)
 from embody.collision.volumes import part_volumes
 from embody.config.collision import CollisionConfig
 from embody.motion import JOINT_NAMES, Motion
@@ -181,12 +181,7 @@ def _select(model: CollisionModel, ext: tuple[list[torch.Tensor], torch.Tensor],
     `tol` (negative: within −tol outside). Inside a piece the depth is taken to its external
     faces (`external_faces`), outside it to its nearest face."""
     d = model.tensors(transforms.dtype, transforms.device)
-    g = transforms[:, d["part_joints"]]
-    rot, trans = g[..., :3, :3], g[..., :3, 3]
-    blend = _blend(d, transforms)
-    u = rows.first
-    world = _skin(d, blend, rows.t[u], rows.h[u], rows.n[u])[rows.inverse]
-    q = _to_part(rot, trans, rows.t, rows.b, world)
+    q = rows_in_part(d, transforms, rows)
     r = torch.nonzero(_box_distance(q, d["piece_box"][rows.k]) <= max(0.0, -tol)).squeeze(1)
     f, arg = _piece_planes(model, d, rows.k[r], q[r])
     keep = f < -tol
