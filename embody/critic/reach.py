@@ -24,8 +24,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from embody.metrics.convex_distance import geom_distance
-from embody.metrics.embodiments import RobotContactGeoms
+from embody.metrics.embodiments import RobotContactGeoms, closest_pair
 from embody.robot import Robot
 
 SIDES = ("left", "right")
@@ -47,7 +46,6 @@ class Reach:
         """Per frame in `frames` and surface: distance (F,2) (m; `distmax` when farther) and unit
         direction hand → surface (F,2,3) in the torso frame (0 where unknown: touching or far)."""
         m, d = self.robot.model, mujoco.MjData(self.robot.model)
-        fromto = np.zeros(6)
         dist = np.full((len(frames), len(SURFACES)), self.distmax)
         direction = np.zeros((len(frames), len(SURFACES), 3))
         hand = self.geoms.sets[f"{side}_hand"]
@@ -55,14 +53,11 @@ class Reach:
             d.qpos[:] = self.robot.qpos(q[t])
             mujoco.mj_kinematics(m, d)
             for j, surface in enumerate(SURFACES):
-                for ga in hand:
-                    for gb in self.geoms.sets[surface]:
-                        value = geom_distance(m, d, ga, gb, self.distmax, fromto)
-                        if value < dist[i, j]:
-                            dist[i, j] = value
-                            v = fromto[3:] - fromto[:3]
-                            n = np.linalg.norm(v)
-                            direction[i, j] = self.rot @ v / n if value > 1e-4 and n > 1e-9 else 0.0
+                dist[i, j], fromto = closest_pair(m, d, hand, self.geoms.sets[surface], self.distmax)
+                v = fromto[3:] - fromto[:3]
+                n = np.linalg.norm(v)
+                if dist[i, j] > 1e-4 and n > 1e-9:
+                    direction[i, j] = self.rot @ v / n
         return dist, direction
 
     def clamp(self, q: np.ndarray, offset: np.ndarray, required: np.ndarray, slack: float,

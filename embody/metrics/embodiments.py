@@ -182,19 +182,28 @@ def robot_contacts(robot: Robot, q: np.ndarray, distmax: float = 0.1) -> np.ndar
     geoms = RobotContactGeoms(robot)
     m = robot.model
     d = mujoco.MjData(m)
-    fromto = np.zeros(6)
     out = np.full((len(q), len(CONTACTS)), distmax)
     for t, qt in enumerate(np.asarray(q, dtype=np.float64)):
         d.qpos[:] = robot.qpos(qt)
         mujoco.mj_kinematics(m, d)
         for c, name in enumerate(CONTACTS):
             a, b = geoms.pairs[name]
-            best = distmax
-            for ga in geoms.sets[a]:
-                for gb in geoms.sets[b]:
-                    best = min(best, geom_distance(m, d, ga, gb, distmax, fromto))
-            out[t, c] = best
+            out[t, c] = closest_pair(m, d, geoms.sets[a], geoms.sets[b], distmax)[0]
     return out
+
+
+def closest_pair(m: mujoco.MjModel, d: mujoco.MjData, geoms_a: list[int], geoms_b: list[int],
+                 distmax: float) -> tuple[float, np.ndarray]:
+    """The least `geom_distance` between two geom sets at `d`'s kinematics (`distmax` when none
+    is nearer) and the closest points of that pair (6,) (from a to b; zeros when none is)."""
+    fromto, best_fromto = np.zeros(6), np.zeros(6)
+    best = distmax
+    for ga in geoms_a:
+        for gb in geoms_b:
+            value = geom_distance(m, d, ga, gb, distmax, fromto)
+            if value < best:
+                best, best_fromto[:] = value, fromto
+    return best, best_fromto
 
 
 def robot_track(robot: Robot, q: np.ndarray, fps: float, with_contacts: bool = True) -> Track:
