@@ -60,7 +60,7 @@ class CriticConfig(Section):
     accept_palm_deg: float = Field(20.0, gt=0.0, le=180.0)
     #: Judge against what the robot can reach (`embody.critic.reach`): the part of a location
     #: offset that would bring a hand closer to the face or chest than the clearance the IK keeps
-    #: there (hand-scale chest gap, collision margin), less `reach_slack_m`, is neither asked for
+    #: there (hand-scale chest and face gaps, collision margin), less `reach_slack_m`, is neither asked for
     #: nor counted against acceptance.
     reachable: bool = True
     reach_slack_m: float = Field(0.0, ge=0.0, le=0.1)

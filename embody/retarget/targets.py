@@ -48,6 +48,9 @@ from embody.retarget.hands import fold_thumbs, retarget_hands
 from embody.retarget.shape_fit import ShapeFit
 from embody.robot import Robot
 
+#: The root-free human of `_human`: joint transforms (T,J,4,4), betas, landmark table.
+Human = tuple[np.ndarray, np.ndarray, LandmarkSet]
+
 _ARRAYS = ("wrist_pos", "wrist_rot", "elbow_pos", "torso_rot", "head_rot", "hand_q", "point_pos", "point_weight",
            "wrist_weight", "wrist_rot_weight", "hand_gap")
 
@@ -173,7 +176,7 @@ def _smoothstep(x: np.ndarray) -> np.ndarray:
 
 def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot, wrist_rot: np.ndarray,
                      torso_rot: np.ndarray, hand_q: np.ndarray, hand_joints: list[str],
-                     cfg: IKConfig) -> Anchored:
+                     cfg: IKConfig, human: Human | None = None) -> Anchored:
     """Landmark-anchored wrist and hand-point targets (see the module docstring).
 
     Hand points: each robot hand point's target is the soft-min over landmarks of (robot landmark
@@ -190,7 +193,7 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
     if not lm_names:
         return Anchored(np.zeros((t, 2, 3)), np.zeros((t, 2)), [], np.zeros((t, 0, 3)), np.zeros((t, 0)),
                         np.zeros((t, 0)))
-    tr, betas, hl = _human(motion, body)
+    tr, betas, hl = human or _human(motion, body)
     hp, _ = hl.positions(tr)
     axes = fit.rotation
     hp = hp @ axes.T
@@ -253,9 +256,10 @@ def anchored_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robo
                     np.concatenate(p_touch, 1))
 
 
-def _human(motion: Motion, body: BodyModel) -> tuple[np.ndarray, np.ndarray, LandmarkSet]:
+def _human(motion: Motion, body: BodyModel) -> Human:
     """The human on its own shape, relative to its pelvis (root rotation removed, as the targets
-    are): joint transforms (T,J,4,4), its betas and its landmark table."""
+    are): joint transforms (T,J,4,4), its betas and its landmark table. `build_targets` makes it
+    once and hands it to the anchoring, the thumb fold and the hand gaps."""
     pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
     pose[:, 0] = 0.0
     betas = np.asarray(motion.betas, dtype=np.float64)
@@ -264,7 +268,8 @@ def _human(motion: Motion, body: BodyModel) -> tuple[np.ndarray, np.ndarray, Lan
     return tr, betas, body_landmarks(body, betas)
 
 
-def palm_rest(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> np.ndarray:
+def palm_rest(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig,
+              human: Human | None = None) -> np.ndarray:
     """(T,2) [left, right]: how much each human palm rests on the body, facing it, with a free
     thumb (`hands.palm_rest_weight`; distances to the nearest `ANCHOR_LANDMARKS` per body scale,
     within `cfg.touch_radius`): the weight `hands.fold_thumbs` lays the robot thumb down by."""
@@ -273,7 +278,7 @@ def palm_rest(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> n
     lm_names = [n for n in ANCHOR_LANDMARKS if n in robot.spec.landmarks]
     if not lm_names or not robot.spec.hands:
         return np.zeros((t, 2))
-    tr, _, hl = _human(motion, body)
+    tr, _, hl = human or _human(motion, body)
     hp, normals = hl.positions(tr)
     lm = np.stack([hp[:, hl.index(n)] for n in lm_names], 1)  # (T,L,3)
     out = np.zeros((t, 2))
@@ -296,7 +301,8 @@ def palm_rest(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> n
 FACE_GAP_MAX = 0.025
 
 
-def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> np.ndarray:
+def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig,
+              human: Human | None = None) -> np.ndarray:
     """The robot's least clearance per frame (T,5) between its hands and between each hand and
     its chest and its face (`embody.retarget.hand_clearance.CHANNELS`): the human's mesh gap times the
     hand-size ratio, capped at `hand_gap_max`, where the human's are apart (gap >
@@ -307,7 +313,7 @@ def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig) -> n
     from embody.metrics.embodiments import human_contacts  # the fidelity measure's own human gap
     from embody.retarget.hand_clearance import CHANNELS, hand_ratio
 
-    tr, betas, hl = _human(motion, body)
+    tr, betas, hl = human or _human(motion, body)
     with torch.no_grad():
         rest = body.joint_transforms(torch.zeros(1, np.shape(motion.pose)[1], 3, dtype=torch.float64),
                                      torch.as_tensor(betas)).numpy()
@@ -348,8 +354,10 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
     torso_rot = mapped_rot("spine3", "spine3") if "spine3" in robot.spec.links else identity
     if cfg is not None and cfg.location_preserving and robot.spec.landmarks:
         # a palm laid on the body: the robot thumb lies down too (`hands.fold_thumbs`)
-        hand_q = fold_thumbs(hand_q, hand_joints, robot, palm_rest(motion, body, robot, cfg))
-        anchored = anchored_targets(motion, body, fit, robot, wrist_rot, torso_rot, hand_q, hand_joints, cfg)
+        human = _human(motion, body)
+        hand_q = fold_thumbs(hand_q, hand_joints, robot, palm_rest(motion, body, robot, cfg, human))
+        anchored = anchored_targets(motion, body, fit, robot, wrist_rot, torso_rot, hand_q, hand_joints, cfg,
+                                    human)
         wrist_pos = wrist_pos + anchored.weight[..., None] * (anchored.wrist - wrist_pos)
         release, hold = np.ones((motion.num_frames, 2)), np.ones((motion.num_frames, 2))
         boost = cfg.w_wrist_rot_touch / cfg.w_wrist_rot if cfg.w_wrist_rot > 0 else 1.0
@@ -361,7 +369,7 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
                 hold[:, k] += (boost - 1.0) * touch
         points = dict(point_pos=anchored.point_pos, point_weight=anchored.point_weight,
                       point_names=anchored.point_names, wrist_weight=release, wrist_rot_weight=hold,
-                      hand_gap=hand_gaps(motion, body, robot, cfg))
+                      hand_gap=hand_gaps(motion, body, robot, cfg, human))
     else:
         points = {}
     return Targets(
