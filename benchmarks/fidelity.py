@@ -37,7 +37,6 @@ trajectory: refined when refining, else location-preserving).
 from __future__ import annotations
 
 import argparse
-import hashlib
 import os
 import json
 import time
@@ -54,6 +53,7 @@ from embody.config import Config
 from embody.critic import refine
 from embody.metrics import mean_jerk
 from embody.motion import Motion
+from embody.store.keys import arrays_checksum, files_key
 from embody.metrics.embodiments import human_track, robot_track
 from embody.metrics.fidelity import CONTACTS, LOCATION_LANDMARKS, compare_with, contact_events, event_f1, relative_location
 from embody.retarget import build_targets, shape_fit, solve
@@ -123,16 +123,14 @@ def agree10(rows: list[dict[str, float]], prefix: str) -> float:
 
 
 def _collision_key(motion, cfg: Config) -> str:
-    """Content key of one `mitigate` call: the motion's arrays, the `collision` section and the
-    source of `embody.collision` (any edit there misses the cache)."""
-    h = hashlib.blake2b(digest_size=16)
-    for a in (motion.pose, motion.transl, motion.betas, np.asarray(motion.fps, dtype=np.float64)):
-        a = np.ascontiguousarray(np.zeros(0) if a is None else a)
-        h.update(str((a.dtype.str, a.shape)).encode() + a.tobytes())
-    h.update(cfg.section_json("collision").encode() + cfg.section_json("body").encode())
-    for f in sorted((Path(embody.__file__).parent / "collision").rglob("*.py")):
-        h.update(f.read_bytes())
-    return h.hexdigest()
+    """Content key of one `mitigate` call: the motion's arrays, the `collision`/`body` config
+    and the source of `embody.collision` (any edit there misses the cache), hashed as the
+    store hashes arrays and files (`embody.store.keys`)."""
+    arrays = {"pose": motion.pose, "transl": np.zeros(0) if motion.transl is None else motion.transl,
+              "betas": motion.betas, "fps": np.asarray(motion.fps, dtype=np.float64)}
+    source = sorted((Path(embody.__file__).parent / "collision").rglob("*.py"))
+    return files_key(source, arrays_checksum(arrays) + cfg.section_json("collision")
+                     + cfg.section_json("body"))
 
 
 def mitigated(motion, cfg: Config, body, cache: Path | None):
