@@ -5,7 +5,7 @@ Reads a run's mitigated motions, shape fit and IK-only solutions from a store (r
 stored and the new acceptance, chosen round and the chosen round's location error (body scales)
 and palm angle, then one RESULT line:
 
-    python benchmarks/critic_refine.py --store /work/main/embody-store \\
+    python benchmarks/critic_refine.py --store embody-store \\
         --run synth-n24-s0.unitree_g1_dex3 [--limit 6] [--rounds-detail]
 
 CPU seconds are `time.process_time` of the refine calls (the store reads are not counted).
