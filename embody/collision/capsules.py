@@ -124,7 +124,7 @@ def capsule_overlaps(caps: Capsules, transforms: torch.Tensor, margin: float = 0
     p = transforms[:, :, :3, 3]
     d = segment_distance(p[:, caps.a[:, 0]], p[:, caps.a[:, 1]], p[:, caps.b[:, 0]],
                          p[:, caps.b[:, 1]])
-    return torch.relu(torch.as_tensor(caps.reach, dtype=p.dtype) + margin - d)
+    return torch.relu(torch.as_tensor(caps.reach, dtype=p.dtype, device=p.device) + margin - d)
 
 
 def capsule_energies(caps: Capsules, transforms: torch.Tensor, margin: float = 0.0) -> torch.Tensor:

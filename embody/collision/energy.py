@@ -231,8 +231,8 @@ class PointRows:
            k: torch.Tensor, n_chunks: int, size: int) -> "PointRows":
         _, inv = torch.unique((t * n_chunks + h) * size + n, return_inverse=True)
         first = torch.full((int(inv.max()) + 1 if inv.numel() else 0,), len(inv),
-                           dtype=torch.long).scatter_reduce(
-            0, inv, torch.arange(len(inv)), "amin")
+                           dtype=torch.long, device=inv.device).scatter_reduce(
+            0, inv, torch.arange(len(inv), device=inv.device), "amin")
         return cls(t, h, n, b, k, first, inv)
 
 
@@ -435,8 +435,14 @@ def _piece_planes(model: CollisionModel, d: dict[str, torch.Tensor], k: torch.Te
     k (R,)), one small matmul per piece with its own planes: gathering the padded (R,F,4)
     planes per row cost more than the arithmetic. `own` replaces each piece's planes (a
     subset of them, as `solve` uses)."""
+    if q.is_cuda and own is None and len(k):
+        # one batched product over the padded planes: on a GPU the per-piece loop below is
+        # bound by kernel launches (padding planes have d = -1e9, never the max)
+        pl = d["planes"][k]                                                     # (R,F,4)
+        vals = torch.baddbmm(pl[..., 3:4], pl[..., :3], q.unsqueeze(-1)).squeeze(-1)
+        return vals.max(-1)
     f = q.new_empty(len(k))
-    arg = torch.empty(len(k), dtype=torch.long)
+    arg = torch.empty(len(k), dtype=torch.long, device=k.device)
     if len(k) == 0:
         return f, arg
     pieces, order = torch.sort(k, stable=True)

@@ -48,6 +48,7 @@ from embody.collision.masks import mask_joints
 from embody.collision.metrics import sequence_metrics
 from embody.collision.solve import solve
 from embody.config.collision import CollisionConfig
+from embody.device import torch_device
 from embody.motion import Motion
 
 
@@ -144,6 +145,7 @@ def blend_weights(penetrating: np.ndarray, window: int) -> np.ndarray:
 
 def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> CollisionResult:
     start = time.perf_counter()
+    dev = torch_device(cfg.device, "collision.device")
     idx = mask_joints(cfg.mask, cfg.joints)
     fine = collision_model(body, motion.betas, vertex_stride=cfg.contact_stride,
                            allow_pairs=cfg.allow_pairs, max_overfill=cfg.max_overfill)
@@ -151,7 +153,7 @@ def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> Collisio
     x0_np = motion.pose
     best_pose, steps = x0_np, 0
     same = cfg.contact_stride == cfg.vertex_stride
-    fine_before = before if same else _exact(body, fine, x0_np, motion.betas, cfg.tolerance)
+    fine_before = before if same else _exact(body, fine, x0_np, motion.betas, cfg.tolerance, dev)
     if cfg.enabled and fine_before.any() and cfg.steps > 0:
         window = int(round(cfg.blend_s * motion.fps))
         weight = blend_weights(fine_before > 0, window)
@@ -162,7 +164,7 @@ def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> Collisio
             # frames the LM path leaves penetrating (a saddle it cannot leave, e.g. hands
             # interlocked by the fingers, which are not its variables): Adam, warm-started
             # (within the first window: frames far from any input penetration stay x0)
-            left = _exact(body, fine, best_pose, motion.betas, cfg.tolerance) > 0
+            left = _exact(body, fine, best_pose, motion.betas, cfg.tolerance, dev) > 0
             if left.any():
                 w2 = np.minimum(blend_weights(left, window), weight)
                 best_pose, more = _optimise(body, fine, motion.with_pose(best_pose), idx, w2, cfg)
@@ -171,7 +173,7 @@ def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> Collisio
             best_pose, steps = _optimise(body, fine, motion, idx, weight, cfg)
     fixed = motion.with_pose(best_pose)
     after = before if steps == 0 else frame_collision_energies(fixed, body, cfg)
-    fine_after = after if same else _exact(body, fine, best_pose, motion.betas, cfg.tolerance)
+    fine_after = after if same else _exact(body, fine, best_pose, motion.betas, cfg.tolerance, dev)
     if steps and fine_after.sum() > fine_before.sum():  # never worse than the input
         fixed, after = motion.with_pose(x0_np), before
     fixed, after, judged, depth_s = judge(body, motion, fixed, after, idx, cfg, cfg.depth_metrics)
@@ -367,11 +369,12 @@ def _depths(body: BodyModel, motion: Motion, pose: np.ndarray,
 
 
 def _exact(body: BodyModel, model: CollisionModel, pose: np.ndarray, betas: np.ndarray,
-           tolerance: float) -> np.ndarray:
+           tolerance: float, device: torch.device = torch.device("cpu")) -> np.ndarray:
     with torch.no_grad():
         return frame_energies(model, body.joint_transforms(
-            torch.as_tensor(pose, dtype=torch.float32),
-            torch.as_tensor(betas, dtype=torch.float32)), tolerance).double().numpy()
+            torch.as_tensor(pose, dtype=torch.float32, device=device),
+            torch.as_tensor(betas, dtype=torch.float32, device=device)),
+            tolerance).double().cpu().numpy()
 
 
 class _FrameAdam:
@@ -388,7 +391,7 @@ class _FrameAdam:
         self.u, self.b1, self.b2, self.eps = u, betas[0], betas[1], eps
         self.param_groups = [{"lr": lr}]
         self.m = torch.zeros_like(u)
-        self.v = torch.zeros(u.shape[0], *([1] * (u.dim() - 1)), dtype=u.dtype)
+        self.v = torch.zeros(u.shape[0], *([1] * (u.dim() - 1)), dtype=u.dtype, device=u.device)
         self.n = 0
 
     def zero_grad(self, set_to_none: bool = True) -> None:
@@ -421,17 +424,18 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
     """
     active = np.flatnonzero(weight > 0)
     lo, hi = int(active[0]), int(active[-1]) + 1
-    x0_full = torch.as_tensor(motion.pose, dtype=torch.float32)
+    dev = torch_device(cfg.device, "collision.device")
+    x0_full = torch.as_tensor(motion.pose, dtype=torch.float32, device=dev)
     x0 = x0_full[lo:hi]
-    w = torch.as_tensor(weight[lo:hi], dtype=torch.float32)[:, None, None]
-    live = torch.as_tensor(weight[lo:hi] > 0)
-    betas = torch.as_tensor(motion.betas, dtype=torch.float32)
+    w = torch.as_tensor(weight[lo:hi], dtype=torch.float32, device=dev)[:, None, None]
+    live = torch.as_tensor(weight[lo:hi] > 0, device=dev)
+    betas = torch.as_tensor(motion.betas, dtype=torch.float32, device=dev)
     t = x0.shape[0]
-    jidx = torch.as_tensor(idx)
-    u = torch.zeros(t, len(idx), 3, requires_grad=True)
+    jidx = torch.as_tensor(idx, device=dev)
+    u = torch.zeros(t, len(idx), 3, device=dev, requires_grad=True)
     opt: _FrameAdam | torch.optim.Adam = (_FrameAdam(u, cfg.lr) if cfg.adam_norm == "frame"
                                           else torch.optim.Adam([u], lr=cfg.lr))
-    lam = torch.full((t,), float(cfg.lambda_col))
+    lam = torch.full((t,), float(cfg.lambda_col), device=dev)
     caps = arm_capsules(body, motion.betas, cfg.allow_pairs) if cfg.capsule_weight > 0 else None
     best_key = (float("inf"), float("inf"))
     best = torch.zeros_like(x0)
@@ -473,5 +477,5 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
         opt.step()
     out = motion.pose.copy()
     # x0 + 0.0 is x0: unmasked joints and zero-weight frames stay the input, bit for bit
-    out[lo:hi] += best.double().numpy()
+    out[lo:hi] += best.double().cpu().numpy()
     return out, step

@@ -7,6 +7,7 @@ from typing import Literal
 from pydantic import Field, model_validator
 
 from embody.config.base import Section, check_window
+from embody.device import DeviceSpec
 
 MaskPreset = Literal["hands", "hands_wrists", "arms", "upper_body", "joints"]
 
@@ -164,6 +165,10 @@ class CollisionConfig(Section):
     #: Torch intra-op threads while optimising: the many small batched ops run fastest on
     #: one thread (10x faster than two on a busy 2-core machine); parallelise over sequences.
     threads: int = Field(1, ge=1, le=256)
+    #: Where the optimiser's torch work runs (`embody.device`): `cpu` (the default: the same
+    #: content hashes on every machine), `cuda`, or `auto` (CUDA when present). The mesh
+    #: judge and the Gauss-Newton path's banded solve stay on the CPU.
+    device: DeviceSpec = "cpu"
     #: Part volumes: convex pieces overfilling the body by more than this fraction get split.
     max_overfill: float = Field(0.10, gt=0, le=1)
     #: Longer sequences are mitigated in windows of this many frames sharing `window_overlap`
