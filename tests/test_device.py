@@ -32,7 +32,7 @@ def test_device_settings_resolve():
 
 def test_cuda_without_a_gpu_is_a_config_error_else_matches_the_cpu():
     body, motion = MannequinBody(), colliding_motion(8)
-    cfg = CollisionConfig(steps=60, depth_metrics=False)
+    cfg = CollisionConfig(steps=60)
     cpu = mitigate(motion, body, cfg)
     if not CUDA:
         with pytest.raises(ConfigError, match="collision.device.*no CUDA device"):
@@ -42,6 +42,7 @@ def test_cuda_without_a_gpu_is_a_config_error_else_matches_the_cpu():
         return
     gpu = mitigate(motion, body, cfg.model_copy(update={"device": "cuda"}))
     assert gpu.metrics["energy_after"] <= 0.05 * gpu.metrics["energy_before"]
+    assert gpu.metrics["max_depth_mm_after"] <= cpu.metrics["max_depth_mm_after"] + 0.5
     assert np.abs(gpu.motion.pose - cpu.motion.pose).max() < 0.05  # float32 rounding paths differ
 
 

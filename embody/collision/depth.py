@@ -449,15 +449,17 @@ def frame_depths(mesh: DepthMesh, vertices: np.ndarray) -> np.ndarray:
 
 
 def motion_depths(body: BodyModel, pose: np.ndarray, betas: np.ndarray,
-                  allow_pairs: Iterable[Sequence[str]] = ()) -> np.ndarray:
-    """Per-frame max penetration depth (m) of the body's skinned mesh over a pose (T,55,3)."""
+                  allow_pairs: Iterable[Sequence[str]] = (),
+                  device: torch.device | str = "cpu") -> np.ndarray:
+    """Per-frame max penetration depth (m) of the body's skinned mesh over a pose (T,55,3).
+    The skinning runs on `device` (float64); the mesh tests always on the CPU."""
     mesh = depth_mesh(body, allow_pairs)
-    b = torch.as_tensor(np.asarray(betas), dtype=torch.float64)
+    b = torch.as_tensor(np.asarray(betas), dtype=torch.float64, device=device)
     out = []
     with torch.no_grad():
         for s in range(0, len(pose), _BATCH):
-            x = torch.as_tensor(np.asarray(pose[s:s + _BATCH]), dtype=torch.float64)
-            out.append(frame_depths(mesh, body.vertices(x, b).numpy()))
+            x = torch.as_tensor(np.asarray(pose[s:s + _BATCH]), dtype=torch.float64, device=device)
+            out.append(frame_depths(mesh, body.vertices(x, b).cpu().numpy()))
     return np.concatenate(out) if out else np.zeros(0)
 
 

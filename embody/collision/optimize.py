@@ -222,7 +222,7 @@ def polish(body: BodyModel, motion: Motion, pose: np.ndarray, idx: np.ndarray,
     if steps == 0 or len(changed) == 0:
         return pose, 0, depth
     d1 = depth.copy()
-    d1[changed] = motion_depths(body, new[changed], motion.betas, cfg.allow_pairs)
+    d1[changed] = _mesh_depths(body, new[changed], motion.betas, cfg)
     if d1[deep].max() >= depth[deep].max() or d1.max() > depth.max():
         return pose, 0, depth  # never worse than the optimiser's own result
     return new, steps, d1
@@ -323,7 +323,7 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
         return (x0[frames] + s[:, None, None] * delta[frames]).astype(pose.dtype)
 
     def deep(frames: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        d = motion_depths(body, scaled(frames, s), motion.betas, cfg.allow_pairs)
+        d = _mesh_depths(body, scaled(frames, s), motion.betas, cfg)
         return d > limit[frames], d
 
     # frames whose correction is small (the blend's fade-in/out, < 1 % of the largest squared
@@ -332,7 +332,7 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
     norm = (delta.reshape(len(pose), -1) ** 2).sum(1)
     big = live[norm[live] >= 0.01 * norm.max()]
     need = np.zeros(len(pose))
-    d_lo = (motion_depths(body, x0[big], motion.betas, cfg.allow_pairs) if depth0 is None
+    d_lo = (_mesh_depths(body, x0[big], motion.betas, cfg) if depth0 is None
             else np.asarray(depth0)[big])  # the input's depth: the search's s = 0 end
     hi = _regula_falsi(lambda f, s: deep(big[f], s)[1], d_lo, depth[big], limit[big],
                        cfg.pull_back_iterations)
@@ -356,15 +356,22 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
     return pose, depth
 
 
+def _mesh_depths(body: BodyModel, pose: np.ndarray, betas: np.ndarray,
+                 cfg: CollisionConfig) -> np.ndarray:
+    """The mesh judge (`depth.motion_depths`) with the step's allowed pairs and device."""
+    return motion_depths(body, pose, betas, cfg.allow_pairs,
+                         torch_device(cfg.device, "collision.device"))
+
+
 def _depths(body: BodyModel, motion: Motion, pose: np.ndarray,
             cfg: CollisionConfig) -> tuple[np.ndarray, np.ndarray]:
     """Mesh penetration depth (m) per frame before and after; unchanged frames are measured
     once."""
-    d0 = motion_depths(body, motion.pose, motion.betas, cfg.allow_pairs)
+    d0 = _mesh_depths(body, motion.pose, motion.betas, cfg)
     changed = np.flatnonzero((pose != motion.pose).reshape(len(pose), -1).any(1))
     d1 = d0.copy()
     if len(changed):
-        d1[changed] = motion_depths(body, pose[changed], motion.betas, cfg.allow_pairs)
+        d1[changed] = _mesh_depths(body, pose[changed], motion.betas, cfg)
     return d0, d1
 
 
