@@ -2,7 +2,9 @@
 pytorch-kinematics FK): `cpu`, `cuda`, or `auto` (CUDA when a GPU is present).
 
 Why a setting and not "always the GPU when there is one": CUDA's float rounding differs from
-the CPU's, so a GPU run of the same input gives other contents (and content hashes). The
+the CPU's, so a GPU run of the same input gives other contents (and content hashes), and its
+atomic adds (`index_add`, the backward of gathers) are not bit-reproducible run to run, while
+a seeded CPU run is (the project's determinism promise). The
 setting is part of the step's configuration, hence of its content key: CUDA results are stored
 under their own keys, never mixed with CPU ones, and `cpu` (the default) gives the results the
 tests and the published tables were measured with. `auto` is keyed as written, so a store
