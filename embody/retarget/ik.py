@@ -94,6 +94,15 @@ LAMBDA0 = 1.0
 LAMBDA_MIN = 1e-3
 
 
+def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
+    """(T,) bool: the frames within `pad` frames of a True one in `mask`."""
+    idx = np.flatnonzero(mask)
+    cover = np.zeros(len(mask) + 2 * pad + 1, dtype=np.int64)  # +1 from idx − pad, −1 after idx + pad
+    np.add.at(cover, idx, 1)
+    np.subtract.at(cover, idx + 2 * pad + 1, 1)
+    return np.cumsum(cover)[pad: pad + len(mask)] > 0
+
+
 class _Problem:
     """½‖r(q)‖² + ½Σ w_post·(q − q_rest)² + ½·w_smooth‖Δ²q‖² + ½·w_jerk‖Δ³q‖² over the IK joints
     of every frame."""
@@ -183,12 +192,7 @@ class _Problem:
         r, _ = self.residuals.lazy(self.q_full(qi), collision=1.0)
         pressed = r[:, self.residuals.n_task_rows:].max(1, initial=0.0) > 0
         wrist = np.linalg.norm(r[:, :6].reshape(len(r), 2, 3), axis=-1).max(1)
-        idx = np.flatnonzero(pressed & (wrist > self.cfg.polish_near))
-        pad = self.cfg.polish_pad
-        cover = np.zeros(len(qi) + 2 * pad + 1, dtype=np.int64)  # +1 from idx − pad, −1 after idx + pad
-        np.add.at(cover, idx, 1)
-        np.subtract.at(cover, idx + 2 * pad + 1, 1)
-        return np.cumsum(cover)[pad: pad + len(qi)] > 0
+        return _dilate(pressed & (wrist > self.cfg.polish_near), self.cfg.polish_pad)
 
     def solve(self, qi0: np.ndarray, cold: bool, full: bool = True, lam: float = LAMBDA0,
               contact_frames: np.ndarray | None = None) -> np.ndarray:
@@ -351,10 +355,8 @@ def resolve_contacts(robot: Robot, targets: Targets, cfg: IKConfig, q: np.ndarra
         return q
     problem.residuals.exact = ExactContacts(robot, cfg.polish_margin, cfg.w_contact)
     qi = q[:, problem.ik]
-    pad = np.ones(2 * cfg.contact_pad + 1)
     for _ in range(cfg.contact_rounds):
-        frames = np.convolve(hit.astype(np.float64), pad, mode="same") > 0
-        qi = problem.solve(qi, cold=False, contact_frames=frames)
+        qi = problem.solve(qi, cold=False, contact_frames=_dilate(hit, cfg.contact_pad))
         q = robot.clip(problem.q_full(qi))
         now = self_collision_contacts(robot, q) > 0
         if not now.any():
