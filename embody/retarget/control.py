@@ -22,7 +22,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from embody.retarget.limits import clamp_velocity, resample
+from embody.retarget.limits import clamp_velocity, resample, velocity_violations
 from embody.robot import Robot
 from embody.robot.contacts import collision_model
 
@@ -122,10 +122,14 @@ def _spread(delta: np.ndarray, half_width: int) -> np.ndarray:
 BRIDGE_FRAMES = 3
 
 
-def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES) -> np.ndarray:
+def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
+                    fps: float | None = None) -> np.ndarray:
     """q (T,n) with each short run (≤ `max_run` frames) of MuJoCo contact frames between two clear
-    frames replaced by the straight line between those neighbours, where MuJoCo finds every
-    frame of the line clear (else the run is left to `separate`). Why: a jittering target can
+    frames replaced by a clear one between those neighbours: the straight line, the line pushed
+    clear (`_Separator.frame`), or the neighbours held; the first that MuJoCo finds clear on
+    every frame and, with `fps`, that keeps the velocity limits into, through and out of the run
+    (else the run is left to `separate`: a bridge the clamp then bends would only come back as
+    a contact). Why: a jittering target can
     flip a solve through a contact on isolated frames (synth seq 6: palms 35 mm inside each
     other on frames 121 and 123, 120 and 122 clear); pushing such a frame apart along MuJoCo's
     normals moved the arms by up to 76° over ±0.5 s, while its clear neighbours already bound
@@ -146,6 +150,9 @@ def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES) -
             line = (1.0 - w) * q[t - 1] + w * q[end]
             for cand in (line, np.stack([sep.frame(x, robot.lower, robot.upper) for x in line]),
                          np.where(w < 0.5, q[t - 1], q[end])):  # straight, pushed, held
+                path = np.concatenate([q[t - 1: t], cand, q[end: end + 1]])
+                if fps is not None and velocity_violations(path, robot.velocity_limits, fps):
+                    continue
                 if not any(sep.contacts(x, jacobians=False) for x in cand):
                     q[t:end] = cand
                     break

@@ -378,7 +378,7 @@ def finish_solution(robot: Robot, q: np.ndarray, targets: Targets, cfg: IKConfig
     (whole or windowed): velocity clamp, MuJoCo contact repair, evaluation (with `extra` metrics)
     and the verified control-rate array."""
     if cfg.contact_repair:  # short contact runs: their clear neighbours bound a local answer
-        q = bridge_contacts(robot, q)
+        q = bridge_contacts(robot, q, fps=targets.fps if cfg.enforce_velocity_limits else None)
     if cfg.enforce_velocity_limits:
         q = clamp_velocity(q, robot.velocity_limits, targets.fps)
     # MuJoCo has the last word at both rates: every written sample is collision-free
