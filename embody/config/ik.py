@@ -143,7 +143,7 @@ class IKConfig(Section):
     polish_smooth: float = Field(1.0, ge=0, le=1)
     #: Contact phase after the solve (`ik.resolve_contacts`): where MuJoCo finds the proxies leaked
     #: (a counted contact), up to `contact_rounds` LM phases of `contact_iterations` each with
-    #: MuJoCo's own contacts at `polish_margin` and weight `w_contact` on those frames (±
+    #: MuJoCo's own contacts at `contact_margin` and weight `w_contact` on those frames (±
     #: `contact_pad`), so the contact is resolved jointly with tracking and smoothness instead
     #: of by the per-frame push of the repair (synth seq 6: 30-80° repair changes → ≤ 47°,
     #: location agreement 26 → 38 of 41 frames). 0 rounds: off.
@@ -151,6 +151,10 @@ class IKConfig(Section):
     contact_iterations: int = Field(30, ge=1, le=10_000)
     contact_pad: int = Field(3, ge=0, le=1000)
     w_contact: float = Field(2000.0, ge=0)
+    #: Clearance (m) the contact phase asks between MuJoCo's geoms: room for the control-rate
+    #: samples interpolated between two resolved frames (at 2 mm they touched, and the export's
+    #: repair moved synth seqs 15-17's arms by 90-100°).
+    contact_margin: float = Field(0.01, ge=0, le=0.05)
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.
     tolerance: float = Field(3e-3, ge=0, le=1)
     # --- output ---

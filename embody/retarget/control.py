@@ -216,4 +216,7 @@ def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: fl
     qc = clamp_velocity(qc, robot.velocity_limits * (1.0 - VELOCITY_MARGIN), rate)
     if not repair:
         return qc, False
+    # interpolated samples that touch between clear ones: bridged locally first, as at the source
+    # rate (the repair alone moved synth seqs 15 and 17's exported arms by 89-101°)
+    qc = bridge_contacts(robot, qc, max_run=int(np.ceil(BRIDGE_FRAMES * rate / fps)), fps=rate)
     return separate_checked(robot, qc, rate, box_margin=BOX_MARGIN, velocity_margin=VELOCITY_MARGIN)

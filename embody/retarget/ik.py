@@ -338,7 +338,7 @@ def solve_joints(robot: Robot, targets: Targets, cfg: IKConfig,
 def resolve_contacts(robot: Robot, targets: Targets, cfg: IKConfig, q: np.ndarray) -> np.ndarray:
     """q (T,n) with the contacts the proxies leaked resolved inside the optimisation: where
     MuJoCo finds a counted contact, an LM phase whose collision rows on those frames (±
-    `cfg.contact_pad`) are MuJoCo's own contacts at `polish_margin`, weighted `w_contact` (a
+    `cfg.contact_pad`) are MuJoCo's own contacts at `contact_margin`, weighted `w_contact` (a
     near-constraint), with every other term kept; repeated (`contact_rounds`) while contacts
     remain, each round adding the frames it finds. Why: the repair after the solve
     (`control.separate`) pushes each frame apart alone and blends the push into its
@@ -353,7 +353,7 @@ def resolve_contacts(robot: Robot, targets: Targets, cfg: IKConfig, q: np.ndarra
     problem = _Problem(robot, targets, cfg.model_copy(update={"polish_iterations": 0}))
     if problem.residuals.proxies is None:
         return q
-    problem.residuals.exact = ExactContacts(robot, cfg.polish_margin, cfg.w_contact)
+    problem.residuals.exact = ExactContacts(robot, cfg.contact_margin, cfg.w_contact)
     qi = q[:, problem.ik]
     for _ in range(cfg.contact_rounds):
         qi = problem.solve(qi, cold=False, contact_frames=_dilate(hit, cfg.contact_pad))
