@@ -294,7 +294,10 @@ def main() -> None:
         thumbs.append(thumb)
         print(f"seq{i:02d} " + " ".join(f"{k}={m[f'{k2}.location_err']:.3f}" for k, k2 in
                                        (("ik", "ik"), ("pres", "preserving"), ("final", final)))
-              + f" agree={m[f'{final}.location_agree_pct']:.1f} palm={m[f'{final}.palm_deg']:.1f}"
+              + f" agree={m[f'{final}.location_agree_pct']:.1f}"
+              f" agree10={m[f'{final}.agree10']:.0f}/{m[f'{final}.near10']:.0f}"
+              f" pres10={m['preserving.agree10']:.0f}/{m['preserving.near10']:.0f}"
+              f" palm={m[f'{final}.palm_deg']:.1f}"
               f" hand={m[f'{final}.handshape_err']:.3f} self_coll={m[f'{final}.self_collision_frames']:.0f}"
               f" vel={m[f'{final}.velocity_violations']:.0f} pen={m[f'{final}.penetration_frames']:.0f} "
               + " ".join(f"{ch}={m[f'{final}.ch_{ch}_tp']:.0f}/{m[f'{final}.ch_{ch}_h']:.0f}/"

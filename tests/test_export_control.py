@@ -217,3 +217,19 @@ def test_proxies_cover_fingers_against_other_palm_and_thighs(robot):
             assert (f, f"{other}_wrist_yaw_link") in pairs, f  # the palm
             for t in thighs:
                 assert (f, t) in pairs, (f, t)
+
+
+def test_bridge_replaces_a_short_contact_run_between_clear_frames(robot, passing):
+    """Hands passing through each other on one frame between clear ones: `bridge_contacts`
+    replaces that frame by a clear one next to it and touches nothing else; a run longer than
+    `max_run` is left to the repair."""
+    from embody.retarget.control import bridge_contacts
+
+    q = np.stack([_pose(robot, z) for z in (-0.4, -0.2, 0.0, 0.2, 0.4)])
+    bad = self_collision_contacts(robot, q) > 0
+    assert bad.tolist() == [False, False, True, False, False]
+    out = bridge_contacts(robot, q)
+    assert self_collision_contacts(robot, out).sum() == 0
+    np.testing.assert_array_equal(out[~bad], q[~bad])
+    assert np.abs(out[2] - q[2]).max() <= np.abs(q[3] - q[1]).max()  # a local answer, not a jump
+    np.testing.assert_array_equal(bridge_contacts(robot, q, max_run=0), q)

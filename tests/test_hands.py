@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from embody.io.hands import absolute_to_relative, relative_to_absolute
-from embody.retarget.hands import OPPOSE_RANGE, fold_thumbs, palm_rest_weight, retarget_hands
+from embody.retarget.hands import OPPOSE_RANGE, fold_thumbs, palm_rest_weight, rate_limit, retarget_hands
 from embody.robot import load_robot
 from embody.synth.handshapes import handshape
 
@@ -132,3 +132,19 @@ def test_palm_rest_weight_needs_near_facing_and_a_free_thumb():
     assert palm_rest_weight(np.array([near]), np.array([0.9]), np.array([0.8]), radius)[0] == 0.0
     w = palm_rest_weight(np.linspace(0.0, 0.3, 31), np.full(31, 0.9), np.zeros(31), radius)
     assert np.all(np.diff(w) <= 1e-12)  # no more fold further away
+
+
+def test_rate_limit_keeps_fingers_within_their_velocity_limits_symmetrically():
+    """A finger target flipping faster than the joint can move (a jittering human) comes out
+    within the velocity limits, with no lag (a spike is cut the same on both sides), and a
+    target the joint can follow is returned unchanged."""
+    from embody.retarget.limits import velocity_violations
+    fps, vmax = 30.0, np.array([3.0, 6.0])
+    q = np.zeros((21, 2))
+    q[10] = [1.0, -1.0]  # a one-frame spike
+    out = rate_limit(q, vmax, fps)
+    assert velocity_violations(out, vmax, fps) == 0
+    np.testing.assert_allclose(out[::-1], out, atol=1e-12)  # symmetric in time
+    assert out[10, 0] == pytest.approx(0.5 * (3.0 / fps) * 2)  # mean of the two one-sided ramps' peaks
+    slow = np.linspace(0.0, 1.0, 61)[:, None] * np.array([[1.0, -1.0]])  # 0.5 rad/s
+    np.testing.assert_allclose(rate_limit(slow, vmax, fps), slow, atol=1e-12)

@@ -67,3 +67,24 @@ def test_polish_tracks_closer_than_the_proxies_and_stays_clear(robot):
     naive = solve(robot, targets, IKConfig(w_collision=0.0, contact_repair=False)).q
     r, _ = exact.rows(naive)
     assert ((r > 0).sum(1) > 0).tolist() == (self_collision_contacts(robot, naive) > 0).tolist()
+
+
+def test_contact_phase_resolves_what_the_proxies_leak(robot):
+    """Proxies without a margin let the planted hands penetrate (MuJoCo's verdict); the contact
+    phase (`resolve_contacts`, MuJoCo's contacts as rows inside the LM) clears every frame, and
+    `solve_joints` runs it by default."""
+    from embody.retarget.ik import resolve_contacts, solve_joints
+
+    targets = _hands_plant(robot)
+    leaky = IKConfig(collision_margin=0.0, contact_rounds=0)
+    q0 = solve_joints(robot, targets, leaky)
+    assert (self_collision_contacts(robot, q0) > 0).all()
+    on = IKConfig(collision_margin=0.0)
+    q1 = resolve_contacts(robot, targets, on, q0)
+    assert self_collision_contacts(robot, q1).sum() == 0
+    np.testing.assert_array_equal(solve_joints(robot, targets, on), resolve_contacts(robot, targets, on, q0))
+    # nothing to resolve: the trajectory comes back as it was
+    clear = IKConfig()
+    q2 = solve_joints(robot, targets, clear.model_copy(update={"contact_rounds": 0}))
+    assert self_collision_contacts(robot, q2).sum() == 0
+    np.testing.assert_array_equal(resolve_contacts(robot, targets, clear, q2), q2)

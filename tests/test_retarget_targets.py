@@ -54,13 +54,14 @@ def test_a_palm_on_the_opposite_shoulder_folds_the_robot_thumb_only_there(setup)
     """The generator's SHOULDER sign rests the flat right palm on the left shoulder: with
     location-preserving targets the right Dex3 thumb is folded during the hold (so the palm, not
     the thumb, touches); a flat palm held off the body (HELLO at the forehead) and the
-    plain shape-fit targets keep the finger mapping as it was."""
+    plain shape-fit targets keep the finger mapping as it was (the finger rate limit, tested on
+    its own, is off here: it smooths the mapping where the human's fingers move too fast)."""
     from embody.retarget.hands import retarget_hands
     from embody.synth.generator import generate_sequence
     from embody.synth.lexicon import LEXICON
     robot, body, fit = setup
     by_gloss = {s.gloss: s for s in LEXICON}
-    on = IKConfig(location_preserving=True)
+    on = IKConfig(location_preserving=True, hand_rate_limit=False)
     shoulder = generate_sequence(1, 1024, signs=[by_gloss["SHOULDER"]])
     targets = build_targets(shoulder, body, fit, robot, on)
     mapped, names = retarget_hands(shoulder.pose, robot)
@@ -73,7 +74,7 @@ def test_a_palm_on_the_opposite_shoulder_folds_the_robot_thumb_only_there(setup)
     assert np.all(mapped[hold, c] > 0.2 * lower)  # the human's flat thumb: barely flexed
     left = [i for i, n in enumerate(names) if n.startswith("left_")]
     np.testing.assert_array_equal(targets.hand_q[:, left], mapped[:, left])
-    plain = build_targets(shoulder, body, fit, robot, IKConfig(location_preserving=False))
+    plain = build_targets(shoulder, body, fit, robot, IKConfig(location_preserving=False, hand_rate_limit=False))
     np.testing.assert_array_equal(plain.hand_q, mapped)
     hello = generate_sequence(1, 1000, signs=[by_gloss["HELLO"]])
     np.testing.assert_array_equal(build_targets(hello, body, fit, robot, on).hand_q,

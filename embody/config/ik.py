@@ -141,11 +141,30 @@ class IKConfig(Section):
     #: Factor on `w_smooth`/`w_jerk` in the polish phase (the basin is chosen): 0.3 takes the
     #: polished feasible-frame error from 1.22 to 0.96 mm, but the jerk from 843 to 1162.
     polish_smooth: float = Field(1.0, ge=0, le=1)
+    #: Contact phase after the solve (`ik.resolve_contacts`): where MuJoCo finds the proxies leaked
+    #: (a counted contact), up to `contact_rounds` LM phases of `contact_iterations` each with
+    #: MuJoCo's own contacts at `contact_margin` and weight `w_contact` on those frames (±
+    #: `contact_pad`), so the contact is resolved jointly with tracking and smoothness instead
+    #: of by the per-frame push of the repair (synth seq 6: 30-80° repair changes → ≤ 47°,
+    #: location agreement 26 → 38 of 41 frames). 0 rounds: off.
+    contact_rounds: int = Field(3, ge=0, le=100)
+    contact_iterations: int = Field(30, ge=1, le=10_000)
+    contact_pad: int = Field(3, ge=0, le=1000)
+    w_contact: float = Field(2000.0, ge=0)
+    #: Clearance (m) the contact phase asks between MuJoCo's geoms (the polish's 2 mm). 1 cm,
+    #: meant as room for the control-rate samples between resolved frames, lost agreement on
+    #: benchmarks/fidelity.py (94.8 → 92.7 %) and did not calm the export's repair.
+    contact_margin: float = Field(0.002, ge=0, le=0.05)
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.
     tolerance: float = Field(3e-3, ge=0, le=1)
     # --- output ---
     #: Retarget fingers (robots without hands skip it).
     hands: bool = True
+    #: Keep the finger targets within the hand joints' velocity limits (`hands.rate_limit`, symmetric
+    #: in time) before the IK, so the arms are placed around the fingers the clamp will leave: a
+    #: jittering human hand otherwise flips the thumb faster than it can move, the clamp rewrites
+    #: it after the solve and the contact repair untangles what it then touches.
+    hand_rate_limit: bool = True
     #: Clamp per-step joint changes to the velocity limits at the trajectory's fps.
     enforce_velocity_limits: bool = True
     #: Remove what MuJoCo still finds penetrating after the solve (the proxies leak between

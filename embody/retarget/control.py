@@ -22,7 +22,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from embody.retarget.limits import clamp_velocity, resample
+from embody.retarget.limits import clamp_velocity, resample, velocity_violations
 from embody.robot import Robot
 from embody.robot.contacts import collision_model
 
@@ -118,6 +118,48 @@ def _spread(delta: np.ndarray, half_width: int) -> np.ndarray:
     return out
 
 
+#: Longest run of contact frames (source rate) `bridge_contacts` replaces by interpolation.
+BRIDGE_FRAMES = 3
+
+
+def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
+                    fps: float | None = None) -> np.ndarray:
+    """q (T,n) with each short run (≤ `max_run` frames) of MuJoCo contact frames between two clear
+    frames replaced by a clear one between those neighbours: the straight line, the line pushed
+    clear (`_Separator.frame`), or the neighbours held; the first that MuJoCo finds clear on
+    every frame and, with `fps`, that keeps the velocity limits into, through and out of the run
+    (else the run is left to `separate`: a bridge the clamp then bends would only come back as
+    a contact). Why: a jittering target can
+    flip a solve through a contact on isolated frames (synth seq 6: palms 35 mm inside each
+    other on frames 121 and 123, 120 and 122 clear); pushing such a frame apart along MuJoCo's
+    normals moved the arms by up to 76° over ±0.5 s, while its clear neighbours already bound
+    a local, collision-free answer."""
+    q = np.array(q, dtype=np.float64)
+    sep = _Separator(robot)
+    bad = np.array([bool(sep.contacts(x, jacobians=False)) for x in q])
+    t, n = 0, len(q)
+    while t < n:
+        if not bad[t]:
+            t += 1
+            continue
+        end = t
+        while end < n and bad[end]:
+            end += 1
+        if t > 0 and end < n and end - t <= max_run:
+            w = (np.arange(t, end) - (t - 1))[:, None] / float(end - (t - 1))
+            line = (1.0 - w) * q[t - 1] + w * q[end]
+            for cand in (line, np.stack([sep.frame(x, robot.lower, robot.upper) for x in line]),
+                         np.where(w < 0.5, q[t - 1], q[end])):  # straight, pushed, held
+                path = np.concatenate([q[t - 1: t], cand, q[end: end + 1]])
+                if fps is not None and velocity_violations(path, robot.velocity_limits, fps):
+                    continue
+                if not any(sep.contacts(x, jacobians=False) for x in cand):
+                    q[t:end] = cand
+                    break
+        t = end
+    return q
+
+
 def separate(robot: Robot, q: np.ndarray, fps: float, *, passes: int = PASSES, blend_s: float = 0.1,
              box_margin: float = 0.0, velocity_margin: float = 0.0,
              clearance: float = CLEARANCE, enforce_velocity: bool = True) -> np.ndarray:
@@ -174,4 +216,7 @@ def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: fl
     qc = clamp_velocity(qc, robot.velocity_limits * (1.0 - VELOCITY_MARGIN), rate)
     if not repair:
         return qc, False
+    # interpolated samples that touch between clear ones: bridged locally first, as at the source
+    # rate (the repair alone moved synth seqs 15 and 17's exported arms by 89-101°)
+    qc = bridge_contacts(robot, qc, max_run=int(np.ceil(BRIDGE_FRAMES * rate / fps)), fps=rate)
     return separate_checked(robot, qc, rate, box_margin=BOX_MARGIN, velocity_margin=VELOCITY_MARGIN)

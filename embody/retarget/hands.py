@@ -164,6 +164,23 @@ def fold_thumbs(hand_q: np.ndarray, hand_joints: list[str], robot: Robot, weight
     return q
 
 
+def rate_limit(hand_q: np.ndarray, vmax: np.ndarray, fps: float) -> np.ndarray:
+    """`hand_q` (T,H) within the hand joints' velocity limits `vmax` (H,): the mean of a forward
+    and a backward one-pass clamp (each feasible, so their mean is; symmetric in time, so the
+    finger lags neither ahead nor behind). Why: a jittering human hand (fingertips at 1-4 m/s)
+    flips the fingers and the folded thumb faster than the robot's finger joints can move; the
+    final velocity clamp then rewrites them after the IK has placed the arms around the old
+    fingers, and the contact repair untangles what the rewritten thumb now touches (30-80°
+    arm changes on synth seq 6). Limiting the targets lets the IK see the fingers it will get."""
+    from embody.retarget.limits import clamp_velocity
+    q = np.asarray(hand_q, dtype=np.float64)
+    if len(q) < 2 or q.shape[1] == 0:
+        return q.copy()
+    fwd = clamp_velocity(q, vmax, fps)
+    bwd = clamp_velocity(q[::-1], vmax, fps)[::-1]
+    return 0.5 * (fwd + bwd)
+
+
 def retarget_hands(pose: np.ndarray, robot: Robot) -> tuple[np.ndarray, list[str]]:
     """Robot hand joint values (T, n_hand) and their names; (T, 0) for robots without hands."""
     pose = np.asarray(pose, dtype=np.float64)

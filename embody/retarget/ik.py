@@ -32,7 +32,8 @@ from embody.config.ik import IKConfig
 from embody.metrics.trajectory import mean_jerk, position_error, rotation_error_deg
 from embody.retarget.banded import block_banded_solve
 from embody.retarget.costs import WRIST_ELBOW, Residuals
-from embody.retarget.control import control_trajectory_checked, separate_checked
+from embody.retarget.control import bridge_contacts, control_trajectory_checked, separate_checked
+from embody.retarget.exact_contacts import ExactContacts
 from embody.retarget.limits import clamp_velocity, limit_violations, velocity_violations
 from embody.retarget.targets import _ARRAYS, Targets
 from embody.retarget.validation import validation_counts
@@ -91,6 +92,15 @@ LAMBDA0 = 1.0
 #: before a step was accepted (benchmarks/ik_vs_mink.py: 162 evaluations for 109 accepted
 #: steps). With the floor: 1.13× CPU frames/s, same accuracy (docs/performance.md, s6-ik).
 LAMBDA_MIN = 1e-3
+
+
+def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
+    """(T,) bool: the frames within `pad` frames of a True one in `mask`."""
+    idx = np.flatnonzero(mask)
+    cover = np.zeros(len(mask) + 2 * pad + 1, dtype=np.int64)  # +1 from idx − pad, −1 after idx + pad
+    np.add.at(cover, idx, 1)
+    np.subtract.at(cover, idx + 2 * pad + 1, 1)
+    return np.cumsum(cover)[pad: pad + len(mask)] > 0
 
 
 class _Problem:
@@ -182,14 +192,10 @@ class _Problem:
         r, _ = self.residuals.lazy(self.q_full(qi), collision=1.0)
         pressed = r[:, self.residuals.n_task_rows:].max(1, initial=0.0) > 0
         wrist = np.linalg.norm(r[:, :6].reshape(len(r), 2, 3), axis=-1).max(1)
-        idx = np.flatnonzero(pressed & (wrist > self.cfg.polish_near))
-        pad = self.cfg.polish_pad
-        cover = np.zeros(len(qi) + 2 * pad + 1, dtype=np.int64)  # +1 from idx − pad, −1 after idx + pad
-        np.add.at(cover, idx, 1)
-        np.subtract.at(cover, idx + 2 * pad + 1, 1)
-        return np.cumsum(cover)[pad: pad + len(qi)] > 0
+        return _dilate(pressed & (wrist > self.cfg.polish_near), self.cfg.polish_pad)
 
-    def solve(self, qi0: np.ndarray, cold: bool, full: bool = True, lam: float = LAMBDA0) -> np.ndarray:
+    def solve(self, qi0: np.ndarray, cold: bool, full: bool = True, lam: float = LAMBDA0,
+              contact_frames: np.ndarray | None = None) -> np.ndarray:
         """Levenberg-Marquardt (Nielsen's damping rule). From a cold start the collision term comes
         on in full after a tracking phase: with it on from the rest pose, hands block each other and
         the trunk on their way to the targets (3× the wrist error on the synthetic set). Without it
@@ -198,7 +204,8 @@ class _Problem:
         phase (`cfg.ramp_collision`) then lets hands that meet slide round each other before the
         full term fixes them in place (a continuation; 4.46 → 3.85 mm all-frame wrist error on
         benchmarks/ik_vs_mink.py's 4 sequences, lower jerk, still 0 contacts). `full=False` stops
-        after the cold phases (the coarse pass of `solve_joints`); `lam` is the starting damping."""
+        after the cold phases (the coarse pass of `solve_joints`); `lam` is the starting damping.
+        `contact_frames` (T,) bool: only the exact-contact phase, on those frames (`resolve_contacts`)."""
         lower, upper = self.robot.lower[self.ik], self.robot.upper[self.ik]
         qi = np.clip(qi0, lower, upper)
         use_col = self.residuals.proxies is not None
@@ -212,11 +219,14 @@ class _Problem:
         phases = [(c, n, False) for c, n in phases]
         if full and self.residuals.exact is not None:
             phases.append((1.0, self.cfg.polish_iterations, True))
+        if contact_frames is not None:
+            phases = [(1.0, self.cfg.contact_iterations, True)]
         smooth = self.dtd
         for collision, budget, exact in phases:
             self.dtd = self.dtd_polish if exact else smooth
             if exact:
-                self.residuals.exact.frames = self._polish_frames(qi)
+                self.residuals.exact.frames = (self._polish_frames(qi) if contact_frames is None
+                                               else contact_frames)
             cost, normal = self.evaluate(qi, collision, exact)
             h, g = normal()
             nu = 2.0
@@ -299,8 +309,9 @@ def same_problem(a: Targets, b: Targets) -> bool:
 
 def solve_joints(robot: Robot, targets: Targets, cfg: IKConfig,
                  init: IKSolution | np.ndarray | None = None) -> np.ndarray:
-    """The optimiser alone: joint trajectory (T, n_joints) inside the joint box, before the
-    velocity clamp, the MuJoCo repair and the verification that `solve` adds."""
+    """The optimiser alone (its contact phase, `resolve_contacts`, included): joint trajectory
+    (T, n_joints) inside the joint box, before the velocity clamp, the MuJoCo repair and the
+    verification that `solve` adds."""
     problem = _Problem(robot, targets, cfg)
     t = targets.num_frames
     q0 = init.q if isinstance(init, IKSolution) else init
@@ -321,7 +332,37 @@ def solve_joints(robot: Robot, targets: Targets, cfg: IKConfig,
         qi = problem.solve(qi0, cold=False, lam=coarse.lam)
     else:
         qi = problem.solve(np.tile(robot.rest[problem.ik], (t, 1)), cold=True)
-    return robot.clip(problem.q_full(qi))
+    return resolve_contacts(robot, targets, cfg, robot.clip(problem.q_full(qi)))
+
+
+def resolve_contacts(robot: Robot, targets: Targets, cfg: IKConfig, q: np.ndarray) -> np.ndarray:
+    """q (T,n) with the contacts the proxies leaked resolved inside the optimisation: where
+    MuJoCo finds a counted contact, an LM phase whose collision rows on those frames (±
+    `cfg.contact_pad`) are MuJoCo's own contacts at `contact_margin`, weighted `w_contact` (a
+    near-constraint), with every other term kept; repeated (`contact_rounds`) while contacts
+    remain, each round adding the frames it finds. Why: the repair after the solve
+    (`control.separate`) pushes each frame apart alone and blends the push into its
+    neighbours; on a deep leak (a thumb 30 mm inside the opposite shoulder during a SHOULDER
+    sign) that moved the arms 30-80° for ±0.5 s and took the hand off its landmark. Here the
+    smoothness and the targets share the correction, and the repair has little left to do."""
+    if not cfg.contact_rounds or not cfg.contact_repair:
+        return q
+    hit = self_collision_contacts(robot, q) > 0
+    if not hit.any():
+        return q
+    problem = _Problem(robot, targets, cfg.model_copy(update={"polish_iterations": 0}))
+    if problem.residuals.proxies is None:
+        return q
+    problem.residuals.exact = ExactContacts(robot, cfg.contact_margin, cfg.w_contact)
+    qi = q[:, problem.ik]
+    for _ in range(cfg.contact_rounds):
+        qi = problem.solve(qi, cold=False, contact_frames=_dilate(hit, cfg.contact_pad))
+        q = robot.clip(problem.q_full(qi))
+        now = self_collision_contacts(robot, q) > 0
+        if not now.any():
+            break
+        hit |= now
+    return q
 
 
 def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
@@ -336,6 +377,8 @@ def finish_solution(robot: Robot, q: np.ndarray, targets: Targets, cfg: IKConfig
     """A solved trajectory (T,n) inside the joint box made into the solution every solve returns
     (whole or windowed): velocity clamp, MuJoCo contact repair, evaluation (with `extra` metrics)
     and the verified control-rate array."""
+    if cfg.contact_repair:  # short contact runs: their clear neighbours bound a local answer
+        q = bridge_contacts(robot, q, fps=targets.fps if cfg.enforce_velocity_limits else None)
     if cfg.enforce_velocity_limits:
         q = clamp_velocity(q, robot.velocity_limits, targets.fps)
     # MuJoCo has the last word at both rates: every written sample is collision-free

@@ -44,7 +44,7 @@ from embody.body.base import BodyModel
 from embody.body.landmarks import LandmarkSet, body_landmarks
 from embody.config.ik import IKConfig
 from embody.motion import Motion
-from embody.retarget.hands import fold_thumbs, retarget_hands
+from embody.retarget.hands import fold_thumbs, rate_limit, retarget_hands
 from embody.retarget.shape_fit import ShapeFit
 from embody.robot import Robot
 
@@ -352,10 +352,16 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
     wrist_pos = np.stack([pos[:, idx(f"{s}_wrist")] for s in sides], axis=1)
     wrist_rot = np.stack([mapped_rot(f"{s}_wrist", f"{s}_wrist") for s in sides], axis=1)
     torso_rot = mapped_rot("spine3", "spine3") if "spine3" in robot.spec.links else identity
-    if cfg is not None and cfg.location_preserving and robot.spec.landmarks:
+    preserving = cfg is not None and cfg.location_preserving and bool(robot.spec.landmarks)
+    if preserving:
         # a palm laid on the body: the robot thumb lies down too (`hands.fold_thumbs`)
         human = _human(motion, body)
         hand_q = fold_thumbs(hand_q, hand_joints, robot, palm_rest(motion, body, robot, cfg, human))
+    if cfg is not None and cfg.hand_rate_limit and hand_joints:
+        # fingers the robot can follow: the IK places the arms around the fingers it will get
+        hand_q = rate_limit(hand_q, robot.velocity_limits[[robot.joint_index(n) for n in hand_joints]]
+                            * (1.0 - cfg.velocity_headroom), motion.fps)
+    if preserving:
         anchored = anchored_targets(motion, body, fit, robot, wrist_rot, torso_rot, hand_q, hand_joints, cfg,
                                     human)
         wrist_pos = wrist_pos + anchored.weight[..., None] * (anchored.wrist - wrist_pos)
