@@ -89,74 +89,94 @@ class HandClearanceTerm:
         #: hull's max-plane value (every plane is), so points it puts at ≥ the gap are culled exactly
         self.bound_planes = {h: px.hull_planes[h][_spread(px.hull_planes[h][:, :3], _BOUND_PLANES)]
                              for _, _, hulls in self.pairs for h in hulls}
+        #: per pair: its bound planes stacked (H,K,4) (short sets padded by repeating their first
+        #: plane, which changes no max), its hulls' plane sets without the padding, its first row
+        pad = lambda p: np.vstack([p, np.repeat(p[:1], _BOUND_PLANES - len(p), 0)])  # noqa: E731
+        self.pair_bounds = [np.stack([pad(self.bound_planes[h]) for h in hulls]) for _, _, hulls in self.pairs]
+        self.exact_planes = [[_unpadded(px.hull_planes[h]) for h in hulls] for _, _, hulls in self.pairs]
+        self.row0 = np.cumsum([0] + [len(h) for _, _, h in self.pairs])[:-1]
+        #: per hand (keyed by its point array): points grouped by body, each body's ball
+        self.hands = {id(p): _hand_table(px, p) for _, p, _ in self.pairs}
 
-    def _points(self, pose, frames: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        px = self.px
-        col = np.array([pose.index[px.bodies[b]] for b in px.sphere_body[pts]])
-        x = pose.pos[frames][:, col] + np.einsum("fpab,pb->fpa", pose.rot[frames][:, col], px.centres[pts])
-        return x, col
-
-    def _near(self, pose, frames: np.ndarray, x: np.ndarray, pts: np.ndarray, hulls: np.ndarray,
-              gap: np.ndarray, slack: float = 0.01) -> np.ndarray:
-        """Broad phase: which of `frames` have the bounding sphere of the points `x` (F,P,3) within
-        `gap` (+ slack) of some hull's bounding sphere."""
-        px = self.px
-        c = x.mean(1)
-        r = np.linalg.norm(x - c[:, None], axis=-1).max(1) + px.radii[pts].max(initial=0.0)
-        hcol = np.array([pose.index[px.bodies[px.hull_body[h]]] for h in hulls])
-        hc = pose.pos[frames][:, hcol] + np.einsum("fhab,hb->fha", pose.rot[frames][:, hcol], px.hull_centre[hulls])
-        apart = (np.linalg.norm(hc - c[:, None], axis=-1) - px.hull_radius[hulls][None]).min(1) - r - slack
-        return apart < gap
+    def _hand(self, pose, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World points (T,P,3) of a hand's proxy points, the centres of its bodies' balls (T,nb,3)
+        and the points' FK columns: body by body (one 3×3 @ 3×m product per body and frame)."""
+        px, tab = self.px, self.hands[id(pts)]
+        bcol = np.array([pose.index[px.bodies[b]] for b in tab["body"]])
+        rot, pos = pose.rot[:, bcol], pose.pos[:, bcol]
+        xb = np.swapaxes(rot @ tab["local"] + pos[..., None], -1, -2)  # (T,nb,m,3)
+        x = np.empty((len(rot), len(pts), 3))
+        x[:, tab["table"][tab["valid"]]] = xb[:, tab["valid"]]
+        centre = (rot @ tab["centre"][..., None])[..., 0] + pos
+        return x, centre, bcol[tab["slot"]]
 
     def rows(self, pose, scale: float) -> tuple[np.ndarray, Callable[[np.ndarray, np.ndarray], np.ndarray]] | None:
         """The IK's `ResidualTerm` protocol (`costs.py`); phased in with the collision term
-        (`scale`), since both keep parts apart."""
+        (`scale`), since both keep parts apart.
+
+        Exact culling, coarse to fine, each level a lower bound of a point's max-plane value
+        (a few of the hull's planes, `bound_planes`, taken to the world once per frame):
+        a hand body's ball (centre value − radius) drops all its points for a hull, then each
+        remaining point's own bound drops it; only points whose bound is below the gap get the
+        full plane set. Rows equal the brute force (tests/test_hand_clearance.py)."""
         sw = np.sqrt(max(self.w * float(scale), 0.0))
         if sw == 0.0 or not self.pairs:
             return None
         t, px = len(pose.rot), self.px
         r = np.zeros((t, self.width))
         act_f, act_row, act_x, act_n, act_pb, act_hb = [], [], [], [], [], []
-        row = 0
-        for c, pts, hulls in self.pairs:
+        hands: dict[int, tuple] = {}
+        for k, (c, pts, hulls) in enumerate(self.pairs):
             frames = np.flatnonzero(self.gap[:, c] > 0)
-            x, pcol = self._points(pose, frames, pts)  # once: the broad phase and the rows share it
-            if len(frames):
-                near = self._near(pose, frames, x, pts, hulls, self.gap[frames, c])
-                frames, x = frames[near], x[near]
             if not len(frames):
-                row += len(hulls)
                 continue
-            radii, gap = px.radii[pts], self.gap[frames, c]
-            for h in hulls:
-                hcol = pose.index[px.bodies[px.hull_body[h]]]
-                r_h, p_h = pose.rot[frames, hcol], pose.pos[frames, hcol]
-                planes, bound = px.hull_planes[h], self.bound_planes[h]
-                # exact cull: a point whose lower bound is ≥ the gap cannot shorten it (the bound
-                # planes taken to the world, n_w = R n, d_w = d − n_w·p, so no point is moved)
-                n_w = np.einsum("fab,kb->fka", r_h, bound[:, :3])
-                d_w = bound[:, 3] - np.einsum("fka,fa->fk", n_w, p_h)
-                lb = (np.matmul(x, n_w.transpose(0, 2, 1)) + d_w[:, None]).max(-1) - radii[None]
-                fi, pi = np.nonzero(lb < gap[:, None])
-                if len(fi):
-                    xl = np.einsum("nba,nb->na", r_h[fi], x[fi, pi] - p_h[fi])  # hull-body frame
-                    sd = xl @ planes[:, :3].T + planes[:, 3]
-                    face = sd.argmax(-1)
-                    value = sd[np.arange(len(fi)), face] - radii[pi]
-                    order = np.lexsort((pi, value, fi))  # per frame: the least value, first point
-                    first = order[np.r_[True, fi[order][1:] != fi[order][:-1]]]
-                    a_f, a_p = fi[first], pi[first]
-                    short = np.maximum(gap[a_f] - value[first], 0.0)
-                    r[frames[a_f], row] = sw * short
-                    a = short > 0
-                    if a.any():
-                        act_f.append(frames[a_f[a]])
-                        act_row.append(np.full(int(a.sum()), row))
-                        act_x.append(x[a_f[a], a_p[a]])
-                        act_n.append(np.einsum("fab,fb->fa", r_h[a_f[a]], planes[face[first[a]], :3]))
-                        act_pb.append(pcol[a_p[a]])
-                        act_hb.append(np.full(int(a.sum()), hcol))
-                row += 1
+            if id(pts) not in hands:
+                hands[id(pts)] = self._hand(pose, pts)
+            x, centre, pcol = hands[id(pts)]
+            tab, gap, row0 = self.hands[id(pts)], self.gap[frames, c], self.row0[k]
+            hcol = np.array([pose.index[px.bodies[px.hull_body[h]]] for h in hulls])
+            r_h, p_h = pose.rot[frames[:, None], hcol], pose.pos[frames[:, None], hcol]  # (F,H,..)
+            bound = self.pair_bounds[k]  # (H,K,4)
+            n_w = np.einsum("fhab,hkb->fhka", r_h, bound[..., :3])
+            d_w = bound[..., 3] - np.einsum("fhka,fha->fhk", n_w, p_h)
+            n_wt = np.swapaxes(n_w, -1, -2)  # (F,H,3,K)
+            # a hand body's ball: n·x + d ≥ n·c + d − radius for every point x in it
+            lb = (centre[frames][:, None] @ n_wt + d_w[:, :, None]).max(-1) - tab["radius"]  # (F,H,nb)
+            fi, hi, bi = np.nonzero(lb < gap[:, None, None])
+            if not len(fi):
+                continue
+            tbl = tab["table"][bi]  # (N,m)
+            lbp = (x[frames[fi][:, None], tbl] @ n_wt[fi, hi] + d_w[fi, hi][:, None]).max(-1) - px.radii[pts][tbl]
+            ni, mi = np.nonzero((lbp < gap[fi][:, None]) & tab["valid"][bi])
+            if not len(ni):
+                continue
+            cf, ch, cp = fi[ni], hi[ni], tbl[ni, mi]
+            rh = r_h[cf, ch]
+            xw = x[frames[cf], cp]
+            xl = np.einsum("nba,nb->na", rh, xw - p_h[cf, ch])  # hull-body frame
+            value, normal_l = np.empty(len(cf)), np.empty((len(cf), 3))
+            order = np.argsort(ch, kind="stable")
+            present, starts = np.unique(ch[order], return_index=True)
+            for h, idx in zip(present, np.split(order, starts[1:])):
+                planes = self.exact_planes[k][h]
+                sd = xl[idx] @ planes[:, :3].T + planes[:, 3]
+                face = sd.argmax(-1)
+                value[idx] = sd[np.arange(len(idx)), face]
+                normal_l[idx] = planes[face, :3]
+            value -= px.radii[pts][cp]
+            order = np.lexsort((cp, value, ch, cf))  # per (frame, hull): the least value, first point
+            key = cf[order] * len(hulls) + ch[order]
+            first = order[np.r_[True, key[1:] != key[:-1]]]
+            short = np.maximum(gap[cf[first]] - value[first], 0.0)
+            r[frames[cf[first]], row0 + ch[first]] = sw * short
+            a = first[short > 0]
+            if len(a):
+                act_f.append(frames[cf[a]])
+                act_row.append(row0 + ch[a])
+                act_x.append(xw[a])
+                act_n.append(np.einsum("fab,fb->fa", rh[a], normal_l[a]))
+                act_pb.append(pcol[cp[a]])
+                act_hb.append(hcol[ch[a]])
         cat = lambda v, shape: np.concatenate(v) if v else np.zeros(shape)  # noqa: E731
         f, rows_, x, n = cat(act_f, 0).astype(np.int64), cat(act_row, 0).astype(np.int64), cat(act_x, (0, 3)), cat(act_n, (0, 3))
         pb, hb = cat(act_pb, 0).astype(np.int64), cat(act_hb, 0).astype(np.int64)
@@ -174,6 +194,35 @@ class HandClearanceTerm:
 
 #: planes per hull in the exact cull's lower bound
 _BOUND_PLANES = 14
+
+
+def _unpadded(planes: np.ndarray) -> np.ndarray:
+    """A hull's planes without the padding (`Proxies.hull_planes` repeats the first plane at the
+    end): the argmax, and so the face, stays the first maximal plane."""
+    n = len(planes)
+    while n > 1 and np.array_equal(planes[n - 1], planes[0]):
+        n -= 1
+    return planes[:n]
+
+
+def _hand_table(px, pts: np.ndarray) -> dict[str, np.ndarray]:
+    """A hand's points grouped by body: `body` (proxy body indices), `slot` (each point's body),
+    a padded (nb, m) `table` of indices into `pts` (`valid`: not padding), the points in their
+    body's frame (`local`, (nb,3,m)) and each body's ball (`centre`, `radius`; the radius a
+    little large, so the normals' rounding (|n| = 1 ± 1e-9) cannot make the bound inexact)."""
+    body, slot = np.unique(px.sphere_body[pts], return_inverse=True)
+    width = int(np.bincount(slot).max())
+    table = np.full((len(body), width), -1, dtype=np.int64)
+    local = np.zeros((len(body), 3, width))
+    centre, radius = np.zeros((len(body), 3)), np.zeros(len(body))
+    for b in range(len(body)):
+        k = np.flatnonzero(slot == b)
+        table[b, : len(k)] = k
+        c = px.centres[pts[k]]
+        local[b, :, : len(k)] = c.T
+        centre[b] = c.mean(0)
+        radius[b] = (np.linalg.norm(c - centre[b], axis=1) + px.radii[pts[k]]).max() * (1 + 1e-6) + 1e-9
+    return dict(body=body, slot=slot, table=table, valid=table >= 0, local=local, centre=centre, radius=radius)
 
 
 def _spread(normals: np.ndarray, n: int) -> np.ndarray:
