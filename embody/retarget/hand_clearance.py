@@ -30,7 +30,9 @@ from collections.abc import Callable
 import numpy as np
 
 from embody.metrics.fidelity import hand_length, hand_ratio  # noqa: F401  (re-exported: one definition)
+from embody.retarget.jacobians import normal_jacobian
 from embody.robot import Robot
+from embody.robot.fk import rotate
 from embody.robot.contacts import subtree_ids
 from embody.robot.proxies import robot_proxies
 
@@ -107,7 +109,7 @@ class HandClearanceTerm:
         xb = np.swapaxes(rot @ tab["local"] + pos[..., None], -1, -2)  # (T,nb,m,3)
         x = np.empty((len(rot), len(pts), 3))
         x[:, tab["table"][tab["valid"]]] = xb[:, tab["valid"]]
-        centre = (rot @ tab["centre"][..., None])[..., 0] + pos
+        centre = rotate(rot, tab["centre"]) + pos
         return x, centre, bcol[tab["slot"]]
 
     def rows(self, pose, scale: float) -> tuple[np.ndarray, Callable[[np.ndarray, np.ndarray], np.ndarray]] | None:
@@ -184,9 +186,8 @@ class HandClearanceTerm:
         def jacobian(z: np.ndarray, o: np.ndarray) -> np.ndarray:
             jac = np.zeros((t, self.width, z.shape[1]))
             if len(f):
-                arm = np.cross(z[f], x[:, None] - o[f])  # (A,J,3)
                 moves = (pose.mask[:, pb] - pose.mask[:, hb]).T  # (A,J)
-                jac[f, rows_] = -sw * np.einsum("ac,ajc->aj", n, arm) * moves
+                jac[f, rows_] = -sw * normal_jacobian(z, o, f, x, n) * moves
             return jac
 
         return r, jacobian
