@@ -95,6 +95,7 @@ class HandClearanceTerm:
         #: plane, which changes no max), its hulls' plane sets without the padding, its first row
         pad = lambda p: np.vstack([p, np.repeat(p[:1], _BOUND_PLANES - len(p), 0)])  # noqa: E731
         self.pair_bounds = [np.stack([pad(self.bound_planes[h]) for h in hulls]) for _, _, hulls in self.pairs]
+        self.pair_bounds_t = [np.ascontiguousarray(np.swapaxes(b[..., :3], -1, -2)) for b in self.pair_bounds]
         self.exact_planes = [[_unpadded(px.hull_planes[h]) for h in hulls] for _, _, hulls in self.pairs]
         self.row0 = np.cumsum([0] + [len(h) for _, _, h in self.pairs])[:-1]
         #: per hand (keyed by its point array): points grouped by body, each body's ball
@@ -139,9 +140,8 @@ class HandClearanceTerm:
             hcol = np.array([pose.index[px.bodies[px.hull_body[h]]] for h in hulls])
             r_h, p_h = pose.rot[frames[:, None], hcol], pose.pos[frames[:, None], hcol]  # (F,H,..)
             bound = self.pair_bounds[k]  # (H,K,4)
-            n_w = np.einsum("fhab,hkb->fhka", r_h, bound[..., :3])
-            d_w = bound[..., 3] - np.einsum("fhka,fha->fhk", n_w, p_h)
-            n_wt = np.swapaxes(n_w, -1, -2)  # (F,H,3,K)
+            n_wt = r_h @ self.pair_bounds_t[k]  # (F,H,3,K): the normals in the world
+            d_w = bound[..., 3] - (p_h[:, :, None] @ n_wt)[:, :, 0]  # (F,H,K)
             # a hand body's ball: n·x + d ≥ n·c + d − radius for every point x in it
             lb = (centre[frames][:, None] @ n_wt + d_w[:, :, None]).max(-1) - tab["radius"]  # (F,H,nb)
             fi, hi, bi = np.nonzero(lb < gap[:, None, None])
@@ -207,23 +207,43 @@ def _unpadded(planes: np.ndarray) -> np.ndarray:
 
 
 def _hand_table(px, pts: np.ndarray) -> dict[str, np.ndarray]:
-    """A hand's points grouped by body: `body` (proxy body indices), `slot` (each point's body),
-    a padded (nb, m) `table` of indices into `pts` (`valid`: not padding), the points in their
-    body's frame (`local`, (nb,3,m)) and each body's ball (`centre`, `radius`; the radius a
-    little large, so the normals' rounding (|n| = 1 ± 1e-9) cannot make the bound inexact)."""
-    body, slot = np.unique(px.sphere_body[pts], return_inverse=True)
-    width = int(np.bincount(slot).max())
-    table = np.full((len(body), width), -1, dtype=np.int64)
-    local = np.zeros((len(body), 3, width))
-    centre, radius = np.zeros((len(body), 3)), np.zeros(len(body))
-    for b in range(len(body)):
-        k = np.flatnonzero(slot == b)
-        table[b, : len(k)] = k
+    """A hand's points in clusters of ≤ `_CLUSTER` points on one body (each body's points split in
+    halves along their widest axis): `body` (proxy body of each cluster), `slot` (each point's
+    cluster), a padded (nc, m) `table` of indices into `pts` (`valid`: not padding), the points in
+    their body's frame (`local`, (nc,3,m)) and each cluster's ball (`centre`, `radius`; the radius
+    a little large, so the normals' rounding (|n| = 1 ± 1e-9) cannot make the bound inexact)."""
+    clusters: list[np.ndarray] = []
+
+    def split(k: np.ndarray) -> None:
+        if len(k) <= _CLUSTER:
+            clusters.append(k)
+            return
         c = px.centres[pts[k]]
-        local[b, :, : len(k)] = c.T
-        centre[b] = c.mean(0)
-        radius[b] = (np.linalg.norm(c - centre[b], axis=1) + px.radii[pts[k]]).max() * (1 + 1e-6) + 1e-9
+        axis = int(np.argmax(c.max(0) - c.min(0)))
+        order = k[np.argsort(c[:, axis], kind="stable")]
+        split(order[: len(k) // 2])
+        split(order[len(k) // 2:])
+
+    for b in np.unique(px.sphere_body[pts]):
+        split(np.flatnonzero(px.sphere_body[pts] == b))
+    width = max(len(k) for k in clusters)
+    table = np.full((len(clusters), width), -1, dtype=np.int64)
+    local = np.zeros((len(clusters), 3, width))
+    centre, radius = np.zeros((len(clusters), 3)), np.zeros(len(clusters))
+    slot = np.zeros(len(pts), dtype=np.int64)
+    for i, k in enumerate(clusters):
+        table[i, : len(k)] = k
+        slot[k] = i
+        c = px.centres[pts[k]]
+        local[i, :, : len(k)] = c.T
+        centre[i] = (c.min(0) + c.max(0)) / 2
+        radius[i] = (np.linalg.norm(c - centre[i], axis=1) + px.radii[pts[k]]).max() * (1 + 1e-6) + 1e-9
+    body = np.array([px.sphere_body[pts[k[0]]] for k in clusters])
     return dict(body=body, slot=slot, table=table, valid=table >= 0, local=local, centre=centre, radius=radius)
+
+
+#: most points per cluster of the hand-clearance cull
+_CLUSTER = 20
 
 
 def _spread(normals: np.ndarray, n: int) -> np.ndarray:
