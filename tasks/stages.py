@@ -318,7 +318,9 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 # v7: a human palm resting on the body, facing it, with a free thumb folds the robot thumb along
 #     the palm (`hands.fold_thumbs`; location-preserving targets only): the opposite-shoulder sign;
 #     hand-face clearance at hand scale too (`Targets.hand_gap` (T,5), `hand_clearance.CHANNELS`).
-RETARGET = Step("retarget", "7", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v8: faster IK kernels (hand clearance culled by cluster balls, Jacobians as z·(x×n) − n·(z×o)):
+#     the same rows to ~1e-15, which moves some chaotic solves into another basin (synth seq 6).
+RETARGET = Step("retarget", "8", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -326,7 +328,8 @@ RETARGET = Step("retarget", "7", ("body", "robot", "ik"), _retarget, _ik_solutio
 # v7: the critic judges against what the robot can reach (`critic.reach`), palm against the human.
 # v8: the IK's damping floor (`retarget.ik.LAMBDA_MIN`) changes every solve slightly.
 # v9: the thumb fold and hand-face clearance (retarget v7); the critic's face room from hand_gap.
-REFINE = Step("refine", "9", ("body", "robot", "ik", "render", "critic"), _refine,
+# v10: the faster IK kernels of retarget v8 (the same rows to ~1e-15; other basins on some sequences).
+REFINE = Step("refine", "10", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
