@@ -98,12 +98,12 @@ class HandClearanceTerm:
         self.pair_bounds_t = [np.ascontiguousarray(np.swapaxes(b[..., :3], -1, -2)) for b in self.pair_bounds]
         self.exact_planes = [[_unpadded(px.hull_planes[h]) for h in hulls] for _, _, hulls in self.pairs]
         self.row0 = np.cumsum([0] + [len(h) for _, _, h in self.pairs])[:-1]
-        #: per hand (keyed by its point array): points grouped by body, each body's ball
+        #: per hand (keyed by its point array): its points in clusters on one body, each one's ball
         self.hands = {id(p): _hand_table(px, p) for _, p, _ in self.pairs}
 
     def _hand(self, pose, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """World points (T,P,3) of a hand's proxy points, the centres of its bodies' balls (T,nb,3)
-        and the points' FK columns: body by body (one 3×3 @ 3×m product per body and frame)."""
+        """World points (T,P,3) of a hand's proxy points, the centres of its clusters' balls (T,nc,3)
+        and the points' FK columns: cluster by cluster (one 3×3 @ 3×m product each, per frame)."""
         px, tab = self.px, self.hands[id(pts)]
         bcol = np.array([pose.index[px.bodies[b]] for b in tab["body"]])
         rot, pos = pose.rot[:, bcol], pose.pos[:, bcol]
@@ -119,9 +119,10 @@ class HandClearanceTerm:
 
         Exact culling, coarse to fine, each level a lower bound of a point's max-plane value
         (a few of the hull's planes, `bound_planes`, taken to the world once per frame):
-        a hand body's ball (centre value − radius) drops all its points for a hull, then each
-        remaining point's own bound drops it; only points whose bound is below the gap get the
-        full plane set. Rows equal the brute force (tests/test_hand_clearance.py)."""
+        a cluster's ball (≤ `_CLUSTER` points of one body; centre value − radius) drops all its
+        points for a hull, then each remaining point's own bound drops it; only points whose bound
+        is below the gap get the full plane set. All hulls of a pair go in one batch. Rows equal the
+        brute force (tests/test_hand_clearance.py)."""
         sw = np.sqrt(max(self.w * float(scale), 0.0))
         if sw == 0.0 or not self.pairs:
             return None
@@ -142,8 +143,8 @@ class HandClearanceTerm:
             bound = self.pair_bounds[k]  # (H,K,4)
             n_wt = r_h @ self.pair_bounds_t[k]  # (F,H,3,K): the normals in the world
             d_w = bound[..., 3] - (p_h[:, :, None] @ n_wt)[:, :, 0]  # (F,H,K)
-            # a hand body's ball: n·x + d ≥ n·c + d − radius for every point x in it
-            lb = (centre[frames][:, None] @ n_wt + d_w[:, :, None]).max(-1) - tab["radius"]  # (F,H,nb)
+            # a cluster's ball: n·x + d ≥ n·c + d − radius for every point x in it
+            lb = (centre[frames][:, None] @ n_wt + d_w[:, :, None]).max(-1) - tab["radius"]  # (F,H,nc)
             fi, hi, bi = np.nonzero(lb < gap[:, None, None])
             if not len(fi):
                 continue
