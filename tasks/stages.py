@@ -319,7 +319,9 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 #     the palm (`hands.fold_thumbs`; location-preserving targets only): the opposite-shoulder sign;
 #     hand-face clearance at hand scale too (`Targets.hand_gap` (T,5), `hand_clearance.CHANNELS`).
 # v8: finger targets rate-limited (`hands.rate_limit`), the IK's contact phase on MuJoCo's leaked
-#     contacts (`ik.resolve_contacts`) and short contact runs bridged before the repair (s8-agree).
+#     contacts (`ik.resolve_contacts`) and short contact runs bridged before the repair (s8-agree);
+#     faster IK kernels (hand clearance culled by cluster balls, Jacobians as z·(x×n) − n·(z×o)):
+#     the same rows to ~1e-15, which moves some chaotic solves into another basin (s8-ikspeed).
 RETARGET = Step("retarget", "8", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
@@ -328,7 +330,8 @@ RETARGET = Step("retarget", "8", ("body", "robot", "ik"), _retarget, _ik_solutio
 # v7: the critic judges against what the robot can reach (`critic.reach`), palm against the human.
 # v8: the IK's damping floor (`retarget.ik.LAMBDA_MIN`) changes every solve slightly.
 # v9: the thumb fold and hand-face clearance (retarget v7); the critic's face room from hand_gap.
-# v10: the IK's contact phase, bridge and finger rate limit (retarget v8) in every round's solve.
+# v10: the IK's contact phase, bridge and finger rate limit, and the faster IK kernels (retarget v8)
+#      in every round's solve.
 REFINE = Step("refine", "10", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)

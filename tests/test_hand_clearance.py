@@ -101,7 +101,7 @@ def test_culled_rows_equal_the_brute_force_rows(setup):
             value = (xl @ px.hull_planes[h][:, :3].T + px.hull_planes[h][:, 3]).max(-1) - px.radii[pts]
             expected[:, row] = 2.0 * np.maximum(gap[:, c] - value.min(1), 0.0)
             row += 1
-    # the term's own broad phase (`_near`) only drops frames whose rows are 0 anyway
+    # the cull (cluster balls, then points, each against a few planes' lower bound) is exact
     assert (expected > 0).sum() > 10 and len(term.bound_planes[term.pairs[0][2][0]]) < px.hull_planes.shape[1]
     np.testing.assert_allclose(r, expected, atol=1e-12)
 

@@ -8,6 +8,8 @@ solves all frames jointly in O(T·n³) with one call; the band is filled diagona
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 from scipy.linalg import solveh_banded
 
@@ -26,9 +28,21 @@ def block_banded_solve(diag: np.ndarray, offs: list[np.ndarray], rhs: np.ndarray
     (offs[k-1] (T-k,n)); a third difference (jerk) term needs three."""
     t, n, _ = diag.shape
     ab = np.zeros((min(len(offs) * n + 1, t * n), t * n))  # lower form: ab[d, j] = A[j + d, j]
-    for d in range(min(n, len(ab))):  # inside the diagonal blocks: A[sn + c + d, sn + c]
-        ab[d].reshape(t, n)[:, : n - d] = np.diagonal(diag, offset=-d, axis1=1, axis2=2)
+    dst, src = _block_lower(t, n, len(ab))  # inside the diagonal blocks: A[sn + c + d, sn + c]
+    ab.reshape(-1)[dst] = diag.reshape(-1)[src]
     for k, off in enumerate(offs, 1):
         if k * n < len(ab) and len(off):
             ab[k * n, : len(off) * n] = off.reshape(-1)
     return solveh_banded(ab, rhs.reshape(-1), lower=True, check_finite=False).reshape(t, n)
+
+
+@lru_cache(maxsize=32)
+def _block_lower(t: int, n: int, rows: int) -> tuple[np.ndarray, np.ndarray]:
+    """Flat indices taking the diagonal blocks' lower triangles (T,n,n) into the band (rows, T·n):
+    one gather instead of a strided copy per diagonal (the band is rebuilt every LM step)."""
+    d, c = np.tril_indices(n)  # row d ≥ column c inside a block: band row d − c, column c
+    d, c = d[d - c < rows], c[d - c < rows]
+    s = np.arange(t)[:, None]
+    dst = (d - c)[None] * (t * n) + s * n + c[None]
+    src = s * n * n + d[None] * n + c[None]
+    return dst.reshape(-1), src.reshape(-1)

@@ -25,8 +25,10 @@ from embody.config.ik import IKConfig
 from embody.retarget.exact_contacts import ExactContacts
 from embody.retarget.hand_clearance import hand_clearance_term
 from embody.retarget.hand_points import hand_point_term
+from embody.retarget.jacobians import normal_jacobian
 from embody.retarget.targets import Targets
 from embody.robot import Robot
+from embody.robot.fk import rotate
 from embody.robot.proxies import robot_proxies
 
 WRIST_ELBOW = ["left_wrist", "right_wrist", "left_elbow", "right_elbow"]
@@ -176,9 +178,12 @@ class Residuals:
         r_ex, j_ex = self.exact.rows(q)
         r_px = np.where(frames[:, None], 0.0, col[0])
 
-        def jacobian(z: np.ndarray, o: np.ndarray) -> np.ndarray:
+        def jacobian(z: np.ndarray, o: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
             j_px = np.where(frames[:, None, None], 0.0, col[1](z, o))
-            return np.concatenate([j_px, j_ex], 1)
+            full = np.concatenate([j_px, j_ex], 1)
+            if out is not None:
+                out[...] = full
+            return full
 
         return np.concatenate([r_px, r_ex], 1), jacobian
 
@@ -191,11 +196,18 @@ class Residuals:
         jp = point_jacobian(z, o, p_link[:, :4], lm[:, :4]) * self.w_pos[:, :, None, None]
         jr = (z[:, None] * lm[:, self.rot_cols].T[None, :, :, None]).transpose(0, 1, 3, 2)
         jr = jr * self.w_rot[:, :, None, None]
-        blocks = [jp.reshape(len(q), -1, len(self.ik)), jr.reshape(len(q), -1, len(self.ik))]
+        # one array, each block written in place (the collision rows are most of it: no copies)
+        n_col = col[0].shape[1] if col is not None else 0
+        out = np.zeros((len(q), self.n_task_rows + n_col + sum(r.shape[1] for r, _ in extra), len(self.ik)))
+        out[:, : jp.shape[1] * 3] = jp.reshape(len(q), -1, len(self.ik))
+        out[:, jp.shape[1] * 3: self.n_task_rows] = jr.reshape(len(q), -1, len(self.ik))
         if col is not None:
-            blocks.append(col[1](z, o))
-        blocks += [jac(z, o) for _, jac in extra]
-        return np.concatenate(blocks, 1)
+            col[1](z, o, out[:, self.n_task_rows: self.n_task_rows + n_col])
+        row = self.n_task_rows + n_col
+        for r, jac in extra:
+            out[:, row: row + r.shape[1]] = jac(z, o)
+            row += r.shape[1]
+        return out
 
     def _geometry(self, robot: Robot, link_bodies: list[str], backend: str,
                   term_bodies: list[str] = ()) -> dict[str, object]:
@@ -246,7 +258,7 @@ class Residuals:
         sb, hb = self.sphere_body, self.hull_body
         # sphere/sphere
         i, k = px.pairs[:, 0], px.pairs[:, 1]
-        centres = pos[:, sb] + (rot[:, sb] @ px.centres[..., None])[..., 0] if len(i) else np.zeros((t, 0, 3))
+        centres = pos[:, sb] + rotate(rot[:, sb], px.centres) if len(i) else np.zeros((t, 0, 3))
         diff = centres[:, i] - centres[:, k]
         dist = np.linalg.norm(diff, axis=-1)
         clear = dist - px.radii[i] - px.radii[k]
@@ -255,8 +267,8 @@ class Residuals:
         gap = np.maximum(margin - clear, 0.0)
         # sphere/hull: broad phase per (body part, hull) on bounding spheres ...
         pb = self.part_body
-        pc = pos[:, pb] + (rot[:, pb] @ self.part_centre[..., None])[..., 0]
-        hc = pos[:, hb] + (rot[:, hb] @ px.hull_centre[..., None])[..., 0]
+        pc = pos[:, pb] + rotate(rot[:, pb], self.part_centre)
+        hc = pos[:, hb] + rotate(rot[:, hb], px.hull_centre)
         gv = pc[:, self.group_part] - hc[:, self.group_hull]
         tg, gg = np.nonzero(gv[..., 0] ** 2 + gv[..., 1] ** 2 + gv[..., 2] ** 2 < self.group_reach**2)
         # ... then the part's bounding sphere against the hull's box, in the hull body's frame ...
@@ -271,7 +283,7 @@ class Residuals:
         # ... then per point against the hull's box ...
         gb = pb[self.group_part[gg]]
         r_rel = r_ht @ rot[tg, gb]
-        p_rel = (r_ht @ (pos[tg, gb] - p_h)[..., None])[..., 0]
+        p_rel = rotate(r_ht, pos[tg, gb] - p_h)
         members = self.group_members[gg]  # (G,M), −1 = padding
         si, hi = px.hull_pairs[:, 0], px.hull_pairs[:, 1]
         xl = r_rel @ self.member_centres_t[gg] + p_rel[..., None]  # (G,3,M), hull-body frame
@@ -301,20 +313,22 @@ class Residuals:
         col = np.arange(len(tc)) - (np.cumsum(count) - count)[tc]
         hgap = np.zeros((t, int(count.max()) if len(tc) else 0))
         hgap[tc, col] = margin - value
-        x = (r_h @ xl[sel][..., None])[..., 0] + p_h[sel]  # torso frame
-        normal = (r_h @ normal_l[sel][..., None])[..., 0]
+        x = rotate(r_h, xl[sel]) + p_h[sel]  # torso frame
+        normal = rotate(r_h, normal_l[sel])
 
-        def jacobian(z: np.ndarray, o: np.ndarray) -> np.ndarray:
+        def jacobian(z: np.ndarray, o: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+            """(T, P+K, J); written into `out` (zeros, that shape) when given."""
+            if out is None:
+                out = np.zeros((t, len(i) + hgap.shape[1], n_ik))
             ms = self.mask[:, sb]  # (J,N)
-            lever = lambda p: np.cross(z[:, None], p[:, :, None] - o[:, None])  # noqa: E731  (T,P,J,3)
-            u = diff / np.maximum(dist, 1e-12)[..., None]
-            dclear = (np.einsum("tpa,tpja->tpj", u, lever(centres[:, i])) * ms[:, i].T
-                      - np.einsum("tpa,tpja->tpj", u, lever(centres[:, k])) * ms[:, k].T)
-            jac = -w * (gap > 0)[..., None] * dclear
-            hjac = np.zeros((t, hgap.shape[1], n_ik))
-            arm = np.cross(z[tc], x[:, None] - o[tc])  # (C,J,3)
+            if len(i):
+                lever = lambda p: np.cross(z[:, None], p[:, :, None] - o[:, None])  # noqa: E731  (T,P,J,3)
+                u = diff / np.maximum(dist, 1e-12)[..., None]
+                dclear = (np.einsum("tpa,tpja->tpj", u, lever(centres[:, i])) * ms[:, i].T
+                          - np.einsum("tpa,tpja->tpj", u, lever(centres[:, k])) * ms[:, k].T)
+                out[:, : len(i)] = -w * (gap > 0)[..., None] * dclear
             moves = (ms[:, si[qc]] - self.mask[:, hb[hi[qc]]]).T  # (C,J)
-            hjac[tc, col] = -w * np.einsum("ca,cja->cj", normal, arm) * moves
-            return np.concatenate([jac, hjac], 1)
+            out[tc, len(i) + col] = -w * normal_jacobian(z, o, tc, x, normal) * moves
+            return out
 
         return w * np.concatenate([gap, hgap], 1), jacobian

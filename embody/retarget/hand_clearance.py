@@ -30,7 +30,9 @@ from collections.abc import Callable
 import numpy as np
 
 from embody.metrics.fidelity import hand_length, hand_ratio  # noqa: F401  (re-exported: one definition)
+from embody.retarget.jacobians import normal_jacobian
 from embody.robot import Robot
+from embody.robot.fk import rotate
 from embody.robot.contacts import subtree_ids
 from embody.robot.proxies import robot_proxies
 
@@ -89,74 +91,95 @@ class HandClearanceTerm:
         #: hull's max-plane value (every plane is), so points it puts at ≥ the gap are culled exactly
         self.bound_planes = {h: px.hull_planes[h][_spread(px.hull_planes[h][:, :3], _BOUND_PLANES)]
                              for _, _, hulls in self.pairs for h in hulls}
+        #: per pair: its bound planes stacked (H,K,4) (short sets padded by repeating their first
+        #: plane, which changes no max), its hulls' plane sets without the padding, its first row
+        pad = lambda p: np.vstack([p, np.repeat(p[:1], _BOUND_PLANES - len(p), 0)])  # noqa: E731
+        self.pair_bounds = [np.stack([pad(self.bound_planes[h]) for h in hulls]) for _, _, hulls in self.pairs]
+        self.pair_bounds_t = [np.ascontiguousarray(np.swapaxes(b[..., :3], -1, -2)) for b in self.pair_bounds]
+        self.exact_planes = [[_unpadded(px.hull_planes[h]) for h in hulls] for _, _, hulls in self.pairs]
+        self.row0 = np.cumsum([0] + [len(h) for _, _, h in self.pairs])[:-1]
+        #: per hand (keyed by its point array): its points in clusters on one body, each one's ball
+        self.hands = {id(p): _hand_table(px, p) for _, p, _ in self.pairs}
 
-    def _points(self, pose, frames: np.ndarray, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        px = self.px
-        col = np.array([pose.index[px.bodies[b]] for b in px.sphere_body[pts]])
-        x = pose.pos[frames][:, col] + np.einsum("fpab,pb->fpa", pose.rot[frames][:, col], px.centres[pts])
-        return x, col
-
-    def _near(self, pose, frames: np.ndarray, x: np.ndarray, pts: np.ndarray, hulls: np.ndarray,
-              gap: np.ndarray, slack: float = 0.01) -> np.ndarray:
-        """Broad phase: which of `frames` have the bounding sphere of the points `x` (F,P,3) within
-        `gap` (+ slack) of some hull's bounding sphere."""
-        px = self.px
-        c = x.mean(1)
-        r = np.linalg.norm(x - c[:, None], axis=-1).max(1) + px.radii[pts].max(initial=0.0)
-        hcol = np.array([pose.index[px.bodies[px.hull_body[h]]] for h in hulls])
-        hc = pose.pos[frames][:, hcol] + np.einsum("fhab,hb->fha", pose.rot[frames][:, hcol], px.hull_centre[hulls])
-        apart = (np.linalg.norm(hc - c[:, None], axis=-1) - px.hull_radius[hulls][None]).min(1) - r - slack
-        return apart < gap
+    def _hand(self, pose, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """World points (T,P,3) of a hand's proxy points, the centres of its clusters' balls (T,nc,3)
+        and the points' FK columns: cluster by cluster (one 3×3 @ 3×m product each, per frame)."""
+        px, tab = self.px, self.hands[id(pts)]
+        bcol = np.array([pose.index[px.bodies[b]] for b in tab["body"]])
+        rot, pos = pose.rot[:, bcol], pose.pos[:, bcol]
+        xb = np.swapaxes(rot @ tab["local"] + pos[..., None], -1, -2)  # (T,nb,m,3)
+        x = np.empty((len(rot), len(pts), 3))
+        x[:, tab["table"][tab["valid"]]] = xb[:, tab["valid"]]
+        centre = rotate(rot, tab["centre"]) + pos
+        return x, centre, bcol[tab["slot"]]
 
     def rows(self, pose, scale: float) -> tuple[np.ndarray, Callable[[np.ndarray, np.ndarray], np.ndarray]] | None:
         """The IK's `ResidualTerm` protocol (`costs.py`); phased in with the collision term
-        (`scale`), since both keep parts apart."""
+        (`scale`), since both keep parts apart.
+
+        Exact culling, coarse to fine, each level a lower bound of a point's max-plane value
+        (a few of the hull's planes, `bound_planes`, taken to the world once per frame):
+        a cluster's ball (≤ `_CLUSTER` points of one body; centre value − radius) drops all its
+        points for a hull, then each remaining point's own bound drops it; only points whose bound
+        is below the gap get the full plane set. All hulls of a pair go in one batch. Rows equal the
+        brute force (tests/test_hand_clearance.py)."""
         sw = np.sqrt(max(self.w * float(scale), 0.0))
         if sw == 0.0 or not self.pairs:
             return None
         t, px = len(pose.rot), self.px
         r = np.zeros((t, self.width))
         act_f, act_row, act_x, act_n, act_pb, act_hb = [], [], [], [], [], []
-        row = 0
-        for c, pts, hulls in self.pairs:
+        hands: dict[int, tuple] = {}
+        for k, (c, pts, hulls) in enumerate(self.pairs):
             frames = np.flatnonzero(self.gap[:, c] > 0)
-            x, pcol = self._points(pose, frames, pts)  # once: the broad phase and the rows share it
-            if len(frames):
-                near = self._near(pose, frames, x, pts, hulls, self.gap[frames, c])
-                frames, x = frames[near], x[near]
             if not len(frames):
-                row += len(hulls)
                 continue
-            radii, gap = px.radii[pts], self.gap[frames, c]
-            for h in hulls:
-                hcol = pose.index[px.bodies[px.hull_body[h]]]
-                r_h, p_h = pose.rot[frames, hcol], pose.pos[frames, hcol]
-                planes, bound = px.hull_planes[h], self.bound_planes[h]
-                # exact cull: a point whose lower bound is ≥ the gap cannot shorten it (the bound
-                # planes taken to the world, n_w = R n, d_w = d − n_w·p, so no point is moved)
-                n_w = np.einsum("fab,kb->fka", r_h, bound[:, :3])
-                d_w = bound[:, 3] - np.einsum("fka,fa->fk", n_w, p_h)
-                lb = (np.matmul(x, n_w.transpose(0, 2, 1)) + d_w[:, None]).max(-1) - radii[None]
-                fi, pi = np.nonzero(lb < gap[:, None])
-                if len(fi):
-                    xl = np.einsum("nba,nb->na", r_h[fi], x[fi, pi] - p_h[fi])  # hull-body frame
-                    sd = xl @ planes[:, :3].T + planes[:, 3]
-                    face = sd.argmax(-1)
-                    value = sd[np.arange(len(fi)), face] - radii[pi]
-                    order = np.lexsort((pi, value, fi))  # per frame: the least value, first point
-                    first = order[np.r_[True, fi[order][1:] != fi[order][:-1]]]
-                    a_f, a_p = fi[first], pi[first]
-                    short = np.maximum(gap[a_f] - value[first], 0.0)
-                    r[frames[a_f], row] = sw * short
-                    a = short > 0
-                    if a.any():
-                        act_f.append(frames[a_f[a]])
-                        act_row.append(np.full(int(a.sum()), row))
-                        act_x.append(x[a_f[a], a_p[a]])
-                        act_n.append(np.einsum("fab,fb->fa", r_h[a_f[a]], planes[face[first[a]], :3]))
-                        act_pb.append(pcol[a_p[a]])
-                        act_hb.append(np.full(int(a.sum()), hcol))
-                row += 1
+            if id(pts) not in hands:
+                hands[id(pts)] = self._hand(pose, pts)
+            x, centre, pcol = hands[id(pts)]
+            tab, gap, row0 = self.hands[id(pts)], self.gap[frames, c], self.row0[k]
+            hcol = np.array([pose.index[px.bodies[px.hull_body[h]]] for h in hulls])
+            r_h, p_h = pose.rot[frames[:, None], hcol], pose.pos[frames[:, None], hcol]  # (F,H,..)
+            bound = self.pair_bounds[k]  # (H,K,4)
+            n_wt = r_h @ self.pair_bounds_t[k]  # (F,H,3,K): the normals in the world
+            d_w = bound[..., 3] - (p_h[:, :, None] @ n_wt)[:, :, 0]  # (F,H,K)
+            # a cluster's ball: n·x + d ≥ n·c + d − radius for every point x in it
+            lb = (centre[frames][:, None] @ n_wt + d_w[:, :, None]).max(-1) - tab["radius"]  # (F,H,nc)
+            fi, hi, bi = np.nonzero(lb < gap[:, None, None])
+            if not len(fi):
+                continue
+            tbl = tab["table"][bi]  # (N,m)
+            lbp = (x[frames[fi][:, None], tbl] @ n_wt[fi, hi] + d_w[fi, hi][:, None]).max(-1) - px.radii[pts][tbl]
+            ni, mi = np.nonzero((lbp < gap[fi][:, None]) & tab["valid"][bi])
+            if not len(ni):
+                continue
+            cf, ch, cp = fi[ni], hi[ni], tbl[ni, mi]
+            rh = r_h[cf, ch]
+            xw = x[frames[cf], cp]
+            xl = np.einsum("nba,nb->na", rh, xw - p_h[cf, ch])  # hull-body frame
+            value, normal_l = np.empty(len(cf)), np.empty((len(cf), 3))
+            order = np.argsort(ch, kind="stable")
+            present, starts = np.unique(ch[order], return_index=True)
+            for h, idx in zip(present, np.split(order, starts[1:])):
+                planes = self.exact_planes[k][h]
+                sd = xl[idx] @ planes[:, :3].T + planes[:, 3]
+                face = sd.argmax(-1)
+                value[idx] = sd[np.arange(len(idx)), face]
+                normal_l[idx] = planes[face, :3]
+            value -= px.radii[pts][cp]
+            order = np.lexsort((cp, value, ch, cf))  # per (frame, hull): the least value, first point
+            key = cf[order] * len(hulls) + ch[order]
+            first = order[np.r_[True, key[1:] != key[:-1]]]
+            short = np.maximum(gap[cf[first]] - value[first], 0.0)
+            r[frames[cf[first]], row0 + ch[first]] = sw * short
+            a = first[short > 0]
+            if len(a):
+                act_f.append(frames[cf[a]])
+                act_row.append(row0 + ch[a])
+                act_x.append(xw[a])
+                act_n.append(np.einsum("fab,fb->fa", rh[a], normal_l[a]))
+                act_pb.append(pcol[cp[a]])
+                act_hb.append(hcol[ch[a]])
         cat = lambda v, shape: np.concatenate(v) if v else np.zeros(shape)  # noqa: E731
         f, rows_, x, n = cat(act_f, 0).astype(np.int64), cat(act_row, 0).astype(np.int64), cat(act_x, (0, 3)), cat(act_n, (0, 3))
         pb, hb = cat(act_pb, 0).astype(np.int64), cat(act_hb, 0).astype(np.int64)
@@ -164,9 +187,8 @@ class HandClearanceTerm:
         def jacobian(z: np.ndarray, o: np.ndarray) -> np.ndarray:
             jac = np.zeros((t, self.width, z.shape[1]))
             if len(f):
-                arm = np.cross(z[f], x[:, None] - o[f])  # (A,J,3)
                 moves = (pose.mask[:, pb] - pose.mask[:, hb]).T  # (A,J)
-                jac[f, rows_] = -sw * np.einsum("ac,ajc->aj", n, arm) * moves
+                jac[f, rows_] = -sw * normal_jacobian(z, o, f, x, n) * moves
             return jac
 
         return r, jacobian
@@ -174,6 +196,55 @@ class HandClearanceTerm:
 
 #: planes per hull in the exact cull's lower bound
 _BOUND_PLANES = 14
+
+
+def _unpadded(planes: np.ndarray) -> np.ndarray:
+    """A hull's planes without the padding (`Proxies.hull_planes` repeats the first plane at the
+    end): the argmax, and so the face, stays the first maximal plane."""
+    n = len(planes)
+    while n > 1 and np.array_equal(planes[n - 1], planes[0]):
+        n -= 1
+    return planes[:n]
+
+
+def _hand_table(px, pts: np.ndarray) -> dict[str, np.ndarray]:
+    """A hand's points in clusters of ≤ `_CLUSTER` points on one body (each body's points split in
+    halves along their widest axis): `body` (proxy body of each cluster), `slot` (each point's
+    cluster), a padded (nc, m) `table` of indices into `pts` (`valid`: not padding), the points in
+    their body's frame (`local`, (nc,3,m)) and each cluster's ball (`centre`, `radius`; the radius
+    a little large, so the normals' rounding (|n| = 1 ± 1e-9) cannot make the bound inexact)."""
+    clusters: list[np.ndarray] = []
+
+    def split(k: np.ndarray) -> None:
+        if len(k) <= _CLUSTER:
+            clusters.append(k)
+            return
+        c = px.centres[pts[k]]
+        axis = int(np.argmax(c.max(0) - c.min(0)))
+        order = k[np.argsort(c[:, axis], kind="stable")]
+        split(order[: len(k) // 2])
+        split(order[len(k) // 2:])
+
+    for b in np.unique(px.sphere_body[pts]):
+        split(np.flatnonzero(px.sphere_body[pts] == b))
+    width = max(len(k) for k in clusters)
+    table = np.full((len(clusters), width), -1, dtype=np.int64)
+    local = np.zeros((len(clusters), 3, width))
+    centre, radius = np.zeros((len(clusters), 3)), np.zeros(len(clusters))
+    slot = np.zeros(len(pts), dtype=np.int64)
+    for i, k in enumerate(clusters):
+        table[i, : len(k)] = k
+        slot[k] = i
+        c = px.centres[pts[k]]
+        local[i, :, : len(k)] = c.T
+        centre[i] = (c.min(0) + c.max(0)) / 2
+        radius[i] = (np.linalg.norm(c - centre[i], axis=1) + px.radii[pts[k]]).max() * (1 + 1e-6) + 1e-9
+    body = np.array([px.sphere_body[pts[k[0]]] for k in clusters])
+    return dict(body=body, slot=slot, table=table, valid=table >= 0, local=local, centre=centre, radius=radius)
+
+
+#: most points per cluster of the hand-clearance cull
+_CLUSTER = 20
 
 
 def _spread(normals: np.ndarray, n: int) -> np.ndarray:

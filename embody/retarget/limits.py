@@ -10,10 +10,13 @@ def clamp_velocity(q: np.ndarray, vmax: np.ndarray, fps: float) -> np.ndarray:
 
     Each step moves towards a value inside the joint box, so box limits are preserved.
     """
-    step = vmax / fps
-    out = q.copy()
-    for t in range(1, len(out)):
-        out[t] = out[t - 1] + np.clip(out[t] - out[t - 1], -step, step)
+    step = np.asarray(vmax / fps, dtype=np.float64)
+    out = np.array(q, dtype=np.float64)
+    rows, lo, d = list(out), -step, np.empty_like(step)  # row views: no per-step indexing
+    for t in range(1, len(rows)):
+        np.subtract(rows[t], rows[t - 1], out=d)
+        np.minimum(np.maximum(d, lo, out=d), step, out=d)  # = np.clip, without its overhead
+        np.add(rows[t - 1], d, out=rows[t])
     return out
 
 

@@ -23,7 +23,7 @@ import mujoco
 import numpy as np
 import torch
 
-from embody.robot.fk import BodyFK
+from embody.robot.fk import BodyFK, rotate
 from embody.robot.kinematics import Kinematics
 
 
@@ -40,6 +40,9 @@ class ChainFK(BodyFK):
         self.chain, self.cols, self.frames = self._subchain(kinematics, self.names, joint_names)
         base_t = torch.as_tensor(base, dtype=torch.float64, device=self.device)
         self.base_rot, self.base_pos = base_t[:3, :3], base_t[:3, 3]
+        #: the torso frame is often the world frame shifted (G1): then no rotation is applied
+        self.base_shift = (np.asarray(base, dtype=np.float64)[:3, 3]
+                           if np.array_equal(np.asarray(base)[:3, :3], np.eye(3)) and self.device.type == "cpu" else None)
         self.reduced = None
         if variable is not None:
             var = set(variable)
@@ -80,6 +83,9 @@ class ChainFK(BodyFK):
         with torch.no_grad():
             th = torch.as_tensor(q, dtype=torch.float64).to(self.device)[:, cols]
             t = chain.forward_kinematics_tensor(th)[frames].transpose(0, 1)  # (T,B,4,4)
+            if self.base_shift is not None:  # exact: the identity rotation changes no bit
+                t = t.numpy()
+                return np.ascontiguousarray(t[..., :3, :3]), t[..., :3, 3] + self.base_shift
             rot = self.base_rot @ t[..., :3, :3]
             pos = t[..., :3, 3] @ self.base_rot.T + self.base_pos
         return rot.cpu().numpy(), pos.cpu().numpy()
@@ -95,7 +101,7 @@ class ChainFK(BodyFK):
             # static bodies relative to their anchor, and those with no anchor as they are
             a_rt = np.swapaxes(rot[:, red["anchor"]], -1, -2)
             rel_rot = a_rt @ rot[:, red["anchored"]]
-            rel_pos = (a_rt @ (pos[:, red["anchored"]] - pos[:, red["anchor"]])[..., None])[..., 0]
+            rel_pos = rotate(a_rt, pos[:, red["anchored"]] - pos[:, red["anchor"]])
             if len(self._static) >= 8:  # threads come and go: keep the latest few
                 self._static.pop(next(iter(self._static)))
             self._static[threading.get_ident()] = (fixed.copy(), rel_rot, rel_pos,
@@ -107,6 +113,6 @@ class ChainFK(BodyFK):
         rot[:, red["keep"]], pos[:, red["keep"]] = self._chain_forward(red["fk"], q)
         a_rot = rot[:, red["anchor"]]
         rot[:, red["anchored"]] = a_rot @ rel_rot
-        pos[:, red["anchored"]] = (a_rot @ rel_pos[..., None])[..., 0] + pos[:, red["anchor"]]
+        pos[:, red["anchored"]] = rotate(a_rot, rel_pos) + pos[:, red["anchor"]]
         rot[:, red["absolute"]], pos[:, red["absolute"]] = abs_rot, abs_pos
         return rot, pos

@@ -71,3 +71,9 @@ class BodyFK(ABC):
                         mask[k, b] = 1.0
                 p = self.parent[p]
         return mask
+
+
+def rotate(r: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """r @ v for stacks of 3×3 matrices r (...,3,3) and vectors v (...,3) (broadcast): the three
+    columns summed, ~2× faster than numpy's batched matmul of 3×3 by 3×1."""
+    return r[..., 0] * v[..., 0, None] + r[..., 1] * v[..., 1, None] + r[..., 2] * v[..., 2, None]
