@@ -32,6 +32,7 @@ import numpy as np
 import torch
 
 from embody.body.base import BodyModel
+from embody.clusters import median_cuts
 from embody.collision.exclusions import checked_pairs, part_groups
 from embody.collision.volumes import part_volumes, rest_frames
 
@@ -45,19 +46,6 @@ _SLACK = 1e-5
 def _sphere(points: np.ndarray) -> tuple[np.ndarray, float]:
     center = 0.5 * (points.min(0) + points.max(0))
     return center, float(np.sqrt(((points - center) ** 2).sum(1).max()))
-
-
-def _chunks(points: np.ndarray, size: int) -> list[np.ndarray]:
-    """Split point indices by recursive median cuts along the longest axis (deterministic)."""
-    def split(idx: np.ndarray) -> list[np.ndarray]:
-        if len(idx) <= size:
-            return [idx]
-        p = points[idx]
-        axis = int(np.argmax(p.max(0) - p.min(0)))
-        order = idx[np.argsort(p[:, axis], kind="stable")]
-        half = len(order) // 2
-        return split(order[:half]) + split(order[half:])
-    return split(np.arange(len(points)))
 
 
 def _influences(weights: np.ndarray, size: int) -> tuple[np.ndarray, np.ndarray]:
@@ -154,7 +142,7 @@ def collision_model(body: BodyModel, betas: np.ndarray | None = None, *, vertex_
         rigid = np.zeros((len(pts) - len(verts), weights.shape[1]))
         rigid[:, j] = 1.0
         w = np.concatenate([weights[verts], rigid])
-        for idx in _chunks(pts, CHUNK_SIZE):
+        for idx in median_cuts(pts, CHUNK_SIZE):
             chunks.append((i, pts[idx], w[idx]))
     skins = [_influences(w, CHUNK_SIZE) for _, _, w in chunks]
     n_u = max(len(j) for j, _ in skins)

@@ -29,6 +29,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from embody.clusters import median_cuts
 from embody.metrics.fidelity import hand_length, hand_ratio  # noqa: F401  (re-exported: one definition)
 from embody.retarget.jacobians import normal_jacobian
 from embody.robot import Robot
@@ -214,19 +215,9 @@ def _hand_table(px, pts: np.ndarray) -> dict[str, np.ndarray]:
     their body's frame (`local`, (nc,3,m)) and each cluster's ball (`centre`, `radius`; the radius
     a little large, so the normals' rounding (|n| = 1 ± 1e-9) cannot make the bound inexact)."""
     clusters: list[np.ndarray] = []
-
-    def split(k: np.ndarray) -> None:
-        if len(k) <= _CLUSTER:
-            clusters.append(k)
-            return
-        c = px.centres[pts[k]]
-        axis = int(np.argmax(c.max(0) - c.min(0)))
-        order = k[np.argsort(c[:, axis], kind="stable")]
-        split(order[: len(k) // 2])
-        split(order[len(k) // 2:])
-
     for b in np.unique(px.sphere_body[pts]):
-        split(np.flatnonzero(px.sphere_body[pts] == b))
+        on_b = np.flatnonzero(px.sphere_body[pts] == b)
+        clusters += [on_b[k] for k in median_cuts(px.centres[pts[on_b]], _CLUSTER)]
     width = max(len(k) for k in clusters)
     table = np.full((len(clusters), width), -1, dtype=np.int64)
     local = np.zeros((len(clusters), 3, width))
