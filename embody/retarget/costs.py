@@ -179,11 +179,15 @@ class Residuals:
         r_px = np.where(frames[:, None], 0.0, col[0])
 
         def jacobian(z: np.ndarray, o: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-            j_px = np.where(frames[:, None, None], 0.0, col[1](z, o))
-            full = np.concatenate([j_px, j_ex], 1)
-            if out is not None:
-                out[...] = full
-            return full
+            """(T, P+E, J), written into `out` (zeros, that shape) when given: the proxies' block
+            (zero on the exact frames), then MuJoCo's."""
+            n_px = col[0].shape[1]
+            if out is None:
+                out = np.zeros((len(q), n_px + j_ex.shape[1], z.shape[1]))
+            col[1](z, o, out[:, :n_px])
+            out[:, :n_px][frames] = 0.0
+            out[:, n_px:] = j_ex
+            return out
 
         return np.concatenate([r_px, r_ex], 1), jacobian
 

@@ -41,6 +41,7 @@ import numpy as np
 
 from embody.io.hands import hand_mean
 from embody.motion import JOINT_NAMES
+from embody.retarget.limits import clamp_velocity
 from embody.robot import Robot
 
 _OPPOSE: dict[tuple[int, str], float] = {}
@@ -172,7 +173,6 @@ def rate_limit(hand_q: np.ndarray, vmax: np.ndarray, fps: float) -> np.ndarray:
     final velocity clamp then rewrites them after the IK has placed the arms around the old
     fingers, and the contact repair untangles what the rewritten thumb now touches (30-80°
     arm changes on synth seq 6). Limiting the targets lets the IK see the fingers it will get."""
-    from embody.retarget.limits import clamp_velocity
     q = np.asarray(hand_q, dtype=np.float64)
     if len(q) < 2 or q.shape[1] == 0:
         return q.copy()
