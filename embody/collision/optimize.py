@@ -145,7 +145,7 @@ def blend_weights(penetrating: np.ndarray, window: int) -> np.ndarray:
 
 def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> CollisionResult:
     start = time.perf_counter()
-    dev = torch_device(cfg.device, "collision.device")
+    dev = _device(cfg)
     idx = mask_joints(cfg.mask, cfg.joints)
     fine = collision_model(body, motion.betas, vertex_stride=cfg.contact_stride,
                            allow_pairs=cfg.allow_pairs, max_overfill=cfg.max_overfill)
@@ -356,11 +356,15 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
     return pose, depth
 
 
+def _device(cfg: CollisionConfig) -> torch.device:
+    """Where this step's torch work runs (`collision.device`, `embody.device`)."""
+    return torch_device(cfg.device, "collision.device")
+
+
 def _mesh_depths(body: BodyModel, pose: np.ndarray, betas: np.ndarray,
                  cfg: CollisionConfig) -> np.ndarray:
     """The mesh judge (`depth.motion_depths`) with the step's allowed pairs and device."""
-    return motion_depths(body, pose, betas, cfg.allow_pairs,
-                         torch_device(cfg.device, "collision.device"))
+    return motion_depths(body, pose, betas, cfg.allow_pairs, _device(cfg))
 
 
 def _depths(body: BodyModel, motion: Motion, pose: np.ndarray,
@@ -431,7 +435,7 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
     """
     active = np.flatnonzero(weight > 0)
     lo, hi = int(active[0]), int(active[-1]) + 1
-    dev = torch_device(cfg.device, "collision.device")
+    dev = _device(cfg)
     x0_full = torch.as_tensor(motion.pose, dtype=torch.float32, device=dev)
     x0 = x0_full[lo:hi]
     w = torch.as_tensor(weight[lo:hi], dtype=torch.float32, device=dev)[:, None, None]
