@@ -36,10 +36,13 @@ not trusted and the vertex is not counted: near seams this may undercount, never
 
 from __future__ import annotations
 
+import hashlib
+import threading
 import weakref
-from itertools import chain
+from collections import OrderedDict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
+from itertools import chain
 
 import fcl
 import numpy as np
@@ -146,6 +149,12 @@ def _edges(faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, bool]:
 
 _meshes: weakref.WeakKeyDictionary[BodyModel, dict[tuple, DepthMesh]] = \
     weakref.WeakKeyDictionary()
+#: Judged frames per body: digest of (pairs, device kind, betas, pose) → depth (m).
+_memo: weakref.WeakKeyDictionary[BodyModel, OrderedDict[bytes, float]] = \
+    weakref.WeakKeyDictionary()
+_memo_lock = threading.Lock()
+#: Frames remembered per body (16-byte keys: ~10 MB at most).
+_MEMO_SIZE = 100_000
 
 
 def depth_mesh(body: BodyModel, allow_pairs: Iterable[Sequence[str]] = ()) -> DepthMesh:
@@ -177,24 +186,32 @@ def _closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray,
     v, w = vb / safe, vc / safe
     out = a + ab * v[:, None] + ac * w[:, None]
     feat = np.full(len(p), 6)
-
-    def put(mask: np.ndarray, pts: np.ndarray, code: int) -> None:
-        out[mask] = pts[mask]  # the same values as np.where, without copying every row
-        feat[mask] = code
-
-    # in reverse order of precedence, so the first matching region wins
-    e_bc = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-    t_bc = (d4 - d3) / np.where(e_bc, (d4 - d3) + (d5 - d6), 1.0)
-    put(e_bc, b + (c - b) * t_bc[:, None], 4)
-    e_ac = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-    t_ac = d2 / np.where(e_ac, d2 - d6, 1.0)
-    put(e_ac, a + ac * t_ac[:, None], 5)
-    put((d6 >= 0) & (d5 <= d6), c, 2)
-    e_ab = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-    t_ab = d1 / np.where(e_ab, d1 - d3, 1.0)
-    put(e_ab, a + ab * t_ab[:, None], 3)
-    put((d3 >= 0) & (d4 <= d3), b, 1)
-    put((d1 <= 0) & (d2 <= 0), a, 0)
+    # in reverse order of precedence, so the first matching region wins; each region's point
+    # is computed on its own rows only (the same formula per row: the same bits as on all rows)
+    m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
+    if m.any():
+        t = (d4[m] - d3[m]) / ((d4[m] - d3[m]) + (d5[m] - d6[m]))
+        out[m] = b[m] + (c[m] - b[m]) * t[:, None]
+        feat[m] = 4
+    m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
+    if m.any():
+        t = d2[m] / (d2[m] - d6[m])
+        out[m] = a[m] + ac[m] * t[:, None]
+        feat[m] = 5
+    m = (d6 >= 0) & (d5 <= d6)
+    out[m] = c[m]
+    feat[m] = 2
+    m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
+    if m.any():
+        t = d1[m] / (d1[m] - d3[m])
+        out[m] = a[m] + ab[m] * t[:, None]
+        feat[m] = 3
+    m = (d3 >= 0) & (d4 <= d3)
+    out[m] = b[m]
+    feat[m] = 1
+    m = (d1 <= 0) & (d2 <= 0)
+    out[m] = a[m]
+    feat[m] = 0
     return out, feat
 
 
@@ -227,6 +244,12 @@ class _Surface:
         self.reach = float(self.radius.max())
         self.tree = cKDTree(self.centroid)
         self.normals = normals
+        # each triangle's plane (face normal n, offset n·a) and how far its other corners lie
+        # off it (0 up to rounding; large for a sliver whose normal is unreliable)
+        self.plane = normals[0][face_ids]
+        self.offset = (self.plane * self.tri[:, 0]).sum(1)
+        self.slack = np.maximum(np.abs((self.plane * self.tri[:, 1]).sum(1) - self.offset),
+                                np.abs((self.plane * self.tri[:, 2]).sum(1) - self.offset))
 
     def query(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(distance, signed side (<0 inside), face id (component-local), on-border) per point.
@@ -238,8 +261,9 @@ class _Surface:
         near = np.asarray(near).reshape(len(p), k)
         tri = self.tri[near.reshape(-1)]
         pk = np.repeat(p, k, 0)
-        q0, _ = _closest_on_triangles(pk, tri[:, 0], tri[:, 1], tri[:, 2])
-        upper = np.linalg.norm(q0 - pk, axis=1).reshape(len(p), k).min(1)
+        q0, f0 = _closest_on_triangles(pk, tri[:, 0], tri[:, 1], tri[:, 2])
+        d0 = np.linalg.norm(q0 - pk, axis=1)
+        upper = d0.reshape(len(p), k).min(1)
         lists = self.tree.query_ball_point(p, upper + self.reach)
         sizes = np.fromiter(map(len, lists), dtype=np.int64, count=len(p))
         cand = np.fromiter(chain.from_iterable(lists), dtype=np.int64, count=int(sizes.sum()))
@@ -247,12 +271,23 @@ class _Surface:
         # a triangle can be closer only if its centroid is within upper + its own radius
         fine = (np.linalg.norm(self.centroid[cand] - p[owner], axis=1)
                 <= upper[owner] + self.radius[cand] + 1e-12)
-        # the k nearest always stay (a degenerate triangle's NaN must not empty a point's list)
-        cand = np.concatenate([cand[fine], near.reshape(-1)])
-        owner = np.concatenate([owner[fine], np.repeat(np.arange(len(p)), k)])
+        cand, owner = cand[fine], owner[fine]
+        # ... and only if its plane is within upper: |n·p − n·a| − slack bounds the distance
+        # from below, so a dropped triangle is farther than the nearest by > 1e-9 m (the order
+        # of the kept ones, hence the tie-break below, is unchanged)
+        off = np.abs((self.plane[cand] * p[owner]).sum(1) - self.offset[cand])
+        fine = ~(off > upper[owner] + self.slack[cand] + 1e-9)
+        # the k nearest always stay (a degenerate triangle's NaN must not empty a point's list);
+        # their closest points are the ones already found for `upper`
+        cand, owner = cand[fine], owner[fine]
         tri = self.tri[cand]
         q, feat_all = _closest_on_triangles(p[owner], tri[:, 0], tri[:, 1], tri[:, 2])
-        d = np.nan_to_num(np.linalg.norm(q - p[owner], axis=1), nan=np.inf)
+        d = np.linalg.norm(q - p[owner], axis=1)
+        cand = np.concatenate([cand, near.reshape(-1)])
+        owner = np.concatenate([owner, np.repeat(np.arange(len(p)), k)])
+        q = np.concatenate([q, q0])
+        feat_all = np.concatenate([feat_all, f0])
+        d = np.nan_to_num(np.concatenate([d, d0]), nan=np.inf)
         order = np.lexsort((d, owner))
         first = order[np.searchsorted(owner[order], np.arange(len(p)))]
         dist, point, feat = d[first], q[first], feat_all[first]
@@ -466,15 +501,39 @@ def motion_depths(body: BodyModel, pose: np.ndarray, betas: np.ndarray,
                   allow_pairs: Iterable[Sequence[str]] = (),
                   device: torch.device | str = "cpu") -> np.ndarray:
     """Per-frame max penetration depth (m) of the body's skinned mesh over a pose (T,55,3).
-    The skinning runs on `device` (float64); the mesh tests always on the CPU."""
+    The skinning runs on `device` (float64); the mesh tests always on the CPU.
+
+    A frame judged before (same body, pose, betas, pairs and device kind: the collide step
+    judges the input, then the changed frames, then the pull-back's probes, which repeat some
+    frames) is answered from a memo; the depth is a deterministic function of those, so the
+    memo returns the same bits."""
     mesh = depth_mesh(body, allow_pairs)
-    b = torch.as_tensor(np.asarray(betas), dtype=torch.float64, device=device)
-    out = []
-    with torch.no_grad():
-        for s in range(0, len(pose), _BATCH):
-            x = torch.as_tensor(np.asarray(pose[s:s + _BATCH]), dtype=torch.float64, device=device)
-            out.append(frame_depths(mesh, body.vertices(x, b).cpu().numpy()))
-    return np.concatenate(out) if out else np.zeros(0)
+    pose = np.asarray(pose, dtype=np.float64)
+    betas_np = np.asarray(betas, dtype=np.float64)
+    salt = repr((tuple(tuple(p) for p in allow_pairs), torch.device(device).type)).encode()
+    salt += betas_np.tobytes()
+    keys = [hashlib.blake2b(salt + np.ascontiguousarray(f).tobytes(), digest_size=16).digest()
+            for f in pose]
+    with _memo_lock:
+        memo = _memo.setdefault(body, OrderedDict())
+        known = [memo.get(k) for k in keys]
+    todo = np.array([i for i, d in enumerate(known) if d is None], dtype=np.int64)
+    out = np.array([0.0 if d is None else d for d in known])
+    if len(todo):
+        b = torch.as_tensor(betas_np, dtype=torch.float64, device=device)
+        parts = []
+        with torch.no_grad():
+            for s in range(0, len(todo), _BATCH):
+                x = torch.as_tensor(pose[todo[s:s + _BATCH]], dtype=torch.float64,
+                                    device=device)
+                parts.append(frame_depths(mesh, body.vertices(x, b).cpu().numpy()))
+        out[todo] = np.concatenate(parts)
+        with _memo_lock:
+            for i in todo.tolist():
+                memo[keys[i]] = float(out[i])
+            while len(memo) > _MEMO_SIZE:
+                memo.popitem(last=False)
+    return out
 
 
 def depth_metrics(before: np.ndarray, after: np.ndarray) -> dict[str, float | int]:
