@@ -6,9 +6,12 @@ alternating reference/new per sequence (back to back, so machine load hits both 
 `time.process_time`. `max_abs_diff_m` is the largest per-frame depth difference, and
 `zero_flips` counts frames judged clear (exactly 0) by one and not by the other. `--calls PATH`
 instead replays a pickle of recorded judge calls (pose, betas, allow_pairs, depths) from a
-mitigation run (before/after/pull-back poses) and compares against the recorded depths.
+mitigation run (before/after/pull-back poses) and compares against the recorded depths;
+`--record PATH` writes that pickle: it runs `mitigate` (default config) on the `--n` sequences and
+keeps every call of the judge. Record with the old code (PYTHONPATH at an old checkout), replay
+with the new:
 
-    python benchmarks/judge.py [--n 6] [--data data] [--calls scratch/calls24.pkl]
+    python benchmarks/judge.py [--n 6] [--data data] [--calls calls.pkl | --record calls.pkl]
 
 Ends with `RESULT judge_s_per_150=… reference_s_per_150=… speedup=… max_abs_diff_m=…`.
 """
@@ -50,14 +53,45 @@ def reference_module():
     return mod
 
 
+def record(body: MannequinBody, paths: list[Path], out: str) -> None:
+    """Every judge call of the collide step on `paths`: (seq, pose, betas, pairs, depths)."""
+    from embody.collision import mitigate, part_volumes
+    from embody.collision import optimize
+    from embody.config.collision import CollisionConfig
+
+    calls: list[tuple] = []
+    judge = optimize.motion_depths
+    name = ""
+
+    def recorded(body, pose, betas, allow_pairs=(), device="cpu"):
+        d = judge(body, pose, betas, allow_pairs, device)
+        calls.append((name, np.array(pose), np.array(betas),
+                      tuple(tuple(p) for p in allow_pairs), d.copy()))
+        return d
+
+    optimize.motion_depths = recorded
+    part_volumes(body)
+    for p in paths:
+        name = p.stem
+        mitigate(load(p), body, CollisionConfig())
+        print(f"{name} calls={len(calls)}", flush=True)
+    with open(out, "wb") as f:
+        pickle.dump(calls, f)
+    print(f"recorded calls={len(calls)} frames={sum(len(c[1]) for c in calls)} -> {out}")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=6)
     ap.add_argument("--data", default="data")
     ap.add_argument("--calls", default=None, help="recorded judge calls (pickle) to replay")
+    ap.add_argument("--record", default=None, help="write the judge calls of `mitigate` here")
     args = ap.parse_args()
     torch.set_num_threads(1)
     body = MannequinBody()
+    if args.record:
+        record(body, sorted(default_dataset(args.data).glob("seq_*.npz"))[:args.n], args.record)
+        return
     if args.calls:
         calls = pickle.load(open(args.calls, "rb"))
         jobs = [(c[0], c[1], c[2], c[3], c[4]) for c in calls]
