@@ -55,8 +55,7 @@ def reference_module():
 
 def record(body: MannequinBody, paths: list[Path], out: str) -> None:
     """Every judge call of the collide step on `paths`: (seq, pose, betas, pairs, depths)."""
-    from embody.collision import mitigate, part_volumes
-    from embody.collision import optimize
+    from embody.collision import mitigate, optimize, part_volumes
     from embody.config.collision import CollisionConfig
 
     calls: list[tuple] = []
