@@ -62,7 +62,8 @@ class CollisionConfig(Section):
     step; a strong pull returns them once the collision
     is resolved (the best zero-energy pose is kept), and the clearance keeps that pull from
     settling at residual depth. The pull-back needs ~20 steps after the last energy gain, so
-    the stall window is 20 (40 gives the same result 1.7x slower). λ_close = 30 halves the
+    the stall window was 20 (40 gave the same result 1.7x slower; 1 since s9-adamfast, see
+    `early_stop_stall`). λ_close = 30 halves the
     Pose MSE again but brings ΔAccel near its limit and the worst reduction to 87%.
     """
 
@@ -153,11 +154,15 @@ class CollisionConfig(Section):
     #: `embody.collision.exclusions.group_names`.
     allow_pairs: list[tuple[str, str]] = []
     #: Stop `early_stop_stall` steps after every frame is clear (the closeness pull settles
-    #: meanwhile). Never stops while a frame penetrates: then `steps` bound the run.
+    #: meanwhile). Never stops while a frame penetrates: then `steps` bound the run. Since
+    #: s9-adamfast 1 (the next refresh, 5 steps later; was 20): the mesh-judged `pull_back`
+    #: now does the closeness job (it shrinks each frame's correction to the smallest still
+    #: clear fraction), so the settling steps bought little (24 sequences: Pose MSE median
+    #: see docs/performance.md 2026-11-26 (s9-adamfast)) for ~15 Adam steps a sequence.
     early_stop: bool = True
     early_stop_rtol: float = Field(1e-2, ge=0, le=1)
     early_stop_patience: int = Field(5, ge=1, le=1000)
-    early_stop_stall: int = Field(20, ge=1, le=100_000)
+    early_stop_stall: int = Field(1, ge=1, le=100_000)
     #: The optimiser reruns the broad phase every `refresh_every` steps and keeps the
     #: candidates within `refresh_margin` (m) in between; reported energies are always exact.
     refresh_every: int = Field(5, ge=1, le=1000)
