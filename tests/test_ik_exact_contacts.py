@@ -123,21 +123,23 @@ def test_contact_phase_is_local_and_hands_its_verdict_on(robot):
 
 
 def test_contact_phase_resolves_a_pass_between_clear_frames(robot):
-    """Left hand above the right, then below it: both frames clear, their midpoint (what the
-    control-rate resample samples between them) has the hands inside each other. The contact
-    phase finds and resolves it with `contact_midpoints`, and sees nothing without."""
+    """Left hand above the right, then below it: both frames clear, the control-rate samples
+    between them (what the export resamples) have the hands inside each other. The contact phase
+    finds and resolves them with `contact_samples`, and sees nothing without."""
     from embody.retarget.ik import resolve_contacts_checked
+    from embody.retarget.limits import resample
     from tests.test_retarget_ik import _targets_from_q
 
     above = _pose(robot, [0.30, 0.0, 0.20], [0.30, 0.0, 0.0], IKConfig())
     below = _pose(robot, [0.30, 0.0, 0.0], [0.30, 0.0, 0.20], IKConfig())
     q = np.concatenate([np.tile(above, (6, 1)), np.tile(below, (6, 1))])
-    assert self_collision_contacts(robot, q).sum() == 0
-    assert self_collision_contacts(robot, 0.5 * (q[5:6] + q[6:7])).sum() > 0
     targets = _targets_from_q(robot, q)
-    off, verdict = resolve_contacts_checked(robot, targets, IKConfig(contact_midpoints=False), q)
+    rate = IKConfig().control_rate_hz
+    assert self_collision_contacts(robot, q).sum() == 0
+    assert self_collision_contacts(robot, resample(q, targets.fps, rate)).sum() > 0
+    off, verdict = resolve_contacts_checked(robot, targets, IKConfig(contact_samples=False), q)
     np.testing.assert_array_equal(off, q)
     assert not verdict.any()
     out, verdict = resolve_contacts_checked(robot, targets, IKConfig(), q)
     assert self_collision_contacts(robot, out).sum() == 0 and not verdict.any()
-    assert self_collision_contacts(robot, 0.5 * (out[:-1] + out[1:])).sum() == 0
+    assert self_collision_contacts(robot, resample(out, targets.fps, rate)).sum() == 0

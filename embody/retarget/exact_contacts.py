@@ -33,8 +33,8 @@ class ExactContacts:
         self.cols = self.model.jnt_dofadr[jid]
         #: frames MuJoCo checks (None: all); the solver narrows it to frames near a contact
         self.frames: np.ndarray | None = None
-        #: (T-1,) bool: also the midpoints of these consecutive frame pairs (None: none)
-        self.mids: np.ndarray | None = None
+        #: also these samples between frames: (frame t, fraction α) arrays, (1 − α)·q_t + α·q_t+1
+        self.between: tuple[np.ndarray, np.ndarray] | None = None
         self.jac1 = np.zeros((3, self.model.nv))
         self.jac2 = np.zeros((3, self.model.nv))
 
@@ -43,14 +43,16 @@ class ExactContacts:
         found: list[tuple] = []
         for t in range(len(q)) if self.frames is None else np.flatnonzero(self.frames):
             self._contacts(q[t], t, 1.0, 0, found)
-        if self.mids is not None:
-            # a contact at the midpoint of frames t, t+1 (what the control-rate resample samples
-            # between them): its residual r with Jacobian ½·J to each frame, as two rows r/√2 with
-            # Jacobian J/√2, one in each frame (the same cost and gradient; the Gauss-Newton matrix
-            # drops the pair's cross term and doubles its diagonal blocks: steps only shorter)
-            for t in np.flatnonzero(self.mids):
-                for side in (0, 1):
-                    self._contacts(0.5 * (q[t] + q[t + 1]), t + side, np.sqrt(0.5), 1 + side, found)
+        if self.between is not None:
+            # a contact at a sample between frames t, t+1 (the control-rate resample's
+            # (1 − α)·q_t + α·q_t+1): its residual r with Jacobian (1 − α)·J and α·J to the two
+            # frames, as rows √(1 − α)·r and √α·r with Jacobians √(1 − α)·J and √α·J, one in each
+            # frame (the same cost and gradient; the Gauss-Newton matrix drops the pair's cross
+            # term and its diagonal blocks grow: steps only shorter)
+            for k, (t, a) in enumerate(zip(*self.between)):
+                rows: list[tuple] = []
+                self._contacts((1.0 - a) * q[t] + a * q[t + 1], t, np.sqrt(1.0 - a), 1 + 2 * k, rows)
+                found += rows + [(t + 1, r[1], np.sqrt(a), *r[3:5], 2 + 2 * k) for r in rows]  # MuJoCo asked once
         # one row per geom pair and frame: MuJoCo reports up to several points of one mesh pair
         # at the same depth; the pair's row is its deepest distance with the mean separation rate
         # of the points at that depth (each pair weighs the same, however many points it has)

@@ -202,7 +202,7 @@ class _Problem:
 
     def solve(self, qi0: np.ndarray, cold: bool, full: bool = True, lam: float = LAMBDA0,
               contact_frames: np.ndarray | None = None,
-              contact_mids: np.ndarray | None = None) -> np.ndarray:
+              contact_between: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """Levenberg-Marquardt (Nielsen's damping rule). From a cold start the collision term comes
         on in full after a tracking phase: with it on from the rest pose, hands block each other and
         the trunk on their way to the targets (3× the wrist error on the synthetic set). Without it
@@ -213,7 +213,7 @@ class _Problem:
         benchmarks/ik_vs_mink.py's 4 sequences, lower jerk, still 0 contacts). `full=False` stops
         after the cold phases (the coarse pass of `solve_joints`); `lam` is the starting damping.
         `contact_frames` (T,) bool: only the exact-contact phase, on those frames (`resolve_contacts`);
-        `contact_mids` (T-1,) bool: also on the midpoints of those consecutive pairs."""
+        `contact_between` (frame, fraction) arrays: also on those samples between frames."""
         lower, upper = self.robot.lower[self.ik], self.robot.upper[self.ik]
         qi = np.clip(qi0, lower, upper)
         use_col = self.residuals.proxies is not None
@@ -235,7 +235,7 @@ class _Problem:
             if exact:
                 self.residuals.exact.frames = (self._polish_frames(qi) if contact_frames is None
                                                else contact_frames)
-                self.residuals.exact.mids = contact_mids
+                self.residuals.exact.between = contact_between
             cost, normal = self.evaluate(qi, collision, exact)
             h, g = normal()
             nu = 2.0
@@ -356,18 +356,32 @@ def _solve_joints_checked(robot: Robot, targets: Targets, cfg: IKConfig,
 HELD = 3
 
 
+def _between(n: int, fps: float, rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """The control-rate samples (`limits.resample`) strictly between source frames: each one's
+    frame t and fraction α ((1 − α)·q_t + α·q_t+1)."""
+    if n < 2:
+        return np.zeros(0, np.int64), np.zeros(0)
+    s = np.arange(int(np.floor((n - 1) / fps * rate + 1e-9)) + 1) * (fps / rate)
+    t = np.minimum(np.floor(s + 1e-9).astype(np.int64), n - 2)
+    a = s - t
+    keep = (a > 1e-9) & (a < 1.0 - 1e-9)
+    return t[keep], a[keep]
+
+
 def _touching(robot: Robot, q: np.ndarray, frames: np.ndarray,
-              midpoints: bool) -> tuple[np.ndarray, np.ndarray]:
-    """MuJoCo's verdict (counted contacts) on q's `frames` (T,) bool and, with `midpoints`, on the
-    midpoints of their consecutive pairs: (T,) and (T-1,) bool, False where not checked."""
-    hit, mid = np.zeros(len(q), dtype=bool), np.zeros(max(len(q) - 1, 0), dtype=bool)
+              between: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """MuJoCo's verdict (counted contacts) on q's `frames` (T,) bool and on the samples `between`
+    them whose two frames are both in `frames`: (T,) and (S,) bool, False where not checked."""
+    hit, smp = np.zeros(len(q), dtype=bool), np.zeros(len(between[0]), dtype=bool)
     idx = np.flatnonzero(frames)
     hit[idx] = self_collision_contacts(robot, q[idx]) > 0
-    if midpoints and len(q) > 1:
-        pairs = np.flatnonzero(frames[:-1] & frames[1:])
-        if len(pairs):
-            mid[pairs] = self_collision_contacts(robot, 0.5 * (q[pairs] + q[pairs + 1])) > 0
-    return hit, mid
+    t, a = between
+    if len(t):
+        k = np.flatnonzero(frames[t] & frames[t + 1])
+        if len(k):
+            x = (1.0 - a[k, None]) * q[t[k]] + a[k, None] * q[t[k] + 1]
+            smp[k] = self_collision_contacts(robot, x) > 0
+    return hit, smp
 
 
 def resolve_contacts(robot: Robot, targets: Targets, cfg: IKConfig, q: np.ndarray) -> np.ndarray:
@@ -380,9 +394,9 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
                              q: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """q (T,n) with the contacts the proxies leaked resolved inside the optimisation, and MuJoCo's
     verdict on the returned frames (T,) bool (None when off: nothing checked). Where MuJoCo finds
-    a counted contact on a frame or (`contact_midpoints`) at the midpoint of two frames (what the
-    control-rate resample samples between them: hands passing through each other between two
-    clear frames), an LM phase whose collision rows on those frames (± `cfg.contact_pad`) are
+    a counted contact on a frame or (`contact_samples`) on a control-rate sample between two
+    frames (hands passing through each other between two clear frames, which the export's
+    per-sample repair then pulls apart), an LM phase whose collision rows on those frames (± `cfg.contact_pad`) are
     MuJoCo's own contacts at `contact_margin`, weighted `w_contact` (a near-constraint), with
     every other term kept; repeated (`contact_rounds`) while contacts remain, each round adding
     the frames it finds. The phase runs on windows only: the frames within `contact_window` of a
@@ -394,18 +408,21 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
     correction, and the repair has little left to do."""
     if not cfg.contact_rounds or not cfg.contact_repair:
         return q, None
-    everywhere = np.ones(len(q), dtype=bool)
-    hit, mid = _touching(robot, q, everywhere, cfg.contact_midpoints)
+    none = (np.zeros(0, np.int64), np.zeros(0))
+    between = _between(len(q), targets.fps, cfg.control_rate_hz) if cfg.contact_samples else none
+    hit, smp = _touching(robot, q, np.ones(len(q), dtype=bool), between)
     contacts = hit.copy()
-    if not hit.any() and not mid.any():
+    if not hit.any() and not smp.any():
         return q, contacts
     sub_cfg = cfg.model_copy(update={"polish_iterations": 0})
     exact = ExactContacts(robot, cfg.contact_margin, cfg.w_contact)
     q = q.copy()
+    found = int(hit.sum() + smp.sum())
     for _ in range(cfg.contact_rounds):
-        touch = hit.copy()
-        touch[:-1] |= mid
-        touch[1:] |= mid
+        touch, near = hit.copy(), np.zeros(len(q), dtype=bool)
+        near[between[0][smp]] = True
+        touch |= near
+        touch[between[0][smp] + 1] = True
         free = _dilate(touch, cfg.contact_window)
         idx = np.flatnonzero(_dilate(free, HELD))
         window = replace(targets, **{k: getattr(targets, k)[idx] for k in _ARRAYS})
@@ -414,16 +431,23 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
             return q, contacts
         problem.residuals.exact = exact
         problem.held = ~free[idx]
-        rows = _dilate(touch, cfg.contact_pad)[idx]
-        mids = (rows[:-1] & rows[1:] & (np.diff(idx) == 1)) if cfg.contact_midpoints else None
-        qi = problem.solve(q[idx][:, problem.ik], cold=False, contact_frames=rows, contact_mids=mids)
+        rows = _dilate(touch, cfg.contact_pad)
+        # sample rows near a sample contact, between two frames with rows (inside one window)
+        t, a = between
+        pick = _dilate(near, cfg.contact_pad)[t] & rows[t] & rows[t + 1] if len(t) else np.zeros(0, bool)
+        sub = (np.searchsorted(idx, t[pick]), a[pick])
+        qi = problem.solve(q[idx][:, problem.ik], cold=False, contact_frames=rows[idx], contact_between=sub)
         q[idx] = robot.clip(problem.q_full(qi))
-        now, now_mid = _touching(robot, q, free, cfg.contact_midpoints)  # the other frames kept theirs
+        now, now_smp = _touching(robot, q, free, between)  # the other frames kept their verdict
         contacts = now  # every contact frame lies inside `free`
-        if not now.any() and not now_mid.any():
+        if not now.any() and not now_smp.any():
             break
+        left = int(now.sum() + now_smp.sum())
+        if left >= found:  # no progress: a pass the windows cannot route round (the repair's)
+            break
+        found = left
         hit |= now
-        mid |= now_mid
+        smp |= now_smp
     return q, contacts
 
 
