@@ -9,6 +9,8 @@ A cold start continues from a faint to a partial to the full collision term, its
 phases on every second frame (coarse to fine, `IKConfig.coarse_stride`). An optional polish
 phase (`IKConfig.polish_iterations`) then swaps the proxies for MuJoCo's exact contacts where
 they press (`exact_contacts.py`), so the 15 mm proxy margin no longer costs wrist accuracy.
+Where MuJoCo still finds a contact, on a frame or on a control-rate sample between two, a
+contact phase (`resolve_contacts`) resolves it on a window round it with the edges held.
 
 Frames couple only through the smoothness and velocity terms, so the normal matrix is banded and
 one LAPACK call (`banded.block_banded_solve`) solves all frames jointly in O(T·n³). Steps
