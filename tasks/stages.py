@@ -322,7 +322,9 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 #     contacts (`ik.resolve_contacts`) and short contact runs bridged before the repair (s8-agree);
 #     faster IK kernels (hand clearance culled by cluster balls, Jacobians as z·(x×n) − n·(z×o)):
 #     the same rows to ~1e-15, which moves some chaotic solves into another basin (s8-ikspeed).
-RETARGET = Step("retarget", "8", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v9: the contact phase on windows around the contacts (`ik.contact_window`, edges held) and on
+#     the control-rate samples between frames (`ik.contact_samples`): other solves where hands pass (s9-ikwin).
+RETARGET = Step("retarget", "9", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -332,7 +334,8 @@ RETARGET = Step("retarget", "8", ("body", "robot", "ik"), _retarget, _ik_solutio
 # v9: the thumb fold and hand-face clearance (retarget v7); the critic's face room from hand_gap.
 # v10: the IK's contact phase, bridge and finger rate limit, and the faster IK kernels (retarget v8)
 #      in every round's solve.
-REFINE = Step("refine", "10", ("body", "robot", "ik", "render", "critic"), _refine,
+# v11: the windowed contact phase with midpoints (retarget v9) in every round's solve.
+REFINE = Step("refine", "11", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.

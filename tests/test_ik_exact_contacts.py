@@ -88,3 +88,58 @@ def test_contact_phase_resolves_what_the_proxies_leak(robot):
     q2 = solve_joints(robot, targets, clear.model_copy(update={"contact_rounds": 0}))
     assert self_collision_contacts(robot, q2).sum() == 0
     np.testing.assert_array_equal(resolve_contacts(robot, targets, clear, q2), q2)
+
+
+def _pose(robot, left, right, cfg):
+    """One solved frame with the wrists asked at `left` / `right` (torso frame)."""
+    from embody.retarget.ik import solve_joints
+    from tests.test_retarget_ik import _targets_from_q
+
+    targets = _targets_from_q(robot, np.tile(robot.rest, (4, 1)))
+    targets.wrist_pos[:, 0], targets.wrist_pos[:, 1] = left, right
+    return solve_joints(robot, targets, cfg)[0]
+
+
+def test_contact_phase_is_local_and_hands_its_verdict_on(robot):
+    """Hands overlapping on 4 frames of 40: the contact phase clears them, moves only the frames
+    within `contact_window` (+ the held ones) of the contacts, and its verdict is MuJoCo's."""
+    from embody.retarget.ik import HELD, resolve_contacts_checked
+    from tests.test_retarget_ik import _targets_from_q
+
+    clear = _pose(robot, [0.30, 0.15, 0.10], [0.30, -0.15, 0.10], IKConfig())
+    planted = _pose(robot, [0.30, 0.05, 0.10], [0.30, -0.05, 0.10],
+                    IKConfig(w_collision=0.0, contact_rounds=0))
+    q = np.tile(clear, (40, 1))
+    q[18:22] = planted
+    assert (self_collision_contacts(robot, q) > 0).tolist() == [18 <= t < 22 for t in range(40)]
+    cfg = IKConfig(contact_window=6)
+    out, verdict = resolve_contacts_checked(robot, _targets_from_q(robot, q), cfg, q)
+    assert self_collision_contacts(robot, out).sum() == 0
+    np.testing.assert_array_equal(verdict, self_collision_contacts(robot, out) > 0)
+    reach = 6 + HELD
+    np.testing.assert_array_equal(out[: 18 - reach], q[: 18 - reach])  # outside the window: untouched
+    np.testing.assert_array_equal(out[22 + reach:], q[22 + reach:])
+    assert np.abs(out[18 - 6: 22 + 6] - q[18 - 6: 22 + 6]).max() > 1e-3
+
+
+def test_contact_phase_resolves_a_pass_between_clear_frames(robot):
+    """Left hand above the right, then below it: both frames clear, the control-rate samples
+    between them (what the export resamples) have the hands inside each other. The contact phase
+    finds and resolves them with `contact_samples`, and sees nothing without."""
+    from embody.retarget.ik import resolve_contacts_checked
+    from embody.retarget.limits import resample
+    from tests.test_retarget_ik import _targets_from_q
+
+    above = _pose(robot, [0.30, 0.0, 0.20], [0.30, 0.0, 0.0], IKConfig())
+    below = _pose(robot, [0.30, 0.0, 0.0], [0.30, 0.0, 0.20], IKConfig())
+    q = np.concatenate([np.tile(above, (6, 1)), np.tile(below, (6, 1))])
+    targets = _targets_from_q(robot, q)
+    rate = IKConfig().control_rate_hz
+    assert self_collision_contacts(robot, q).sum() == 0
+    assert self_collision_contacts(robot, resample(q, targets.fps, rate)).sum() > 0
+    off, verdict = resolve_contacts_checked(robot, targets, IKConfig(contact_samples=False), q)
+    np.testing.assert_array_equal(off, q)
+    assert not verdict.any()
+    out, verdict = resolve_contacts_checked(robot, targets, IKConfig(), q)
+    assert self_collision_contacts(robot, out).sum() == 0 and not verdict.any()
+    assert self_collision_contacts(robot, resample(out, targets.fps, rate)).sum() == 0

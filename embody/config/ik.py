@@ -155,6 +155,13 @@ class IKConfig(Section):
     #: meant as room for the control-rate samples between resolved frames, lost agreement on
     #: benchmarks/fidelity.py (94.8 → 92.7 %) and did not calm the export's repair.
     contact_margin: float = Field(0.002, ge=0, le=0.05)
+    #: The contact phase moves only the frames within this many frames of a contact (the next
+    #: `ik.HELD` held, the rest untouched): its cost scales with the contacts, not the sequence.
+    contact_window: int = Field(10, ge=0, le=100_000)
+    #: Also check (and resolve) the control-rate samples between frames (`control_rate_hz`): hands
+    #: that pass through each other between two clear frames are otherwise found only by the
+    #: export, whose per-sample repair moved synth seqs 15-16's arms 73-101°.
+    contact_samples: bool = True
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.
     tolerance: float = Field(3e-3, ge=0, le=1)
     # --- output ---

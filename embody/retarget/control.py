@@ -123,7 +123,7 @@ BRIDGE_FRAMES = 3
 
 
 def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
-                    fps: float | None = None) -> np.ndarray:
+                    fps: float | None = None, bad: np.ndarray | None = None) -> np.ndarray:
     """q (T,n) with each short run (≤ `max_run` frames) of MuJoCo contact frames between two clear
     frames replaced by a clear one between those neighbours: the straight line, the line pushed
     clear (`_Separator.frame`), or the neighbours held; the first that MuJoCo finds clear on
@@ -133,10 +133,13 @@ def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
     flip a solve through a contact on isolated frames (synth seq 6: palms 35 mm inside each
     other on frames 121 and 123, 120 and 122 clear); pushing such a frame apart along MuJoCo's
     normals moved the arms by up to 76° over ±0.5 s, while its clear neighbours already bound
-    a local, collision-free answer."""
+    a local, collision-free answer. `bad` (T,) bool: MuJoCo's verdict on q when the caller
+    already has it (the IK's contact phase checks the same q just before)."""
     q = np.array(q, dtype=np.float64)
     sep = _Separator(robot)
-    bad = np.array([bool(sep.contacts(x, jacobians=False)) for x in q])
+    if bad is None:
+        bad = np.array([bool(sep.contacts(x, jacobians=False)) for x in q])
+    bad = np.asarray(bad, dtype=bool)
     t, n = 0, len(q)
     while t < n:
         if not bad[t]:

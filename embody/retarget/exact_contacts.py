@@ -33,41 +33,35 @@ class ExactContacts:
         self.cols = self.model.jnt_dofadr[jid]
         #: frames MuJoCo checks (None: all); the solver narrows it to frames near a contact
         self.frames: np.ndarray | None = None
+        #: also these samples between frames: (frame t, fraction α) arrays, (1 − α)·q_t + α·q_t+1
+        self.between: tuple[np.ndarray, np.ndarray] | None = None
         self.jac1 = np.zeros((3, self.model.nv))
         self.jac2 = np.zeros((3, self.model.nv))
 
     def rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Residuals (T,K) and their Jacobian (T,K,n_ik) at full joint vectors q (T,n)."""
-        m, d = self.model, self.data
-        found: list[tuple[int, float, np.ndarray]] = []
-        d.qpos[:] = m.qpos0
+        found: list[tuple] = []
         for t in range(len(q)) if self.frames is None else np.flatnonzero(self.frames):
-            d.qpos[self.robot.qpos_adr] = q[t]
-            mujoco.mj_kinematics(m, d)
-            mujoco.mj_collision(m, d)
-            n = d.ncon
-            if not n:
-                continue
-            geom = d.contact.geom[:n]
-            hit = np.flatnonzero((d.contact.dist[:n] < self.margin) & self.relevant[geom[:, 0], geom[:, 1]])
-            if not len(hit):
-                continue
-            mujoco.mj_comPos(m, d)
-            for i in hit:
-                c = d.contact[i]
-                mujoco.mj_jac(m, d, self.jac1, None, c.pos, m.geom_bodyid[c.geom[0]])
-                mujoco.mj_jac(m, d, self.jac2, None, c.pos, m.geom_bodyid[c.geom[1]])
-                rate = c.frame[:3] @ (self.jac2 - self.jac1)[:, self.cols]
-                found.append((t, float(c.dist), rate, (int(c.geom[0]), int(c.geom[1]))))
+            self._contacts(q[t], t, 1.0, 0, found)
+        if self.between is not None:
+            # a contact at a sample between frames t, t+1 (the control-rate resample's
+            # (1 − α)·q_t + α·q_t+1): its residual r with Jacobian (1 − α)·J and α·J to the two
+            # frames, as rows √(1 − α)·r and √α·r with Jacobians √(1 − α)·J and √α·J, one in each
+            # frame (the same cost and gradient; the Gauss-Newton matrix drops the pair's cross
+            # term and its diagonal blocks grow: steps only shorter)
+            for k, (t, a) in enumerate(zip(*self.between)):
+                rows: list[tuple] = []
+                self._contacts((1.0 - a) * q[t] + a * q[t + 1], t, np.sqrt(1.0 - a), 1 + 2 * k, rows)
+                found += rows + [(t + 1, r[1], np.sqrt(a), *r[3:5], 2 + 2 * k) for r in rows]  # MuJoCo asked once
         # one row per geom pair and frame: MuJoCo reports up to several points of one mesh pair
         # at the same depth; the pair's row is its deepest distance with the mean separation rate
         # of the points at that depth (each pair weighs the same, however many points it has)
-        pairs: dict[tuple[int, int, int], list] = {}
-        for t, dist, rate, (g1, g2) in found:
-            key = (t, min(g1, g2), max(g1, g2))
+        pairs: dict[tuple[int, int, int, int], list] = {}
+        for t, dist, scale, rate, (g1, g2), tag in found:
+            key = (t, min(g1, g2), max(g1, g2), tag)
             best = pairs.get(key)
             if best is None or dist < best[0] - 1e-9:
-                pairs[key] = [dist, [rate]]
+                pairs[key] = [dist, [rate], scale]
             elif dist < best[0] + 1e-9:
                 best[1].append(rate)
         frames = [key[0] for key in pairs]
@@ -78,9 +72,32 @@ class ExactContacts:
         #: the (geom, geom) pair of each row (T,K,2), −1 where a frame has fewer rows
         self.pairs = np.full((len(q), k, 2), -1, dtype=np.int64)
         slot = np.zeros(len(q), dtype=np.int64)
-        for (t, g1, g2), (dist, rates) in sorted(pairs.items()):
-            r[t, slot[t]] = self.w * (self.margin - dist)
-            jac[t, slot[t]] = -self.w * np.mean(rates, axis=0)
+        for (t, g1, g2, _), (dist, rates, scale) in sorted(pairs.items()):
+            r[t, slot[t]] = scale * self.w * (self.margin - dist)
+            jac[t, slot[t]] = -scale * self.w * np.mean(rates, axis=0)
             self.pairs[t, slot[t]] = (g1, g2)
             slot[t] += 1
         return r, jac
+
+    def _contacts(self, q: np.ndarray, t: int, scale: float, tag: int, found: list[tuple]) -> None:
+        """Append (frame, distance, scaled residual factor and separation rate, geom pair, tag)
+        for each relevant contact of MuJoCo at one full joint vector q, filed under frame t."""
+        m, d = self.model, self.data
+        d.qpos[:] = m.qpos0
+        d.qpos[self.robot.qpos_adr] = q
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_collision(m, d)
+        n = d.ncon
+        if not n:
+            return
+        geom = d.contact.geom[:n]
+        hit = np.flatnonzero((d.contact.dist[:n] < self.margin) & self.relevant[geom[:, 0], geom[:, 1]])
+        if not len(hit):
+            return
+        mujoco.mj_comPos(m, d)
+        for i in hit:
+            c = d.contact[i]
+            mujoco.mj_jac(m, d, self.jac1, None, c.pos, m.geom_bodyid[c.geom[0]])
+            mujoco.mj_jac(m, d, self.jac2, None, c.pos, m.geom_bodyid[c.geom[1]])
+            rate = c.frame[:3] @ (self.jac2 - self.jac1)[:, self.cols]
+            found.append((t, float(c.dist), scale, rate, (int(c.geom[0]), int(c.geom[1])), tag))

@@ -9,6 +9,8 @@ A cold start continues from a faint to a partial to the full collision term, its
 phases on every second frame (coarse to fine, `IKConfig.coarse_stride`). An optional polish
 phase (`IKConfig.polish_iterations`) then swaps the proxies for MuJoCo's exact contacts where
 they press (`exact_contacts.py`), so the 15 mm proxy margin no longer costs wrist accuracy.
+Where MuJoCo still finds a contact, on a frame or on a control-rate sample between two, a
+contact phase (`resolve_contacts`) resolves it on a window round it with the edges held.
 
 Frames couple only through the smoothness and velocity terms, so the normal matrix is banded and
 one LAPACK call (`banded.block_banded_solve`) solves all frames jointly in O(T·n³). Steps
@@ -127,6 +129,8 @@ class _Problem:
         self.dtd_polish = self.dtd * cfg.polish_smooth  # the polish phase's (the basin is chosen)
         #: per-step joint change allowed by the velocity limits, with a little headroom
         self.step_limit = robot.velocity_limits[self.ik] / targets.fps * (1.0 - cfg.velocity_headroom)
+        #: (T,) bool frames held where they are (the edges of a windowed contact phase), or None
+        self.held: np.ndarray | None = None
 
     def q_full(self, qi: np.ndarray) -> np.ndarray:
         q = self.base.copy()
@@ -180,6 +184,10 @@ class _Problem:
         offs += [np.repeat(self.dtd[k, : max(t - k, 0), None], n, 1) for k in (2, 3)]
         if not self.dtd[3].any():
             offs.pop()  # pentadiagonal: a narrower band
+        if self.held is not None:  # δ = 0 there: the free frames solve with their held neighbours fixed
+            diag[self.held] = eye * 1e12
+            g = np.where(self.held[:, None], 0.0, g)
+            return np.where(self.held[:, None], 0.0, -block_banded_solve(diag, offs, g))
         return -block_banded_solve(diag, offs, g)
 
     def damping(self, h: tuple[np.ndarray, ...]) -> np.ndarray:
@@ -195,7 +203,8 @@ class _Problem:
         return _dilate(pressed & (wrist > self.cfg.polish_near), self.cfg.polish_pad)
 
     def solve(self, qi0: np.ndarray, cold: bool, full: bool = True, lam: float = LAMBDA0,
-              contact_frames: np.ndarray | None = None) -> np.ndarray:
+              contact_frames: np.ndarray | None = None,
+              contact_between: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
         """Levenberg-Marquardt (Nielsen's damping rule). From a cold start the collision term comes
         on in full after a tracking phase: with it on from the rest pose, hands block each other and
         the trunk on their way to the targets (3× the wrist error on the synthetic set). Without it
@@ -205,7 +214,8 @@ class _Problem:
         full term fixes them in place (a continuation; 4.46 → 3.85 mm all-frame wrist error on
         benchmarks/ik_vs_mink.py's 4 sequences, lower jerk, still 0 contacts). `full=False` stops
         after the cold phases (the coarse pass of `solve_joints`); `lam` is the starting damping.
-        `contact_frames` (T,) bool: only the exact-contact phase, on those frames (`resolve_contacts`)."""
+        `contact_frames` (T,) bool: only the exact-contact phase, on those frames (`resolve_contacts`);
+        `contact_between` (frame, fraction) arrays: also on those samples between frames."""
         lower, upper = self.robot.lower[self.ik], self.robot.upper[self.ik]
         qi = np.clip(qi0, lower, upper)
         use_col = self.residuals.proxies is not None
@@ -227,6 +237,7 @@ class _Problem:
             if exact:
                 self.residuals.exact.frames = (self._polish_frames(qi) if contact_frames is None
                                                else contact_frames)
+                self.residuals.exact.between = contact_between
             cost, normal = self.evaluate(qi, collision, exact)
             h, g = normal()
             nu = 2.0
@@ -312,6 +323,13 @@ def solve_joints(robot: Robot, targets: Targets, cfg: IKConfig,
     """The optimiser alone (its contact phase, `resolve_contacts`, included): joint trajectory
     (T, n_joints) inside the joint box, before the velocity clamp, the MuJoCo repair and the
     verification that `solve` adds."""
+    return _solve_joints_checked(robot, targets, cfg, init)[0]
+
+
+def _solve_joints_checked(robot: Robot, targets: Targets, cfg: IKConfig,
+                          init: IKSolution | np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """`solve_joints`, and the frames (T,) where MuJoCo finds a counted contact in it (None when
+    the contact phase did not check)."""
     problem = _Problem(robot, targets, cfg)
     t = targets.num_frames
     q0 = init.q if isinstance(init, IKSolution) else init
@@ -332,53 +350,126 @@ def solve_joints(robot: Robot, targets: Targets, cfg: IKConfig,
         qi = problem.solve(qi0, cold=False, lam=coarse.lam)
     else:
         qi = problem.solve(np.tile(robot.rest[problem.ik], (t, 1)), cold=True)
-    return resolve_contacts(robot, targets, cfg, robot.clip(problem.q_full(qi)))
+    return resolve_contacts_checked(robot, targets, cfg, robot.clip(problem.q_full(qi)))
+
+
+#: Frames held at each edge of a contact window: Δ³q (the widest difference) reaches 3 frames,
+#: so with 3 held the windowed problem is the whole one with the frames outside fixed.
+HELD = 3
+
+
+def _between(n: int, fps: float, rate: float) -> tuple[np.ndarray, np.ndarray]:
+    """The control-rate samples (`limits.resample`) strictly between source frames: each one's
+    frame t and fraction α ((1 − α)·q_t + α·q_t+1)."""
+    if n < 2:
+        return np.zeros(0, np.int64), np.zeros(0)
+    s = np.arange(int(np.floor((n - 1) / fps * rate + 1e-9)) + 1) * (fps / rate)
+    t = np.minimum(np.floor(s + 1e-9).astype(np.int64), n - 2)
+    a = s - t
+    keep = (a > 1e-9) & (a < 1.0 - 1e-9)
+    return t[keep], a[keep]
+
+
+def _touching(robot: Robot, q: np.ndarray, frames: np.ndarray,
+              between: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """MuJoCo's verdict (counted contacts) on q's `frames` (T,) bool and on the samples `between`
+    them whose two frames are both in `frames`: (T,) and (S,) bool, False where not checked."""
+    hit, smp = np.zeros(len(q), dtype=bool), np.zeros(len(between[0]), dtype=bool)
+    idx = np.flatnonzero(frames)
+    hit[idx] = self_collision_contacts(robot, q[idx]) > 0
+    t, a = between
+    if len(t):
+        k = np.flatnonzero(frames[t] & frames[t + 1])
+        if len(k):
+            x = (1.0 - a[k, None]) * q[t[k]] + a[k, None] * q[t[k] + 1]
+            smp[k] = self_collision_contacts(robot, x) > 0
+    return hit, smp
 
 
 def resolve_contacts(robot: Robot, targets: Targets, cfg: IKConfig, q: np.ndarray) -> np.ndarray:
-    """q (T,n) with the contacts the proxies leaked resolved inside the optimisation: where
-    MuJoCo finds a counted contact, an LM phase whose collision rows on those frames (±
-    `cfg.contact_pad`) are MuJoCo's own contacts at `contact_margin`, weighted `w_contact` (a
-    near-constraint), with every other term kept; repeated (`contact_rounds`) while contacts
-    remain, each round adding the frames it finds. Why: the repair after the solve
-    (`control.separate`) pushes each frame apart alone and blends the push into its
-    neighbours; on a deep leak (a thumb 30 mm inside the opposite shoulder during a SHOULDER
-    sign) that moved the arms 30-80° for ±0.5 s and took the hand off its landmark. Here the
-    smoothness and the targets share the correction, and the repair has little left to do."""
+    """q (T,n) with the contacts the proxies leaked resolved inside the optimisation
+    (`resolve_contacts_checked`)."""
+    return resolve_contacts_checked(robot, targets, cfg, q)[0]
+
+
+def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
+                             q: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """q (T,n) with the contacts the proxies leaked resolved inside the optimisation, and MuJoCo's
+    verdict on the returned frames (T,) bool (None when off: nothing checked). Where MuJoCo finds
+    a counted contact on a frame or (`contact_samples`) on a control-rate sample between two
+    frames (hands passing through each other between two clear frames, which the export's
+    per-sample repair then pulls apart), an LM phase whose collision rows on those frames (± `cfg.contact_pad`) are
+    MuJoCo's own contacts at `contact_margin`, weighted `w_contact` (a near-constraint), with
+    every other term kept; repeated (`contact_rounds`) while contacts remain, each round adding
+    the frames it finds. The phase runs on windows only: the frames within `contact_window` of a
+    contact move, `HELD` frames beyond them are held, the rest are not touched (the cost scales
+    with the contacts, not the sequence). Why: the repair after the solve (`control.separate`)
+    pushes each frame apart alone and blends the push into its neighbours; on a deep leak (a
+    thumb 30 mm inside the opposite shoulder during a SHOULDER sign) that moved the arms 30-80°
+    for ±0.5 s and took the hand off its landmark. Here the smoothness and the targets share the
+    correction, and the repair has little left to do."""
     if not cfg.contact_rounds or not cfg.contact_repair:
-        return q
-    hit = self_collision_contacts(robot, q) > 0
-    if not hit.any():
-        return q
-    problem = _Problem(robot, targets, cfg.model_copy(update={"polish_iterations": 0}))
-    if problem.residuals.proxies is None:
-        return q
-    problem.residuals.exact = ExactContacts(robot, cfg.contact_margin, cfg.w_contact)
-    qi = q[:, problem.ik]
+        return q, None
+    none = (np.zeros(0, np.int64), np.zeros(0))
+    between = _between(len(q), targets.fps, cfg.control_rate_hz) if cfg.contact_samples else none
+    hit, smp = _touching(robot, q, np.ones(len(q), dtype=bool), between)
+    contacts = hit.copy()
+    if not hit.any() and not smp.any():
+        return q, contacts
+    sub_cfg = cfg.model_copy(update={"polish_iterations": 0})
+    exact = ExactContacts(robot, cfg.contact_margin, cfg.w_contact)
+    q = q.copy()
+    found = int(hit.sum() + smp.sum())
     for _ in range(cfg.contact_rounds):
-        qi = problem.solve(qi, cold=False, contact_frames=_dilate(hit, cfg.contact_pad))
-        q = robot.clip(problem.q_full(qi))
-        now = self_collision_contacts(robot, q) > 0
-        if not now.any():
+        touch, near = hit.copy(), np.zeros(len(q), dtype=bool)
+        near[between[0][smp]] = True
+        touch |= near
+        touch[between[0][smp] + 1] = True
+        free = _dilate(touch, cfg.contact_window)
+        idx = np.flatnonzero(_dilate(free, HELD))
+        window = replace(targets, **{k: getattr(targets, k)[idx] for k in _ARRAYS})
+        problem = _Problem(robot, window, sub_cfg)
+        if problem.residuals.proxies is None:
+            return q, contacts
+        problem.residuals.exact = exact
+        problem.held = ~free[idx]
+        rows = _dilate(touch, cfg.contact_pad)
+        # sample rows near a sample contact, between two frames with rows (inside one window)
+        t, a = between
+        pick = _dilate(near, cfg.contact_pad)[t] & rows[t] & rows[t + 1] if len(t) else np.zeros(0, bool)
+        sub = (np.searchsorted(idx, t[pick]), a[pick])
+        qi = problem.solve(q[idx][:, problem.ik], cold=False, contact_frames=rows[idx], contact_between=sub)
+        q[idx] = robot.clip(problem.q_full(qi))
+        now, now_smp = _touching(robot, q, free, between)  # the other frames kept their verdict
+        contacts = now  # every contact frame lies inside `free`
+        if not now.any() and not now_smp.any():
             break
+        left = int(now.sum() + now_smp.sum())
+        if left >= found:  # no progress: a pass the windows cannot route round (the repair's)
+            break
+        found = left
         hit |= now
-    return q
+        smp |= now_smp
+    return q, contacts
 
 
 def solve(robot: Robot, targets: Targets, cfg: IKConfig | None = None,
           init: IKSolution | np.ndarray | None = None) -> IKSolution:
     """Solve all frames jointly; `init` (previous solution or (T,n) q) warm-starts the solver."""
     cfg = cfg or IKConfig()
-    return finish_solution(robot, solve_joints(robot, targets, cfg, init), targets, cfg)
+    q, contacts = _solve_joints_checked(robot, targets, cfg, init)
+    return finish_solution(robot, q, targets, cfg, contacts=contacts)
 
 
 def finish_solution(robot: Robot, q: np.ndarray, targets: Targets, cfg: IKConfig,
-                    extra: dict[str, float] | None = None) -> IKSolution:
+                    extra: dict[str, float] | None = None,
+                    contacts: np.ndarray | None = None) -> IKSolution:
     """A solved trajectory (T,n) inside the joint box made into the solution every solve returns
     (whole or windowed): velocity clamp, MuJoCo contact repair, evaluation (with `extra` metrics)
-    and the verified control-rate array."""
+    and the verified control-rate array. `contacts` (T,) bool: MuJoCo's verdict on exactly this
+    q, when the contact phase already has it (not checked twice)."""
     if cfg.contact_repair:  # short contact runs: their clear neighbours bound a local answer
-        q = bridge_contacts(robot, q, fps=targets.fps if cfg.enforce_velocity_limits else None)
+        q = bridge_contacts(robot, q, fps=targets.fps if cfg.enforce_velocity_limits else None, bad=contacts)
     if cfg.enforce_velocity_limits:
         q = clamp_velocity(q, robot.velocity_limits, targets.fps)
     # MuJoCo has the last word at both rates: every written sample is collision-free
