@@ -26,6 +26,13 @@ and upper arms against each other, the torso shell, the head, pelvis and thighs)
 pairs MuJoCo's verdict counts (`counted_geom_pairs`). Its clean/feasible frames are its own; the
 `feasible` keys of ours and mink's stay on the plain mink's feasible frames.
 
+Collision frames are counted at the source rate (`*_collision_frames`, the frames each solver
+solved) and on the trajectory a robot executes: linearly resampled to the control rate
+(`ik.control_rate_hz`, 50 Hz; `*_collision_frames_50hz`), where hands that are clear at two
+source frames can still pass through each other between them. Ours checks those samples inside
+its contact phase (`ik.contact_samples`, on by default); `--ik contact_samples=false` is the
+source-rate-only solver (faster, not clear at 50 Hz).
+
 Frames per second are wall clock (`*_fps`, `fps_ratio*`, as the issue states them) and process
 CPU time (`*_cpu_fps`, `fps_ratio*_cpu`: every solver runs single-threaded, so on a shared,
 loaded machine the CPU ratio is the one that does not move with the other processes).
@@ -60,9 +67,10 @@ from embody.config import Config  # noqa: E402
 from embody.config.ik import IKConfig  # noqa: E402
 from embody.retarget import build_targets, shape_fit, solve  # noqa: E402
 from embody.retarget.ik import evaluate  # noqa: E402
+from embody.retarget.limits import resample  # noqa: E402
 from embody.retarget.targets import Targets  # noqa: E402
 from embody.robot import Robot, load_robot  # noqa: E402
-from embody.robot.contacts import contact_pairs, counted_geom_pairs  # noqa: E402
+from embody.robot.contacts import contact_pairs, counted_geom_pairs, self_collision_contacts  # noqa: E402
 from embody.synth import generate_sequence  # noqa: E402
 
 
@@ -189,6 +197,8 @@ def main() -> None:
     errs: dict[str, dict[str, list[np.ndarray]]] = {
         n: {"all": [], "clean": [], "feasible": [], "feasible_col": []} for n in rows}
     pairs = {n: Counter() for n in rows}
+    at_rate = {n: 0 for n in rows}  # frames with a penetrating contact on the 50 Hz resampled trajectory
+    rate_frames = 0
     print(f"{'seq':>4} {'frames':>6} {'solver':>6} {'fps':>8} {'wrist_mm':>9} {'rot_deg':>8} {'jerk':>9} "
           f"{'vel_viol':>8} {'coll_frames':>11} {'clean_mm':>9}")
     for i, targets in enumerate(all_targets):
@@ -214,6 +224,7 @@ def main() -> None:
         totals["mink_col_t"] += t4 - t3
         max_dq = max(max_dq, float(np.abs(again.q - ours.q).max()))
         totals["frames"] += targets.num_frames
+        rate_frames += len(resample(ours.q, targets.fps, cfg.control_rate_hz))
         frames_m, m_mink = evaluate(robot, theirs, targets)
         frames_c, m_col = evaluate(robot, theirs_col, targets)
         results = {"ours": (ours.q, ours.frame_metrics, ours.metrics, t1 - t0),
@@ -231,6 +242,7 @@ def main() -> None:
         feasible_col = feasible_of(theirs_col, frames_c)
         for name, (q, frames, m, dt) in results.items():
             rows[name].append(m)
+            at_rate[name] += int((self_collision_contacts(robot, resample(q, targets.fps, cfg.control_rate_hz)) > 0).sum())
             pairs[name].update(contact_pairs(robot, q))
             wrist = frames["wrist_pos_err_mm"].mean(1)
             for key, sel in (("all", slice(None)), ("clean", clean), ("feasible", feasible),
@@ -258,6 +270,8 @@ def main() -> None:
     n_clean, n_feasible, n_col = (len(np.concatenate(errs["ours"][k])) for k in ("clean", "feasible", "feasible_col"))
     print(f"clean frames {n_clean}, feasible frames {n_feasible} (mink), {n_col} (mink_col) "
           f"of {int(totals['frames'])}")
+    print(f"collision frames at {cfg.control_rate_hz:g} Hz (of {rate_frames}): "
+          + ", ".join(f"{n} {at_rate[n]}" for n in rows))
     ours_fps = totals["frames"] / totals["ours_t"]
     mink_fps = totals["frames"] / totals["mink_t"]
     col_fps = totals["frames"] / totals["mink_col_t"]
@@ -275,6 +289,8 @@ def main() -> None:
           f"ours_rot_deg={mean('ours', 'wrist_rot_err_deg'):.2f} mink_rot_deg={mean('mink', 'wrist_rot_err_deg'):.2f} "
           f"ours_jerk={mean('ours', 'jerk'):.1f} mink_jerk={mean('mink', 'jerk'):.1f} "
           f"ours_collision_frames={coll['ours']} mink_collision_frames={coll['mink']} "
+          f"ours_collision_frames_50hz={at_rate['ours']} mink_collision_frames_50hz={at_rate['mink']} "
+          f"mink_collision_frames_50hz_with_limit={at_rate['mink_col']} "
           f"ours_clean_wrist_mm={frames_mean('ours', 'clean'):.2f} mink_clean_wrist_mm={frames_mean('mink', 'clean'):.2f} "
           f"ours_feasible_wrist_mm={frames_mean('ours', 'feasible'):.2f} "
           f"mink_feasible_wrist_mm={frames_mean('mink', 'feasible'):.2f} "
