@@ -26,12 +26,12 @@ from embody.config import Config
 from embody.retarget.control import BOX_MARGIN, VELOCITY_MARGIN, _Separator
 from embody.retarget.limits import clamp_velocity, resample
 from embody.robot import load_robot
-from store.artifacts import ArtifactStore
+from embody.store.artifacts import ArtifactStore
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--store", default="/work/main/embody-store")
+    ap.add_argument("--store", default="embody-store")
     ap.add_argument("--run", default="synth-n24-s0.unitree_g1_dex3")
     ap.add_argument("--moved-deg", type=float, default=1.0)
     args = ap.parse_args()
