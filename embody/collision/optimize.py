@@ -322,20 +322,11 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
     def scaled(frames: np.ndarray, s: np.ndarray) -> np.ndarray:
         return (x0[frames] + s[:, None, None] * delta[frames]).astype(pose.dtype)
 
-    # the last judged clear pose of each frame (its s and depth): the envelope's check below
-    # judges again only the frames whose s differs (same s, same pose, same depth)
-    known_s, known_d = np.full(len(pose), np.nan), np.zeros(len(pose))
-
     def deep(frames: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        d = np.empty(len(frames))
-        same = known_s[frames] == s
-        d[same] = known_d[frames[same]]
-        new = ~same
-        if new.any():
-            d[new] = _mesh_depths(body, scaled(frames[new], s[new]), motion.betas, cfg)
-        bad = d > limit[frames]
-        known_s[frames[~bad]], known_d[frames[~bad]] = s[~bad], d[~bad]
-        return bad, d
+        # a pose judged before (same s, same bits) is answered by the judge's own memo
+        # (`depth.motion_depths`), so the envelope's check below re-judges only changed frames
+        d = _mesh_depths(body, scaled(frames, s), motion.betas, cfg)
+        return d > limit[frames], d
 
     # frames whose correction is small (the blend's fade-in/out, < 1 % of the largest squared
     # norm) are not searched: they take the nearest searched frame's s (so s(t) does not steepen
@@ -345,8 +336,6 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
     need = np.zeros(len(pose))
     d_lo = (_mesh_depths(body, x0[big], motion.betas, cfg) if depth0 is None
             else np.asarray(depth0)[big])  # the input's depth: the search's s = 0 end
-    ok0 = d_lo <= limit[big]  # s = 0 is x0 + 0·delta = x0: its depth is d_lo
-    known_s[big[ok0]], known_d[big[ok0]] = 0.0, d_lo[ok0]
     hi = _regula_falsi(lambda f, s: deep(big[f], s)[1], d_lo, depth[big], limit[big],
                        cfg.pull_back_iterations)
     need[big] = hi

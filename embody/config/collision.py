@@ -157,8 +157,9 @@ class CollisionConfig(Section):
     #: meanwhile). Never stops while a frame penetrates: then `steps` bound the run. Since
     #: s9-adamfast 1 (the next refresh, 5 steps later; was 20): the mesh-judged `pull_back`
     #: now does the closeness job (it shrinks each frame's correction to the smallest still
-    #: clear fraction), so the settling steps bought little (24 sequences: Pose MSE median
-    #: see docs/performance.md 2026-11-26 (s9-adamfast)) for ~15 Adam steps a sequence.
+    #: clear fraction), so the settling steps bought nothing measurable (24 sequences: Pose MSE
+    #: median 0.0199 either way, docs/performance.md 2026-11-26 (s9-adamfast)) for ~15 Adam
+    #: steps a sequence.
     early_stop: bool = True
     early_stop_rtol: float = Field(1e-2, ge=0, le=1)
     early_stop_patience: int = Field(5, ge=1, le=1000)
