@@ -13,8 +13,6 @@ MSE and the judge's max depth per sequence. Ends with one `RESULT` line.
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import sys
 import time
 from pathlib import Path
 
@@ -26,6 +24,7 @@ from embody.collision import optimize, part_volumes
 from embody.config.collision import CollisionConfig
 from embody.io import load
 from embody.synth import default_dataset
+from _reference import load_reference  # benchmarks/, the script's own folder
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -43,10 +42,7 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    spec = importlib.util.spec_from_file_location("optimize_ref", args.ref)
-    ref = importlib.util.module_from_spec(spec)
-    sys.modules["optimize_ref"] = ref  # dataclasses look their module up
-    spec.loader.exec_module(ref)
+    ref = load_reference(args.ref, "optimize_ref")
     body = MannequinBody()
     part_volumes(body)
     base, cand = _cfg(args.ref_set), _cfg(args.set)

@@ -12,8 +12,6 @@ MSE and the judge's max depth of each result. Ends with one `RESULT` line.
 from __future__ import annotations
 
 import argparse
-import importlib.util
-import sys
 import time
 from pathlib import Path
 
@@ -28,6 +26,7 @@ from embody.collision.metrics import pose_mse
 from embody.config.collision import CollisionConfig
 from embody.io import load
 from embody.synth import default_dataset
+from _reference import load_reference  # benchmarks/, the script's own folder
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -40,10 +39,7 @@ def main() -> None:
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    spec = importlib.util.spec_from_file_location("ref_optimize", args.ref)
-    ref = importlib.util.module_from_spec(spec)
-    sys.modules["ref_optimize"] = ref  # dataclasses look their module up
-    spec.loader.exec_module(ref)
+    ref = load_reference(args.ref, "ref_optimize")
     over = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.set)}
     cfg = CollisionConfig.model_validate({**CollisionConfig().model_dump(), **over})
     paths = sorted(default_dataset(args.data).glob("seq_*.npz"))

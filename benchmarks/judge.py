@@ -19,10 +19,8 @@ Ends with `RESULT judge_s_per_150=… reference_s_per_150=… speedup=… max_ab
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import pickle
 import subprocess
-import sys
 import tempfile
 import time
 from pathlib import Path
@@ -34,6 +32,7 @@ from embody.body import MannequinBody
 from embody.collision import depth
 from embody.io import load
 from embody.synth import default_dataset
+from _reference import load_reference  # benchmarks/, the script's own folder
 
 #: main before s9-judge: the judge as it was.
 REFERENCE = "2b1c68c"
@@ -46,11 +45,7 @@ def reference_module():
                          check=True, capture_output=True, text=True).stdout
     path = Path(tempfile.mkdtemp()) / "depth_reference.py"
     path.write_text(src)
-    spec = importlib.util.spec_from_file_location("depth_reference", path)
-    mod = importlib.util.module_from_spec(spec)
-    sys.modules["depth_reference"] = mod
-    spec.loader.exec_module(mod)
-    return mod
+    return load_reference(path, "depth_reference")
 
 
 def record(body: MannequinBody, paths: list[Path], out: str) -> None:
