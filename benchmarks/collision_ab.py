@@ -1,12 +1,15 @@
 """The whole collide step (`mitigate`: optimiser, polish, judge, pull-back), A/B: a reference
-copy of `embody/collision/optimize.py` (e.g. `git show <rev>:embody/collision/optimize.py`)
-with its config against the current one with its config, back to back in one process on the
-same sequences, so the CPU figures share the machine's load.
+copy of `embody/collision/optimize.py` (e.g. `git show <rev>:embody/collision/optimize.py`),
+optionally with a reference `energy.py` too (`--ref-energy`: the reference optimiser then runs
+on it, the current one on the current energy), with its config against the current one with its config, back to back in one process on the
+same sequences, so the CPU figures share the machine's load. The mesh judge's memo is cleared before each
+side, so neither reuses the other's judged frames.
 
 CPU seconds (`time.process_time`, one torch thread) per 150 frames of each, with steps, Pose
 MSE and the judge's max depth per sequence. Ends with one `RESULT` line.
 
-    python benchmarks/collision_ab.py --ref /tmp/old_optimize.py [--seqs 1 2 3 14]
+    python benchmarks/collision_ab.py --ref /tmp/old_optimize.py [--ref-energy /tmp/old_energy.py]
+        [--seqs 1 2 3 14]
         [--ref-set early_stop_stall=20] [--set early_stop_stall=1]
 """
 
@@ -22,7 +25,7 @@ import torch
 import yaml
 
 from embody.body import MannequinBody
-from embody.collision import optimize, part_volumes
+from embody.collision import depth, optimize, part_volumes
 from embody.config.collision import CollisionConfig
 from embody.io import load
 from embody.synth import default_dataset
@@ -34,19 +37,31 @@ def _cfg(pairs: list[str]) -> CollisionConfig:
     return CollisionConfig(**{k: yaml.safe_load(v) for k, v in (p.split("=", 1) for p in pairs)})
 
 
+def _load(name: str, path: str):
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--data", default=str(ROOT / "data"))
     ap.add_argument("--ref", required=True, help="path of the reference optimize.py")
     ap.add_argument("--seqs", type=int, nargs="+", default=[1, 2, 3, 14])
+    ap.add_argument("--ref-energy", help="path of the reference energy.py (default: current)")
     ap.add_argument("--ref-set", action="append", default=[], metavar="KEY=VALUE")
     ap.add_argument("--set", action="append", default=[], metavar="KEY=VALUE")
     args = ap.parse_args()
     torch.set_num_threads(1)
-    spec = importlib.util.spec_from_file_location("optimize_ref", args.ref)
-    ref = importlib.util.module_from_spec(spec)
-    sys.modules["optimize_ref"] = ref  # dataclasses look their module up
-    spec.loader.exec_module(ref)
+    current = sys.modules["embody.collision.energy"]
+    if args.ref_energy:  # the reference optimize.py imports the reference energy.py
+        sys.modules["embody.collision.energy"] = _load("energy_ref", args.ref_energy)
+    try:
+        ref = _load("optimize_ref", args.ref)
+    finally:
+        sys.modules["embody.collision.energy"] = current
     body = MannequinBody()
     part_volumes(body)
     base, cand = _cfg(args.ref_set), _cfg(args.set)
@@ -55,15 +70,19 @@ def main() -> None:
     frames = 0
     for i in args.seqs:
         m = load(paths[i])
+        depth._memo.clear()  # each side pays its own judge calls (the memo would carry over)
         t0 = time.process_time()
-        a = ref.mitigate(m, body, base).metrics
+        ra = ref.mitigate(m, body, base)
         t1 = time.process_time()
-        b = optimize.mitigate(m, body, cand).metrics
+        depth._memo.clear()
+        rb = optimize.mitigate(m, body, cand)
         t2 = time.process_time()
+        a, b = ra.metrics, rb.metrics
         cpu_ref, cpu_new, frames = cpu_ref + t1 - t0, cpu_new + t2 - t1, frames + len(m.pose)
+        same = bool((ra.motion.pose == rb.motion.pose).all())
         print(f"seq_{i:03d} ref {t1 - t0:.2f}s steps={a['steps']} mse={a['pose_mse']:.5f} "
               f"max_mm={a['max_depth_mm_after']:.2f} | new {t2 - t1:.2f}s steps={b['steps']} "
-              f"mse={b['pose_mse']:.5f} max_mm={b['max_depth_mm_after']:.2f}", flush=True)
+              f"mse={b['pose_mse']:.5f} max_mm={b['max_depth_mm_after']:.2f} same_pose={same}", flush=True)
     print(f"RESULT ref_cpu_per_150_frames={cpu_ref / frames * 150:.2f} "
           f"new_cpu_per_150_frames={cpu_new / frames * 150:.2f} frames={frames}")
 
