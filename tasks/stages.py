@@ -307,7 +307,7 @@ SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=
 #     moment, step-size decay once clear, λ growth 1.2 (s4-colquality).
 # v6: mesh-judged pull-back of the correction (s6-adam).
 # v7: the pull-back's search is regula falsi from the known ends, not bisection (s7-colfast).
-COLLIDE = Step("collide", "8", ("body", "collision"), _collide, _collision_result, (SOURCE,))
+COLLIDE = Step("collide", "9", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
 # v3: hand-hand and hand-chest clearance at hand scale (targets.hand_gap, retarget/hand_clearance.py).
