@@ -101,6 +101,8 @@ class CollisionModel:
                 a = getattr(self, name)
                 out[name] = torch.as_tensor(a, device=device,
                                             dtype=dtype if a.dtype.kind == "f" else None)
+            if (self.rest_inverse[:, :3, :3] == np.eye(3)).all():  # joints carry no rest rotation
+                out["rest_shift"] = out["rest_inverse"][:, :3, 3].contiguous()
             cache[key] = out
         return cache[key]
 
@@ -256,7 +258,15 @@ def _take(x: torch.Tensor, lead: int, i: torch.Tensor) -> torch.Tensor:
 
 def _blend(d: dict[str, torch.Tensor], transforms: torch.Tensor) -> torch.Tensor:
     """Skinning transforms (T,J,3,4): joint world transform times inverse rest transform."""
-    return transforms[..., :3, :] @ d["rest_inverse"]  # the bottom row is never used
+    shift = d.get("rest_shift")
+    if shift is None:
+        return transforms[..., :3, :] @ d["rest_inverse"]  # the bottom row is never used
+    # the inverse rest transforms are translations: [R | R·shift + t] elementwise, the terms
+    # summed in the order the 4-long matmul sums them (same bits), without a tiny-matrix bmm
+    r = transforms[..., :3, :3]
+    t = ((r[..., 0] * shift[:, None, 0] + r[..., 1] * shift[:, None, 1]
+          ) + r[..., 2] * shift[:, None, 2]) + transforms[..., :3, 3]
+    return torch.cat((r, t.unsqueeze(-1)), dim=-1)
 
 
 def _chunk_joints(d: dict[str, torch.Tensor], blend: torch.Tensor, t: torch.Tensor,
@@ -340,7 +350,9 @@ def _chunk_spheres(d: dict[str, torch.Tensor],
     grown by r. So the sphere needs only U transforms of one point per chunk, not the skin of
     every point; a rigid chunk (U = 1) keeps its exact rest sphere.
     """
-    a = blend[:, d["chunk_joints"]]                                               # (T,H,U,3,4)
+    cj = d["chunk_joints"]
+    a = blend.flatten(-2).contiguous().index_select(1, cj.reshape(-1)).view(
+        blend.shape[0], *cj.shape, 3, 4)                                         # (T,H,U,3,4)
     cu = _affine(a, d["chunk_center"][:, None, :])
     used = d["chunk_used"].unsqueeze(-1)
     center = (cu * used).sum(-2) / used.sum(-2)
@@ -387,7 +399,7 @@ def contacts(model: CollisionModel, transforms: torch.Tensor, margin: float = 0.
             first, inv = _firsts((t * d["chunk_part"].shape[0] + h) * rot.shape[1] + b)
             q = _to_part(rot, trans, t[first], b[first],
                          _row_points(d, blend, t[first], h[first]))[inv]
-            box = _box_distance(q, d["piece_box"][k][:, None])
+            box = _box_distance(q, d["piece_box"].index_select(0, k)[:, None])
             hit = ((box <= margin) & d["chunk_mask"][h]).any(dim=1)
             wide = margin * _POINT_SLACK
             r, n = torch.nonzero((box <= wide) & d["chunk_mask"][h] & hit[:, None], as_tuple=True)
@@ -448,7 +460,7 @@ def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: flo
         return None
     with torch.no_grad():
         q = rows_in_part(d, transforms, p)
-        r = torch.nonzero(_box_distance(q, d["piece_box"][p.k]) <= reach).squeeze(1)
+        r = torch.nonzero(_box_distance(q, d["piece_box"].index_select(0, p.k)) <= reach).squeeze(1)
         f, plane = _piece_planes(model, d, p.k[r], q[r])
         inside = torch.nonzero(f < -tolerance).squeeze(1)
         if inside.numel() == 0:
