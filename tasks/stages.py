@@ -308,7 +308,8 @@ SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=
 # v6: mesh-judged pull-back of the correction (s6-adam).
 # v7: the pull-back's search is regula falsi from the known ends, not bisection (s7-colfast).
 # v8: the optimiser stops one refresh after every frame is clear (`early_stop_stall` 1; s9-adamfast).
-COLLIDE = Step("collide", "8", ("body", "collision"), _collide, _collision_result, (SOURCE,))
+# v9: lambda_growth 1.3; exact energy gathers (s10-adam).
+COLLIDE = Step("collide", "9", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
 # v3: hand-hand and hand-chest clearance at hand scale (targets.hand_gap, retarget/hand_clearance.py).

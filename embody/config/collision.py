@@ -121,8 +121,12 @@ class CollisionConfig(Section):
     #: correction fades in and out over it (cosine).
     blend_s: float = Field(0.5, ge=0, le=10)
     #: λ continuation: a frame's λ_col is multiplied by this at each broad-phase refresh while
-    #: it still penetrates, up to `lambda_max`.
-    lambda_growth: float = Field(1.2, ge=1, le=100)
+    #: it still penetrates, up to `lambda_max`. 1.3 since s10-adam (was 1.2): a frame whose
+    #: correction is large clears only once λ_col·depth outweighs λ_close·‖δ‖ (λ_col ~ 5e3
+    #: from 50, i.e. ~25 refreshes at 1.2), so that tail set the step count; 1.3 cut Adam's
+    #: steps 25 % on seqs 0, 3, 12, 14, 15 at the same Pose MSE (1.4-1.5 or a higher starting
+    #: λ_col: fewer steps, worse Pose MSE; docs/performance.md 2026-11-27 (s10-adam)).
+    lambda_growth: float = Field(1.3, ge=1, le=100)
     lambda_max: float = Field(1e5, gt=0)
     #: Weight of the limb core-capsule term (`embody.collision.capsules`) that separates arms
     #: passed through each other (the point energy alone cancels there); 0 turns it off.
