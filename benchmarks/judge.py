@@ -11,7 +11,7 @@ mitigation run (before/after/pull-back poses) and compares against the recorded 
 keeps every call of the judge. Record with the old code (PYTHONPATH at an old checkout), replay
 with the new:
 
-    python benchmarks/judge.py [--n 6] [--data data] [--calls calls.pkl | --record calls.pkl]
+    python benchmarks/judge.py [--n 6] [--data data] [--ref REV] [--calls calls.pkl | --record calls.pkl]
 
 Ends with `RESULT judge_s_per_150=… reference_s_per_150=… speedup=… max_abs_diff_m=…`.
 """
@@ -39,9 +39,9 @@ REFERENCE = "2b1c68c"
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def reference_module():
-    """`embody/collision/depth.py` at `REFERENCE`, imported under another name."""
-    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{REFERENCE}:embody/collision/depth.py"],
+def reference_module(rev: str = REFERENCE):
+    """`embody/collision/depth.py` at `rev`, imported under another name."""
+    src = subprocess.run(["git", "-C", str(ROOT), "show", f"{rev}:embody/collision/depth.py"],
                          check=True, capture_output=True, text=True).stdout
     path = Path(tempfile.mkdtemp()) / "depth_reference.py"
     path.write_text(src)
@@ -80,6 +80,7 @@ def main() -> None:
     ap.add_argument("--data", default="data")
     ap.add_argument("--calls", default=None, help="recorded judge calls (pickle) to replay")
     ap.add_argument("--record", default=None, help="write the judge calls of `mitigate` here")
+    ap.add_argument("--ref", default=REFERENCE, help="git revision of the reference depth.py")
     args = ap.parse_args()
     torch.set_num_threads(1)
     body = MannequinBody()
@@ -91,7 +92,7 @@ def main() -> None:
         jobs = [(c[0], c[1], c[2], c[3], c[4]) for c in calls]
         ref = None
     else:
-        ref = reference_module()
+        ref = reference_module(args.ref)
         jobs = [(p.stem, (m := load(p)).pose, m.betas, (), None)
                 for p in sorted(default_dataset(args.data).glob("seq_*.npz"))[:args.n]]
     depth.motion_depths(body, jobs[0][1][:2], jobs[0][2])  # warm caches (mesh, shape)

@@ -1,5 +1,5 @@
-"""The mesh judge's fast paths give the bits of the plain ones: closest points on triangles, the
-k-d-tree closest-triangle query against brute force, the one-ring gather, the skin, and the
+"""The mesh judge's fast paths give the bits of the plain ones: closest points on triangles (NumPy
+and the compiled `closest.closest_point`), the grid closest-triangle query against brute force, the one-ring gather, the skin, and the
 per-frame memo of `motion_depths`."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import trimesh
 
 from embody.body import MannequinBody
 from embody.body.kinematics import skin
-from embody.collision import depth
+from embody.collision import closest, depth
 from embody.collision.depth import DepthMesh, _closest_on_triangles, _normals, _Surface
 
 
@@ -57,6 +57,54 @@ def test_closest_on_triangles_matches_the_where_form_bit_for_bit():
     np.testing.assert_array_equal(q, q0)
     np.testing.assert_array_equal(f, f0)
     assert set(np.unique(f)) == set(range(7))             # every region visited
+
+
+def test_compiled_closest_point_has_the_numpy_bits():
+    rng = np.random.default_rng(4)
+    n = 20000
+    p, a, b, c = (rng.normal(size=(n, 3)) for _ in range(4))
+    c[:500] = a[:500] + 0.5 * (b[:500] - a[:500])        # degenerate (collinear) triangles
+    with np.errstate(invalid="ignore", divide="ignore"):
+        q0, f0 = _closest_on_triangles(p, a, b, c)
+    q, f = np.empty((n, 3)), np.empty(n, dtype=np.int64)
+    out = np.empty(3)
+    for i in range(n):
+        f[i] = closest.closest_point(p[i], a[i], b[i], c[i], out)
+        q[i] = out
+    np.testing.assert_array_equal(q, q0)
+    np.testing.assert_array_equal(f, f0)
+
+
+def _brute(p, tri):
+    rows = np.repeat(np.arange(len(p)), len(tri))
+    q, _ = _closest_on_triangles(p[rows], *(np.tile(tri[:, k], (len(p), 1)) for k in range(3)))
+    return np.linalg.norm(q - p[rows], axis=1).reshape(len(p), len(tri))
+
+
+def test_grid_search_is_the_lowest_index_least_distance_triangle():
+    """Exact ties included: a mesh whose triangles all appear twice (the copy has the higher
+    index) must answer with the first copy; points far outside the grid too."""
+    s = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
+    v = np.asarray(s.vertices) * [1.0, 0.6, 1.4]
+    faces = np.concatenate([s.faces, s.faces])
+    tri = np.ascontiguousarray(v[faces])
+    centroid = tri.mean(1)
+    radius = np.linalg.norm(tri - centroid[:, None], axis=2).max(1)
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    plane = n / np.linalg.norm(n, axis=1, keepdims=True)
+    offset = (plane * tri[:, 0]).sum(1)
+    slack = np.zeros(len(tri))
+    rng = np.random.default_rng(5)
+    p = np.concatenate([rng.normal(size=(300, 3)) * 0.08, rng.normal(size=(20, 3)) * 3.0])
+    lo, dims, cell, start, order = closest.build_grid(centroid, 0.01)
+    dist, point = np.empty(len(p)), np.empty((len(p), 3))
+    feat, which = np.empty(len(p), dtype=np.int64), np.empty(len(p), dtype=np.int64)
+    closest.grid_nearest(p, tri, centroid, radius, float(radius.max()), plane, offset, slack,
+                         lo, dims, cell, start, order, dist, point, feat, which)
+    d = _brute(p, tri)
+    np.testing.assert_array_equal(dist, d.min(1))
+    np.testing.assert_array_equal(which, d.argmin(1))    # argmin: the first of equal ones
+    assert (which < len(s.faces)).all()
 
 
 def test_surface_query_is_the_brute_force_closest_triangle():

@@ -42,14 +42,13 @@ import weakref
 from collections import OrderedDict
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from itertools import chain
 
 import fcl
 import numpy as np
 import torch
-from scipy.spatial import cKDTree
 
 from embody.body.base import BodyModel
+from embody.collision.closest import build_grid, grid_nearest
 from embody.collision.exclusions import checked_pairs, part_groups
 
 #: A watertight component spanning more groups than this is a skin, not a rigid segment.
@@ -242,7 +241,8 @@ class _Surface:
         self.centroid = self.tri.mean(1)
         self.radius = np.linalg.norm(self.tri - self.centroid[:, None], axis=2).max(1)
         self.reach = float(self.radius.max())
-        self.tree = cKDTree(self.centroid)
+        # the exact nearest-triangle search's grid (cells about two mean triangle radii wide)
+        self.grid = build_grid(self.centroid, max(2.0 * float(self.radius.mean()), 1e-6))
         self.normals = normals
         # each triangle's plane (face normal n, offset n·a) and how far its other corners lie
         # off it (0 up to rounding; large for a sliver whose normal is unreliable)
@@ -254,44 +254,17 @@ class _Surface:
     def query(self, p: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(distance, signed side (<0 inside), face id (component-local), on-border) per point.
 
-        Exact closest triangle: the one with the nearest centroid bounds the distance; every
-        triangle that could be closer has its centroid within that bound plus `reach`."""
-        k = min(4, len(self.face_ids))
-        _, near = self.tree.query(p, k=k)
-        near = np.asarray(near).reshape(len(p), k)
-        tri = self.tri[near.reshape(-1)]
-        pk = np.repeat(p, k, 0)
-        q0, f0 = _closest_on_triangles(pk, tri[:, 0], tri[:, 1], tri[:, 2])
-        d0 = np.linalg.norm(q0 - pk, axis=1)
-        upper = d0.reshape(len(p), k).min(1)
-        lists = self.tree.query_ball_point(p, upper + self.reach)
-        sizes = np.fromiter(map(len, lists), dtype=np.int64, count=len(p))
-        cand = np.fromiter(chain.from_iterable(lists), dtype=np.int64, count=int(sizes.sum()))
-        owner = np.repeat(np.arange(len(p)), sizes)
-        # a triangle can be closer only if its centroid is within upper + its own radius
-        fine = (np.linalg.norm(self.centroid[cand] - p[owner], axis=1)
-                <= upper[owner] + self.radius[cand] + 1e-12)
-        cand, owner = cand[fine], owner[fine]
-        # ... and only if its plane is within upper: |n·p − n·a| − slack bounds the distance
-        # from below, so a dropped triangle is farther than the nearest by > 1e-9 m (the order
-        # of the kept ones, hence the tie-break below, is unchanged)
-        off = np.abs((self.plane[cand] * p[owner]).sum(1) - self.offset[cand])
-        fine = ~(off > upper[owner] + self.slack[cand] + 1e-9)
-        # the k nearest always stay (a degenerate triangle's NaN must not empty a point's list);
-        # their closest points are the ones already found for `upper`
-        cand, owner = cand[fine], owner[fine]
-        tri = self.tri[cand]
-        q, feat_all = _closest_on_triangles(p[owner], tri[:, 0], tri[:, 1], tri[:, 2])
-        d = np.linalg.norm(q - p[owner], axis=1)
-        cand = np.concatenate([cand, near.reshape(-1)])
-        owner = np.concatenate([owner, np.repeat(np.arange(len(p)), k)])
-        q = np.concatenate([q, q0])
-        feat_all = np.concatenate([feat_all, f0])
-        d = np.nan_to_num(np.concatenate([d, d0]), nan=np.inf)
-        order = np.lexsort((d, owner))
-        first = order[np.searchsorted(owner[order], np.arange(len(p)))]
-        dist, point, feat = d[first], q[first], feat_all[first]
-        face = self.face_ids[cand[first]]
+        Exact closest triangle (`closest.grid_nearest`: a ring search on a centroid grid that
+        skips a triangle only when a lower bound on its distance exceeds the best found; the
+        least distance wins, the lowest triangle index among equal ones)."""
+        n = len(p)
+        dist, point = np.empty(n), np.empty((n, 3))
+        feat, which = np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+        lo, dims, cell, start, order = self.grid
+        grid_nearest(np.ascontiguousarray(p, dtype=np.float64), self.tri, self.centroid,
+                     self.radius, self.reach, self.plane, self.offset, self.slack, lo, dims,
+                     cell, start, order, dist, point, feat, which)
+        face = self.face_ids[which]
         fn, en, vn = self.normals
         gf = self.comp.faces[face]
         eof = self.comp.edge_of_face[face]

@@ -1,0 +1,270 @@
+"""Compiled closest-triangle scan for the mesh judge (`depth._Surface.query`).
+
+Why: the judge's time went to `query` (half of it), which per point runs ~15 candidate
+triangles through a dozen small NumPy operations (~30 µs a point, almost all interpreter and
+temporary-array overhead). Here the same scan runs as one numba loop per point: the same
+candidates (the k-d tree's k nearest and its ball, found by SciPy as before), the same filters,
+the same Ericson closest-point formula written operation for operation as
+`depth._closest_on_triangles` (IEEE float64, no fast-math, no contraction), and the same
+tie-break (the first of equal distances in ball order, then the k nearest), so the depths keep
+their bits (`tests/test_depth_exact.py`)."""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+#: Most grid cells along one axis (`build_grid`).
+MAX_CELLS = 64
+
+
+@njit(cache=True, nogil=True)
+def _dot(x0: float, x1: float, x2: float, y0: float, y1: float, y2: float) -> float:
+    return x0 * y0 + x1 * y1 + x2 * y2
+
+
+@njit(cache=True, nogil=True)
+def closest_point(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
+                  out: np.ndarray) -> int:
+    """Closest point on triangle abc to p, written into `out` (3,); returns the feature:
+    0,1,2 vertex a,b,c; 3,4,5 edge ab, bc, ca; 6 face (the region precedence of
+    `depth._closest_on_triangles`: a, b, ab, c, ca, bc, face)."""
+    ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
+    ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
+    ap0, ap1, ap2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]
+    d1 = _dot(ab0, ab1, ab2, ap0, ap1, ap2)
+    d2 = _dot(ac0, ac1, ac2, ap0, ap1, ap2)
+    bp0, bp1, bp2 = p[0] - b[0], p[1] - b[1], p[2] - b[2]
+    d3 = _dot(ab0, ab1, ab2, bp0, bp1, bp2)
+    d4 = _dot(ac0, ac1, ac2, bp0, bp1, bp2)
+    cp0, cp1, cp2 = p[0] - c[0], p[1] - c[1], p[2] - c[2]
+    d5 = _dot(ab0, ab1, ab2, cp0, cp1, cp2)
+    d6 = _dot(ac0, ac1, ac2, cp0, cp1, cp2)
+    va = d3 * d6 - d5 * d4
+    vb = d5 * d2 - d1 * d6
+    vc = d1 * d4 - d3 * d2
+    if d1 <= 0 and d2 <= 0:
+        out[0], out[1], out[2] = a[0], a[1], a[2]
+        return 0
+    if d3 >= 0 and d4 <= d3:
+        out[0], out[1], out[2] = b[0], b[1], b[2]
+        return 1
+    if vc <= 0 and d1 >= 0 and d3 <= 0:
+        t = d1 / (d1 - d3)
+        out[0], out[1], out[2] = a[0] + ab0 * t, a[1] + ab1 * t, a[2] + ab2 * t
+        return 3
+    if d6 >= 0 and d5 <= d6:
+        out[0], out[1], out[2] = c[0], c[1], c[2]
+        return 2
+    if vb <= 0 and d2 >= 0 and d6 <= 0:
+        t = d2 / (d2 - d6)
+        out[0], out[1], out[2] = a[0] + ac0 * t, a[1] + ac1 * t, a[2] + ac2 * t
+        return 5
+    if va <= 0 and d4 - d3 >= 0 and d5 - d6 >= 0:
+        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
+        out[0] = b[0] + (c[0] - b[0]) * t
+        out[1] = b[1] + (c[1] - b[1]) * t
+        out[2] = b[2] + (c[2] - b[2]) * t
+        return 4
+    denom = va + vb + vc
+    safe = denom if abs(denom) > 1e-300 else 1.0
+    v = vb / safe
+    w = vc / safe
+    out[0] = a[0] + ab0 * v + ac0 * w
+    out[1] = a[1] + ab1 * v + ac1 * w
+    out[2] = a[2] + ab2 * v + ac2 * w
+    return 6
+
+
+@njit(cache=True, nogil=True)
+def _norm3(x0: float, x1: float, x2: float) -> float:
+    return np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
+
+
+@njit(cache=True, nogil=True)
+def nearest_bound(p: np.ndarray, tri: np.ndarray, near: np.ndarray, upper: np.ndarray) -> None:
+    """Per point the distance to the nearest of its k nearest-centroid triangles `near[i]`:
+    an upper bound on its distance to the surface (NaN when one of them is degenerate, as
+    NumPy's `min` propagates it)."""
+    n, k = near.shape
+    q = np.empty(3)
+    for i in range(n):
+        pi = p[i]
+        u = np.inf
+        for j in range(k):
+            t = near[i, j]
+            closest_point(pi, tri[t, 0], tri[t, 1], tri[t, 2], q)
+            d = _norm3(q[0] - pi[0], q[1] - pi[1], q[2] - pi[2])
+            if d != d:
+                u = d
+                break
+            if d < u:
+                u = d
+        upper[i] = u
+
+
+@njit(cache=True, nogil=True)
+def nearest_triangles(p: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: np.ndarray,
+                      plane: np.ndarray, offset: np.ndarray, slack: np.ndarray,
+                      near: np.ndarray, upper: np.ndarray, ball: np.ndarray,
+                      ball_start: np.ndarray,
+                      dist: np.ndarray, point: np.ndarray, feat: np.ndarray,
+                      which: np.ndarray) -> None:
+    """Per point p[i] the closest of its candidate triangles (indices into `tri`): first the
+    ball's `ball[ball_start[i]:ball_start[i+1]]` that pass the centroid and plane bounds of
+    `_Surface.query`, then its k nearest `near[i]`; the first of equal distances wins, a NaN
+    distance counts as +inf; `upper` from `nearest_bound`. Writes distance, closest point,
+    feature and triangle index."""
+    n, k = near.shape
+    q = np.empty(3)
+    for i in range(n):
+        pi = p[i]
+        u = upper[i]
+        best = np.inf
+        best_t = -1
+        best_f = 6
+        b0 = b1 = b2 = 0.0
+        first = True
+        for s in range(ball_start[i], ball_start[i + 1]):
+            t = ball[s]
+            cd = _norm3(centroid[t, 0] - pi[0], centroid[t, 1] - pi[1], centroid[t, 2] - pi[2])
+            if not cd <= u + radius[t] + 1e-12:
+                continue
+            off = abs(_dot(plane[t, 0], plane[t, 1], plane[t, 2], pi[0], pi[1], pi[2])
+                      - offset[t])
+            if off > u + slack[t] + 1e-9:
+                continue
+            f = closest_point(pi, tri[t, 0], tri[t, 1], tri[t, 2], q)
+            d = _norm3(q[0] - pi[0], q[1] - pi[1], q[2] - pi[2])
+            if d != d:
+                d = np.inf
+            if first or d < best:
+                first = False
+                best, best_t, best_f = d, t, f
+                b0, b1, b2 = q[0], q[1], q[2]
+        for j in range(k):
+            t = near[i, j]
+            f = closest_point(pi, tri[t, 0], tri[t, 1], tri[t, 2], q)
+            d = _norm3(q[0] - pi[0], q[1] - pi[1], q[2] - pi[2])
+            if d != d:
+                d = np.inf
+            if first or d < best:
+                first = False
+                best, best_t, best_f = d, t, f
+                b0, b1, b2 = q[0], q[1], q[2]
+        dist[i] = best
+        point[i, 0], point[i, 1], point[i, 2] = b0, b1, b2
+        feat[i] = best_f
+        which[i] = best_t
+
+
+@njit(cache=True, nogil=True)
+def build_grid(centroid: np.ndarray, cell: float):
+    """Triangles binned by centroid on a uniform grid of cubes of side `cell` (m; widened so
+    no axis has more than `MAX_CELLS` cells): (origin (3,), dims (3,), cell side,
+    cell_start (cells+1,), cell_tri (m,), ascending triangle index within a cell)."""
+    m = centroid.shape[0]
+    lo = np.empty(3)
+    hi = np.empty(3)
+    dims = np.empty(3, dtype=np.int64)
+    for a in range(3):
+        mn, mx = np.inf, -np.inf
+        for t in range(m):
+            v = centroid[t, a]
+            if v < mn:
+                mn = v
+            if v > mx:
+                mx = v
+        lo[a], hi[a] = mn, mx
+        cell = max(cell, (mx - mn) / (MAX_CELLS - 1))
+    for a in range(3):
+        dims[a] = int((hi[a] - lo[a]) / cell) + 1
+    n_cells = dims[0] * dims[1] * dims[2]
+    cid = np.empty(m, dtype=np.int64)
+    count = np.zeros(n_cells + 1, dtype=np.int64)
+    for t in range(m):
+        c = 0
+        for a in range(3):
+            k = int((centroid[t, a] - lo[a]) / cell)
+            k = min(max(k, 0), dims[a] - 1)
+            c = c * dims[a] + k
+        cid[t] = c
+        count[c + 1] += 1
+    for c in range(n_cells):
+        count[c + 1] += count[c]
+    fill = count[:-1].copy()
+    order = np.empty(m, dtype=np.int64)
+    for t in range(m):
+        order[fill[cid[t]]] = t
+        fill[cid[t]] += 1
+    return lo, dims, cell, count, order
+
+
+@njit(cache=True, nogil=True)
+def grid_nearest(p: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: np.ndarray,
+                 reach: float, plane: np.ndarray, offset: np.ndarray, slack: np.ndarray,
+                 lo: np.ndarray, dims: np.ndarray, cell: float, cell_start: np.ndarray,
+                 cell_tri: np.ndarray, dist: np.ndarray, point: np.ndarray, feat: np.ndarray,
+                 which: np.ndarray) -> None:
+    """Per point p[i] its closest triangle, exactly: the least distance, the lowest triangle
+    index among equal distances (the k-d tree scan's tie-break), a NaN distance as +inf.
+    Rings of grid cells are searched outward from the point's cell; a triangle is skipped
+    only when a lower bound on its distance (centroid distance less its radius, or its
+    plane's distance less its flatness slack) exceeds the best found, and the search stops
+    once every unvisited cell's triangles lie farther (ring r+1 is ≥ r·cell away)."""
+    q = np.empty(3)
+    pc = np.empty(3, dtype=np.int64)
+    for i in range(p.shape[0]):
+        pi = p[i]
+        for a in range(3):
+            pc[a] = int(np.floor((pi[a] - lo[a]) / cell))
+        # rings needed to cover the whole grid from here
+        r_max = 0
+        for a in range(3):
+            r_max = max(r_max, abs(pc[a]), abs(dims[a] - 1 - pc[a]))
+        best = np.inf
+        best_t = -1
+        best_f = 6
+        b0 = b1 = b2 = 0.0
+        for r in range(r_max + 1):
+            if r >= 1 and (r - 1) * cell - reach > best + 1e-9:
+                break
+            x0, x1 = max(pc[0] - r, 0), min(pc[0] + r, dims[0] - 1)
+            y0, y1 = max(pc[1] - r, 0), min(pc[1] + r, dims[1] - 1)
+            z0, z1 = max(pc[2] - r, 0), min(pc[2] + r, dims[2] - 1)
+            for x in range(x0, x1 + 1):
+                ex = abs(x - pc[0]) == r
+                for y in range(y0, y1 + 1):
+                    exy = ex or abs(y - pc[1]) == r
+                    if exy:
+                        zs, zstep = z0, 1
+                    else:  # only the two faces z = pc ± r of this column are on the ring
+                        zs, zstep = pc[2] - r, 2 * r
+                    z = zs
+                    while z <= z1:
+                        if z >= z0:
+                            c = (x * dims[1] + y) * dims[2] + z
+                            for s in range(cell_start[c], cell_start[c + 1]):
+                                t = cell_tri[s]
+                                cd = _norm3(centroid[t, 0] - pi[0], centroid[t, 1] - pi[1],
+                                            centroid[t, 2] - pi[2])
+                                if cd - radius[t] > best + 1e-12:
+                                    continue
+                                off = abs(_dot(plane[t, 0], plane[t, 1], plane[t, 2],
+                                               pi[0], pi[1], pi[2]) - offset[t])
+                                if off - slack[t] > best + 1e-9:
+                                    continue
+                                f = closest_point(pi, tri[t, 0], tri[t, 1], tri[t, 2], q)
+                                d = _norm3(q[0] - pi[0], q[1] - pi[1], q[2] - pi[2])
+                                if d != d:
+                                    d = np.inf
+                                if best_t < 0 or d < best or (d == best and t < best_t):
+                                    best, best_t, best_f = d, t, f
+                                    b0, b1, b2 = q[0], q[1], q[2]
+                        if zstep == 0:
+                            break
+                        z += zstep
+        dist[i] = best
+        point[i, 0], point[i, 1], point[i, 2] = b0, b1, b2
+        feat[i] = best_f
+        which[i] = best_t
