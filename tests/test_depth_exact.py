@@ -4,6 +4,7 @@ per-frame memo of `motion_depths`."""
 
 from __future__ import annotations
 
+import fcl
 import numpy as np
 import torch
 import trimesh
@@ -167,3 +168,48 @@ def test_memo_answers_repeated_frames_with_the_same_bits():
     np.testing.assert_array_equal(mixed, np.concatenate([fresh[2:4], fresh]))
     other = depth.motion_depths(body, pose, betas + 0.5)             # betas are in the key
     assert len(depth._memo[body]) == 12 and other.shape == (6,)
+
+
+def _fcl_pairs(va, fa, vb, fb):
+    objs = []
+    for v, f in ((va, fa), (vb, fb)):
+        m = fcl.BVHModel()
+        m.beginModel(len(v), len(f))
+        m.addSubModel(v, f)
+        m.endModel()
+        objs.append(fcl.CollisionObject(m, fcl.Transform()))
+    res = fcl.CollisionResult()
+    fcl.collide(objs[0], objs[1], fcl.CollisionRequest(num_max_contacts=len(fa) * len(fb),
+                                                       enable_contact=True), res)
+    return {(c.b1, c.b2) for c in res.contacts}
+
+
+def test_crossing_pairs_are_python_fcls():
+    """The compiled crossing test finds the pairs fcl's BVH collide finds: spheres cut into
+    each other at random offsets and scales, and one pair apart. (Pairs that only touch at
+    an exact shared corner are decided by rounding in both, and may differ.)"""
+    s = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
+    va, f = np.asarray(s.vertices, dtype=np.float64), np.asarray(s.faces, dtype=np.int64)
+    rng = np.random.default_rng(6)
+    found = 0
+    for k in range(11):
+        vb = va * rng.uniform(0.5, 1.5) + rng.normal(size=3) * 0.08
+        if k == 10:
+            vb = va + [0.5, 0, 0]                                # apart
+        ia, ib = closest.crossing_pairs(va, f, vb, f)
+        pairs = set(zip(ia.tolist(), ib.tolist()))
+        assert pairs == _fcl_pairs(va, f, vb, f)
+        found += len(pairs)
+    assert found > 100
+    ia, ib = closest.crossing_pairs(va, f, va + [0.5, 0, 0], f)
+    assert len(ia) == len(ib) == 0
+
+
+def test_triangles_meet_counts_touching_and_crossing_not_near_misses():
+    p = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]])
+    assert closest.triangles_meet(p, np.array([[0.2, 0.2, -1], [0.3, 0.2, 1], [0.2, 0.3, 1]]))
+    assert closest.triangles_meet(p, np.array([[1.0, 0, 0], [2, 0, 1], [2, 1, 0]]))  # a corner
+    assert not closest.triangles_meet(p, np.array([[1.001, 0, 0], [2, 0, 1], [2, 1, 0]]))
+    assert not closest.triangles_meet(p, np.array([[0.2, 0.2, 1e-6], [0.3, 0.2, 1], [0.2, 0.3, 1]]))
+    assert closest.triangles_meet(p, np.array([[0.2, 0.2, 0], [0.3, 0.2, 0], [0.2, 0.3, 0]]))  # coplanar
+    assert not closest.triangles_meet(p, np.array([[0.6, 0.6, 0], [0.9, 0.6, 0], [0.6, 0.9, 0]]))

@@ -268,3 +268,108 @@ def grid_nearest(p: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: n
         point[i, 0], point[i, 1], point[i, 2] = b0, b1, b2
         feat[i] = best_f
         which[i] = best_t
+
+
+@njit(cache=True, nogil=True)
+def _separates(ax0: float, ax1: float, ax2: float, p: np.ndarray, q: np.ndarray) -> bool:
+    """Whether the axis separates triangles p and q (3,3): their projections do not meet
+    (touching counts as meeting)."""
+    mn1 = mx1 = _dot(ax0, ax1, ax2, p[0, 0], p[0, 1], p[0, 2])
+    for k in range(1, 3):
+        s = _dot(ax0, ax1, ax2, p[k, 0], p[k, 1], p[k, 2])
+        mn1, mx1 = min(mn1, s), max(mx1, s)
+    mn2 = mx2 = _dot(ax0, ax1, ax2, q[0, 0], q[0, 1], q[0, 2])
+    for k in range(1, 3):
+        s = _dot(ax0, ax1, ax2, q[k, 0], q[k, 1], q[k, 2])
+        mn2, mx2 = min(mn2, s), max(mx2, s)
+    return mn1 > mx2 or mn2 > mx1
+
+
+@njit(cache=True, nogil=True)
+def triangles_meet(p: np.ndarray, q: np.ndarray) -> bool:
+    """Separating-axis test of two triangles (3,3) (both normals, the 9 edge-edge cross products,
+    and each normal crossed with its own edges for the coplanar case): True when no axis
+    separates them, i.e. they intersect or touch."""
+    e = np.empty((2, 3, 3))
+    n = np.empty((2, 3))
+    for s, t in ((0, p), (1, q)):
+        for k in range(3):
+            for a in range(3):
+                e[s, k, a] = t[(k + 1) % 3, a] - t[k, a]
+        n[s, 0] = e[s, 0, 1] * e[s, 1, 2] - e[s, 0, 2] * e[s, 1, 1]
+        n[s, 1] = e[s, 0, 2] * e[s, 1, 0] - e[s, 0, 0] * e[s, 1, 2]
+        n[s, 2] = e[s, 0, 0] * e[s, 1, 1] - e[s, 0, 1] * e[s, 1, 0]
+    for s in range(2):
+        if _separates(n[s, 0], n[s, 1], n[s, 2], p, q):
+            return False
+    for i in range(3):
+        for j in range(3):
+            a0 = e[0, i, 1] * e[1, j, 2] - e[0, i, 2] * e[1, j, 1]
+            a1 = e[0, i, 2] * e[1, j, 0] - e[0, i, 0] * e[1, j, 2]
+            a2 = e[0, i, 0] * e[1, j, 1] - e[0, i, 1] * e[1, j, 0]
+            if _separates(a0, a1, a2, p, q):
+                return False
+    for s in range(2):
+        for i in range(3):
+            a0 = n[s, 1] * e[s, i, 2] - n[s, 2] * e[s, i, 1]
+            a1 = n[s, 2] * e[s, i, 0] - n[s, 0] * e[s, i, 2]
+            a2 = n[s, 0] * e[s, i, 1] - n[s, 1] * e[s, i, 0]
+            if _separates(a0, a1, a2, p, q):
+                return False
+    return True
+
+
+@njit(cache=True, nogil=True)
+def crossing_pairs(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarray):
+    """All pairs (i, j) of triangles fa[i] (corners in va) and fb[j] (in vb) that intersect or
+    touch: their boxes overlap (a sweep along x over fa sorted by its boxes' low x), then
+    `triangles_meet`. Returns (ia, ib), sorted by i then j."""
+    na, nb = fa.shape[0], fb.shape[0]
+    ta = np.empty((na, 3, 3))
+    tb = np.empty((nb, 3, 3))
+    for i in range(na):
+        for k in range(3):
+            for a in range(3):
+                ta[i, k, a] = va[fa[i, k], a]
+    for j in range(nb):
+        for k in range(3):
+            for a in range(3):
+                tb[j, k, a] = vb[fb[j, k], a]
+    lo_a = np.empty((na, 3))
+    hi_a = np.empty((na, 3))
+    lo_b = np.empty((nb, 3))
+    hi_b = np.empty((nb, 3))
+    for i in range(na):
+        for a in range(3):
+            lo_a[i, a] = min(ta[i, 0, a], ta[i, 1, a], ta[i, 2, a])
+            hi_a[i, a] = max(ta[i, 0, a], ta[i, 1, a], ta[i, 2, a])
+    for j in range(nb):
+        for a in range(3):
+            lo_b[j, a] = min(tb[j, 0, a], tb[j, 1, a], tb[j, 2, a])
+            hi_b[j, a] = max(tb[j, 0, a], tb[j, 1, a], tb[j, 2, a])
+    order = np.argsort(lo_a[:, 0], kind="mergesort")
+    cap = 256
+    ia = np.empty(cap, dtype=np.int64)
+    ib = np.empty(cap, dtype=np.int64)
+    n = 0
+    for j in range(nb):
+        for s in range(na):
+            i = order[s]
+            if lo_a[i, 0] > hi_b[j, 0]:
+                break
+            if (hi_a[i, 0] < lo_b[j, 0] or lo_a[i, 1] > hi_b[j, 1] or hi_a[i, 1] < lo_b[j, 1]
+                    or lo_a[i, 2] > hi_b[j, 2] or hi_a[i, 2] < lo_b[j, 2]):
+                continue
+            if triangles_meet(ta[i], tb[j]):
+                if n == cap:
+                    cap *= 2
+                    ia2 = np.empty(cap, dtype=np.int64)
+                    ib2 = np.empty(cap, dtype=np.int64)
+                    ia2[:n] = ia[:n]
+                    ib2[:n] = ib[:n]
+                    ia, ib = ia2, ib2
+                ia[n] = i
+                ib[n] = j
+                n += 1
+    key = np.argsort(ia[:n] * nb + ib[:n], kind="mergesort")
+    return ia[:n][key], ib[:n][key]
