@@ -65,6 +65,7 @@ def test_compiled_closest_point_has_the_numpy_bits():
     n = 20000
     p, a, b, c = (rng.normal(size=(n, 3)) for _ in range(4))
     c[:500] = a[:500] + 0.5 * (b[:500] - a[:500])        # degenerate (collinear) triangles
+    b[500:800] = a[500:800]                               # a repeated corner: 0/0, NumPy's NaN
     with np.errstate(invalid="ignore", divide="ignore"):
         q0, f0 = _closest_on_triangles(p, a, b, c)
     q, f = np.empty((n, 3)), np.empty(n, dtype=np.int64)

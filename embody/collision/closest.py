@@ -18,12 +18,12 @@ from numba import njit
 MAX_CELLS = 64
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _dot(x0: float, x1: float, x2: float, y0: float, y1: float, y2: float) -> float:
     return x0 * y0 + x1 * y1 + x2 * y2
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def closest_point(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
                   out: np.ndarray) -> int:
     """Closest point on triangle abc to p, written into `out` (3,); returns the feature:
@@ -76,12 +76,12 @@ def closest_point(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
     return 6
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _norm3(x0: float, x1: float, x2: float) -> float:
     return np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def nearest_bound(p: np.ndarray, tri: np.ndarray, near: np.ndarray, upper: np.ndarray) -> None:
     """Per point the distance to the nearest of its k nearest-centroid triangles `near[i]`:
     an upper bound on its distance to the surface (NaN when one of them is degenerate, as
@@ -103,7 +103,7 @@ def nearest_bound(p: np.ndarray, tri: np.ndarray, near: np.ndarray, upper: np.nd
         upper[i] = u
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def nearest_triangles(p: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: np.ndarray,
                       plane: np.ndarray, offset: np.ndarray, slack: np.ndarray,
                       near: np.ndarray, upper: np.ndarray, ball: np.ndarray,
@@ -158,7 +158,7 @@ def nearest_triangles(p: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radi
         which[i] = best_t
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def build_grid(centroid: np.ndarray, cell: float):
     """Triangles binned by centroid on a uniform grid of cubes of side `cell` (m; widened so
     no axis has more than `MAX_CELLS` cells): (origin (3,), dims (3,), cell side,
@@ -200,7 +200,7 @@ def build_grid(centroid: np.ndarray, cell: float):
     return lo, dims, cell, count, order
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def grid_nearest(p: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: np.ndarray,
                  reach: float, plane: np.ndarray, offset: np.ndarray, slack: np.ndarray,
                  lo: np.ndarray, dims: np.ndarray, cell: float, cell_start: np.ndarray,
@@ -270,7 +270,7 @@ def grid_nearest(p: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: n
         which[i] = best_t
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def _separates(ax0: float, ax1: float, ax2: float, p: np.ndarray, q: np.ndarray) -> bool:
     """Whether the axis separates triangles p and q (3,3): their projections do not meet
     (touching counts as meeting)."""
@@ -285,7 +285,7 @@ def _separates(ax0: float, ax1: float, ax2: float, p: np.ndarray, q: np.ndarray)
     return mn1 > mx2 or mn2 > mx1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def triangles_meet(p: np.ndarray, q: np.ndarray) -> bool:
     """Separating-axis test of two triangles (3,3) (both normals, the 9 edge-edge cross products,
     and each normal crossed with its own edges for the coplanar case): True when no axis
@@ -319,7 +319,7 @@ def triangles_meet(p: np.ndarray, q: np.ndarray) -> bool:
     return True
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, error_model="numpy")
 def crossing_pairs(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarray):
     """All pairs (i, j) of triangles fa[i] (corners in va) and fb[j] (in vb) that intersect or
     touch: their boxes overlap (a sweep along x over fa sorted by its boxes' low x), then
