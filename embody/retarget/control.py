@@ -39,6 +39,16 @@ VELOCITY_MARGIN = 1e-5
 #: Cost of moving a joint class in the repair step (larger = moved less): arms move first,
 #: fingers (the handshape carries meaning) and the waist only when needed.
 WEIGHTS = {"arm": 1.0, "hand": 25.0, "waist": 25.0}
+#: Trust radii (degrees, per joint, from the input sample) the repair is tried within, in turn;
+#: None: the joint box only, the last resort that keeps every exported sample clear. Why: an
+#: unbounded push from a deep, ambiguous contact (normals of interpenetrating meshes) can take a
+#: large step, and the hat spreads it into neighbours that then touch and get pushed in turn: on
+#: synth seq 17 (s9-ikwin run) three touching 50 Hz samples swung the arms by ~110° over 0.9 s,
+#: where a 5° box cleared them. A radius that fails costs only its passes (chaotic: 15° can fail
+#: where 10° and 20° clear, hence the ladder).
+TRUST_DEG: tuple[float | None, ...] = (5.0, 10.0, 20.0, 40.0, None)
+#: The radii (leading entries of TRUST_DEG) the export tries before its wider bridge.
+SMALL = 2
 
 
 class _Separator:
@@ -120,10 +130,14 @@ def _spread(delta: np.ndarray, half_width: int) -> np.ndarray:
 
 #: Longest run of contact frames (source rate) `bridge_contacts` replaces by interpolation.
 BRIDGE_FRAMES = 3
+#: How far (s) the export's wider bridge may reach out on each side of a contact run, when no
+#: small push clears it: a few control samples.
+BRIDGE_GROW_S = 0.1
 
 
 def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
-                    fps: float | None = None, bad: np.ndarray | None = None) -> np.ndarray:
+                    fps: float | None = None, bad: np.ndarray | None = None,
+                    grow: int = 0) -> np.ndarray:
     """q (T,n) with each short run (≤ `max_run` frames) of MuJoCo contact frames between two clear
     frames replaced by a clear one between those neighbours: the straight line, the line pushed
     clear (`_Separator.frame`), or the neighbours held; the first that MuJoCo finds clear on
@@ -134,7 +148,10 @@ def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
     other on frames 121 and 123, 120 and 122 clear); pushing such a frame apart along MuJoCo's
     normals moved the arms by up to 76° over ±0.5 s, while its clear neighbours already bound
     a local, collision-free answer. `bad` (T,) bool: MuJoCo's verdict on q when the caller
-    already has it (the IK's contact phase checks the same q just before)."""
+    already has it (the IK's contact phase checks the same q just before). `grow`: when no
+    candidate between the run's own neighbours works, the bridge is retried between clear samples
+    up to `grow` further out on each side (a longer path: more time for the same change, so a
+    velocity-feasible one is likelier; the samples in between are replaced too, and must be clear)."""
     q = np.array(q, dtype=np.float64)
     sep = _Separator(robot)
     if bad is None:
@@ -149,59 +166,101 @@ def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
         while end < n and bad[end]:
             end += 1
         if t > 0 and end < n and end - t <= max_run:
-            w = (np.arange(t, end) - (t - 1))[:, None] / float(end - (t - 1))
-            line = (1.0 - w) * q[t - 1] + w * q[end]
-            for cand in (line, np.stack([sep.frame(x, robot.lower, robot.upper) for x in line]),
-                         np.where(w < 0.5, q[t - 1], q[end])):  # straight, pushed, held
-                path = np.concatenate([q[t - 1: t], cand, q[end: end + 1]])
-                if fps is not None and velocity_violations(path, robot.velocity_limits, fps):
+            for g in range(grow + 1):
+                a, b = t - 1 - g, end + g  # the clear samples the bridge joins
+                if a < 0 or b >= n or bad[a] or bad[b]:
                     continue
-                if not any(sep.contacts(x, jacobians=False) for x in cand):
-                    q[t:end] = cand
+                if _bridge(sep, robot, q, a, b, fps):
                     break
         t = end
     return q
 
 
+def _bridge(sep: _Separator, robot: Robot, q: np.ndarray, a: int, b: int, fps: float | None) -> bool:
+    """Replace q[a+1:b] in place by the first clear candidate joining q[a] and q[b] (straight,
+    pushed clear, held) that, with `fps`, keeps the velocity limits; whether one was found."""
+    w = (np.arange(a + 1, b) - a)[:, None] / float(b - a)
+    line = (1.0 - w) * q[a] + w * q[b]
+    for cand in (line, np.stack([sep.frame(x, robot.lower, robot.upper) for x in line]),
+                 np.where(w < 0.5, q[a], q[b])):  # straight, pushed, held
+        path = np.concatenate([q[a: a + 1], cand, q[b: b + 1]])
+        if fps is not None and velocity_violations(path, robot.velocity_limits, fps):
+            continue
+        if not any(sep.contacts(x, jacobians=False) for x in cand):
+            q[a + 1: b] = cand
+            return True
+    return False
+
+
 def separate(robot: Robot, q: np.ndarray, fps: float, *, passes: int = PASSES, blend_s: float = 0.1,
              box_margin: float = 0.0, velocity_margin: float = 0.0,
-             clearance: float = CLEARANCE, enforce_velocity: bool = True) -> np.ndarray:
+             clearance: float = CLEARANCE, enforce_velocity: bool = True,
+             trust_deg: tuple[float | None, ...] = TRUST_DEG) -> np.ndarray:
     """q (T,n) with every sample's penetrating self-contacts removed (MuJoCo's verdict), inside
     the joint box (shrunk by `box_margin`) and the velocity limits (× (1 − velocity_margin))."""
     return separate_checked(robot, q, fps, passes=passes, blend_s=blend_s, box_margin=box_margin,
                             velocity_margin=velocity_margin, clearance=clearance,
-                            enforce_velocity=enforce_velocity)[0]
+                            enforce_velocity=enforce_velocity, trust_deg=trust_deg)[0]
 
 
 def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = PASSES, blend_s: float = 0.1,
                      box_margin: float = 0.0, velocity_margin: float = 0.0, clearance: float = CLEARANCE,
-                     enforce_velocity: bool = True) -> tuple[np.ndarray, bool]:
+                     enforce_velocity: bool = True,
+                     trust_deg: tuple[float | None, ...] = TRUST_DEG) -> tuple[np.ndarray, bool]:
     """`separate`, and whether MuJoCo checked every returned sample clear (False only when the
-    passes ran out): a caller then need not run the same collision check again."""
+    passes ran out at every trust radius): a caller then need not run the same collision check
+    again. The repair is tried inside each trust radius of `trust_deg` in turn (no joint of any
+    sample leaves ± that many degrees of its input value; None: unbounded) and the first that
+    clears every sample wins: the smallest correction that works, never a wide swing when a
+    small one exists."""
     q = np.array(q, dtype=np.float64)
-    lower, upper = robot.lower + box_margin, robot.upper - box_margin
-    vmax = robot.velocity_limits * (1.0 - velocity_margin)
+    out, clear = q, False
     sep = _Separator(robot, clearance)
+    check = np.ones(len(q), dtype=bool)
+    for radius in trust_deg:
+        out, clear, check = _separate_within(sep, q, fps, None if radius is None else np.radians(radius),
+                                             passes, blend_s, box_margin, velocity_margin,
+                                             enforce_velocity, check)
+        if clear:
+            break
+    return out, clear
+
+
+def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float | None, passes: int,
+                     blend_s: float, box_margin: float, velocity_margin: float,
+                     enforce_velocity: bool, check: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray]:
+    """The repair passes with every joint kept within `radius` (rad) of q (None: the joint box
+    only); the result, whether it is clear, and the samples of q whose verdict the caller does
+    not know (`check` in: the samples to check on the first pass; out: the first pass's touching
+    samples, all that a retry at another radius must look at again)."""
+    robot = sep.robot
+    lower, upper = robot.lower + box_margin, robot.upper - box_margin
+    lo = np.broadcast_to(lower, q.shape) if radius is None else np.maximum(lower, q - radius)
+    hi = np.broadcast_to(upper, q.shape) if radius is None else np.minimum(upper, q + radius)
+    vmax = robot.velocity_limits * (1.0 - velocity_margin)
     half = max(int(round(blend_s * fps)), 0)
-    check = np.ones(len(q), dtype=bool)  # samples whose verdict is unknown (unchanged ones keep theirs)
+    first = None
     for _ in range(passes):
         bad = [t for t in np.flatnonzero(check) if sep.contacts(q[t], jacobians=False)]
+        if first is None:
+            first = np.zeros(len(q), dtype=bool)
+            first[bad] = True
         if not bad:
-            return q, True
+            return q, True, first
         delta = np.zeros_like(q)
         for t in bad:
-            delta[t] = sep.frame(q[t], lower, upper) - q[t]
+            delta[t] = sep.frame(q[t], lo[t], hi[t]) - q[t]
         # a wide enough hat that its ramps take at most half of each joint's velocity budget
         with np.errstate(divide="ignore", invalid="ignore"):
             ramp = np.nan_to_num(np.abs(delta) / (vmax / fps), nan=0.0, posinf=0.0)
         width = max(half, int(np.ceil(2.0 * ramp.max())))
-        new = np.clip(q + _spread(delta, width), lower, upper)
+        new = np.clip(q + _spread(delta, width), lo, hi)
         if enforce_velocity:
             new = clamp_velocity(new, vmax, fps)
         check = np.any(new != q, axis=1)
         check[bad] = True  # a repair undone by the clip/clamp leaves its verdict unknown
         q = new
-    return q, False
+    return q, False, first
 
 
 def control_trajectory(robot: Robot, q: np.ndarray, fps: float, rate: float,
@@ -221,5 +280,12 @@ def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: fl
         return qc, False
     # interpolated samples that touch between clear ones: bridged locally first, as at the source
     # rate (the repair alone moved synth seqs 15 and 17's exported arms by 89-101°)
-    qc = bridge_contacts(robot, qc, max_run=int(np.ceil(BRIDGE_FRAMES * rate / fps)), fps=rate)
-    return separate_checked(robot, qc, rate, box_margin=BOX_MARGIN, velocity_margin=VELOCITY_MARGIN)
+    run = int(np.ceil(BRIDGE_FRAMES * rate / fps))
+    qc = bridge_contacts(robot, qc, max_run=run, fps=rate)
+    kw = {"box_margin": BOX_MARGIN, "velocity_margin": VELOCITY_MARGIN}
+    out, clear = separate_checked(robot, qc, rate, trust_deg=TRUST_DEG[:SMALL], **kw)
+    if clear:
+        return out, clear
+    # no small push clears it: a bridge over a wider window before any wider push
+    wide = bridge_contacts(robot, qc, max_run=run, fps=rate, grow=int(np.ceil(BRIDGE_GROW_S * rate)))
+    return separate_checked(robot, wide, rate, **kw)
