@@ -46,9 +46,9 @@ WEIGHTS = {"arm": 1.0, "hand": 25.0, "waist": 25.0}
 #: synth seq 17 (s9-ikwin run) three touching 50 Hz samples swung the arms by ~110° over 0.9 s,
 #: where a 5° box cleared them. A radius that fails costs only its passes (chaotic: 15° can fail
 #: where 10° and 20° clear, hence the ladder).
-TRUST_DEG: tuple[float | None, ...] = (5.0, 10.0, 20.0, 40.0, None)
+TRUST_DEG: tuple[float | None, ...] = (5.0, 7.5, 10.0, 15.0, 20.0, 30.0, 40.0, None)
 #: The radii (leading entries of TRUST_DEG) the export tries before its wider bridge.
-SMALL = 2
+SMALL = 3
 
 
 class _Separator:
@@ -106,13 +106,31 @@ class _Separator:
                 mujoco.mj_jac(m, d, self.jac2, None, c.pos, b2)
                 rows.append(n @ (self.jac2 - self.jacp)[:, cols])
                 gap.append(self.clearance - c.dist)
-            a, b = np.array(rows), np.array(gap)
-            winv = 1.0 / self.weight
-            aw = a * winv
-            step = aw.T @ np.linalg.solve(aw @ a.T + 1e-6 * np.eye(len(b)), b)
+            x = q[self.movable]
+            step = self._step(np.array(rows), np.array(gap), lower[self.movable] - x, upper[self.movable] - x)
             step *= min(1.0, 0.15 / max(np.abs(step).max(), 1e-12))  # linearisation holds for small steps
-            q[self.movable] = np.clip(q[self.movable] + step, lower[self.movable], upper[self.movable])
+            q[self.movable] = np.clip(x + step, lower[self.movable], upper[self.movable])
         return q
+
+    def _step(self, a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """The least weighted step with a·step = b inside [lo, hi] (lo ≤ 0 ≤ hi): the least-norm
+        solve, with the joints it would push past a bound held there and the rest solved again
+        (a few active-set rounds). Why: clipping the free solution alone drops the part of the
+        correction the bounded joints carried, so inside a small trust box the Gauss-Newton
+        crawls (or stalls) where the joints still free could have separated the sample."""
+        free = np.ones(len(lo), dtype=bool)
+        held = np.zeros(len(lo))
+        step = held
+        for _ in range(4):
+            winv = np.where(free, 1.0 / self.weight, 0.0)
+            aw = a * winv
+            step = held + aw.T @ np.linalg.solve(aw @ a.T + 1e-6 * np.eye(len(b)), b - a @ held)
+            out = free & ((step < lo) | (step > hi))
+            if not out.any():
+                break
+            held = np.where(out, np.clip(step, lo, hi), held)
+            free &= ~out
+        return np.clip(step, lo, hi)
 
 
 def _spread(delta: np.ndarray, half_width: int) -> np.ndarray:
@@ -286,6 +304,13 @@ def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: fl
     out, clear = separate_checked(robot, qc, rate, trust_deg=TRUST_DEG[:SMALL], **kw)
     if clear:
         return out, clear
-    # no small push clears it: a bridge over a wider window before any wider push
+    # no small push clears it: a bridge over a wider window, or a wider push, whichever changes
+    # the resample less (the bridge is a straight path between clear samples, but it may still
+    # move more than a 15° push would)
+    out, clear = separate_checked(robot, qc, rate, trust_deg=TRUST_DEG[SMALL:], **kw)
     wide = bridge_contacts(robot, qc, max_run=run, fps=rate, grow=int(np.ceil(BRIDGE_GROW_S * rate)))
-    return separate_checked(robot, wide, rate, **kw)
+    if not np.array_equal(wide, qc):
+        bridged, bridged_clear = separate_checked(robot, wide, rate, **kw)
+        if bridged_clear and (not clear or np.abs(bridged - qc).max() <= np.abs(out - qc).max()):
+            return bridged, bridged_clear
+    return out, clear
