@@ -196,10 +196,14 @@ def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
 
 def _bridge(sep: _Separator, robot: Robot, q: np.ndarray, a: int, b: int, fps: float | None) -> bool:
     """Replace q[a+1:b] in place by the first clear candidate joining q[a] and q[b] (straight,
-    pushed clear, held) that, with `fps`, keeps the velocity limits; whether one was found."""
+    pushed clear, held) that, with `fps`, keeps the velocity limits; whether one was found. The
+    push stays within the neighbours' range ± the smallest trust radius: a local answer."""
     w = (np.arange(a + 1, b) - a)[:, None] / float(b - a)
     line = (1.0 - w) * q[a] + w * q[b]
-    for cand in (line, np.stack([sep.frame(x, robot.lower, robot.upper) for x in line]),
+    r = np.radians(TRUST_DEG[0])
+    lo = np.maximum(robot.lower, np.minimum(q[a], q[b]) - r)
+    hi = np.minimum(robot.upper, np.maximum(q[a], q[b]) + r)
+    for cand in (line, np.stack([sep.frame(x, lo, hi) for x in line]),
                  np.where(w < 0.5, q[a], q[b])):  # straight, pushed, held
         path = np.concatenate([q[a: a + 1], cand, q[b: b + 1]])
         if fps is not None and velocity_violations(path, robot.velocity_limits, fps):
