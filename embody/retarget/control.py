@@ -11,10 +11,15 @@ clear (a damped Gauss-Newton on the contact distances). The correction is blende
 neighbouring samples (a hat window, wide enough that its ramps use at most half of each joint's
 velocity limit) so it does not create a velocity spike, then the trajectory is
 clipped to the joint box and clamped to the velocity limits, and re-checked; a few passes.
+The repair is local: every joint stays inside a trust radius of its input (`TRUST_DEG`, tried
+smallest first; a step that would leave it holds those joints at the bound and solves the rest
+again), so a touching sample gets the smallest push that clears it and the hat stays narrow.
 
 `control_trajectory` is what the library exports: the source-rate trajectory resampled to the
 control rate, repaired at every control sample, and kept a hair inside the joint box and the
-velocity limits so that a float32 cast (BeyondMimic's reader) cannot push it over.
+velocity limits so that a float32 cast (BeyondMimic's reader) cannot push it over. Its repair
+order: a bridge between a touching run's clear neighbours, pushes within 5-10°, then the
+smaller change of a bridge over a wider window and a wider push.
 """
 
 from __future__ import annotations
