@@ -233,3 +233,51 @@ def test_bridge_replaces_a_short_contact_run_between_clear_frames(robot, passing
     np.testing.assert_array_equal(out[~bad], q[~bad])
     assert np.abs(out[2] - q[2]).max() <= np.abs(q[3] - q[1]).max()  # a local answer, not a jump
     np.testing.assert_array_equal(bridge_contacts(robot, q, max_run=0), q)
+
+
+def test_export_repair_is_local_where_the_bridge_fails(robot):
+    """Hands passing through each other between two clear 10 fps frames: four 50 Hz samples
+    touch, and the straight (= resampled), pushed and held bridges between their clear
+    neighbours all touch or break the velocity limits. The export still clears every sample,
+    and locally: no joint moves more than 10° (the export tries 5°, 7.5° and 10° trust boxes
+    before anything wider; the unbounded push moved it 21°, and 110° on synth seq 17), and no
+    sample further than 6 from the touching run moves (the hat's half width is
+    max(0.1 s × 50 Hz, 2 × 10° / (5 rad/s / 50 Hz)) = 5 samples, plus one for the clamp)."""
+    from embody.retarget.control import BOX_MARGIN, BRIDGE_FRAMES, bridge_contacts, control_trajectory_checked
+    from embody.retarget.limits import clamp_velocity
+
+    fps = 10.0
+    q = np.stack([_pose(robot, z) for z in (-0.4, -0.4, -0.4, -0.2, 0.2, 0.4, 0.4, 0.4)])
+    assert self_collision_contacts(robot, q).sum() == 0
+    plain = clamp_velocity(np.clip(resample(q, fps, RATE), robot.lower + BOX_MARGIN, robot.upper - BOX_MARGIN),
+                           robot.velocity_limits * (1 - 1e-5), RATE)
+    bad = np.flatnonzero(self_collision_contacts(robot, plain) > 0)
+    assert len(bad) >= 3 and np.all(np.diff(bad) == 1)  # one run
+    run = int(np.ceil(BRIDGE_FRAMES * RATE / fps))
+    np.testing.assert_array_equal(bridge_contacts(robot, plain, max_run=run, fps=RATE), plain)  # no bridge
+    qc, clear = control_trajectory_checked(robot, q, fps, RATE)
+    assert clear
+    assert self_collision_contacts(robot, qc).sum() == 0 and _independent_contacts(robot, qc).sum() == 0
+    assert all(v == 0 for v in validation_counts(robot, qc, RATE).values())
+    drift = np.degrees(np.abs(qc - plain).max(axis=1))
+    assert drift.max() <= 10.0 + 1e-9
+    moved = np.flatnonzero(drift > 1e-9)
+    assert moved.min() >= bad.min() - 6 and moved.max() <= bad.max() + 6
+
+
+def test_separate_stays_inside_its_trust_radius(robot, passing):
+    """`separate` with one trust radius never moves a joint further than that from its input,
+    and reports not clear rather than leave it; the default ladder ends unbounded and clears."""
+    from embody.retarget.control import separate_checked
+
+    q, fps = passing
+    plain = resample(q, fps, RATE)
+    for radius in (0.5, 5.0):
+        out, clear = separate_checked(robot, plain, RATE, trust_deg=(radius,))
+        assert np.degrees(np.abs(out - plain).max()) <= radius + 1e-9
+        if clear:
+            assert self_collision_contacts(robot, out).sum() == 0
+    out, clear = separate_checked(robot, plain, RATE, trust_deg=(0.5,))
+    assert not clear  # 0.5° cannot separate hands passing through each other
+    out, clear = separate_checked(robot, plain, RATE)
+    assert clear and self_collision_contacts(robot, out).sum() == 0

@@ -11,10 +11,15 @@ clear (a damped Gauss-Newton on the contact distances). The correction is blende
 neighbouring samples (a hat window, wide enough that its ramps use at most half of each joint's
 velocity limit) so it does not create a velocity spike, then the trajectory is
 clipped to the joint box and clamped to the velocity limits, and re-checked; a few passes.
+The repair is local: every joint stays inside a trust radius of its input (`TRUST_DEG`, tried
+smallest first; a step that would leave it holds those joints at the bound and solves the rest
+again), so a touching sample gets the smallest push that clears it and the hat stays narrow.
 
 `control_trajectory` is what the library exports: the source-rate trajectory resampled to the
 control rate, repaired at every control sample, and kept a hair inside the joint box and the
-velocity limits so that a float32 cast (BeyondMimic's reader) cannot push it over.
+velocity limits so that a float32 cast (BeyondMimic's reader) cannot push it over. Its repair
+order: a bridge between a touching run's clear neighbours, pushes within 5-10°, then the
+smaller change of a bridge over a wider window and a wider push.
 """
 
 from __future__ import annotations
@@ -39,6 +44,16 @@ VELOCITY_MARGIN = 1e-5
 #: Cost of moving a joint class in the repair step (larger = moved less): arms move first,
 #: fingers (the handshape carries meaning) and the waist only when needed.
 WEIGHTS = {"arm": 1.0, "hand": 25.0, "waist": 25.0}
+#: Trust radii (degrees, per joint, from the input sample) the repair is tried within, in turn;
+#: None: the joint box only, the last resort that keeps every exported sample clear. Why: an
+#: unbounded push from a deep, ambiguous contact (normals of interpenetrating meshes) can take a
+#: large step, and the hat spreads it into neighbours that then touch and get pushed in turn: on
+#: synth seq 17 (s9-ikwin run) three touching 50 Hz samples swung the arms by ~110° over 0.9 s,
+#: where a 5° box cleared them. A radius that fails costs only its passes (chaotic: 15° can fail
+#: where 10° and 20° clear, hence the ladder).
+TRUST_DEG: tuple[float | None, ...] = (5.0, 7.5, 10.0, 15.0, 20.0, 30.0, 40.0, None)
+#: The radii (leading entries of TRUST_DEG) the export tries before its wider bridge.
+SMALL = 3
 
 
 class _Separator:
@@ -96,13 +111,31 @@ class _Separator:
                 mujoco.mj_jac(m, d, self.jac2, None, c.pos, b2)
                 rows.append(n @ (self.jac2 - self.jacp)[:, cols])
                 gap.append(self.clearance - c.dist)
-            a, b = np.array(rows), np.array(gap)
-            winv = 1.0 / self.weight
-            aw = a * winv
-            step = aw.T @ np.linalg.solve(aw @ a.T + 1e-6 * np.eye(len(b)), b)
+            x = q[self.movable]
+            step = self._step(np.array(rows), np.array(gap), lower[self.movable] - x, upper[self.movable] - x)
             step *= min(1.0, 0.15 / max(np.abs(step).max(), 1e-12))  # linearisation holds for small steps
-            q[self.movable] = np.clip(q[self.movable] + step, lower[self.movable], upper[self.movable])
+            q[self.movable] = np.clip(x + step, lower[self.movable], upper[self.movable])
         return q
+
+    def _step(self, a: np.ndarray, b: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
+        """The least weighted step with a·step = b inside [lo, hi] (lo ≤ 0 ≤ hi): the least-norm
+        solve, with the joints it would push past a bound held there and the rest solved again
+        (a few active-set rounds). Why: clipping the free solution alone drops the part of the
+        correction the bounded joints carried, so inside a small trust box the Gauss-Newton
+        crawls (or stalls) where the joints still free could have separated the sample."""
+        free = np.ones(len(lo), dtype=bool)
+        held = np.zeros(len(lo))
+        step = held
+        for _ in range(4):
+            winv = np.where(free, 1.0 / self.weight, 0.0)
+            aw = a * winv
+            step = held + aw.T @ np.linalg.solve(aw @ a.T + 1e-6 * np.eye(len(b)), b - a @ held)
+            out = free & ((step < lo) | (step > hi))
+            if not out.any():
+                break
+            held = np.where(out, np.clip(step, lo, hi), held)
+            free &= ~out
+        return np.clip(step, lo, hi)
 
 
 def _spread(delta: np.ndarray, half_width: int) -> np.ndarray:
@@ -120,10 +153,14 @@ def _spread(delta: np.ndarray, half_width: int) -> np.ndarray:
 
 #: Longest run of contact frames (source rate) `bridge_contacts` replaces by interpolation.
 BRIDGE_FRAMES = 3
+#: How far (s) the export's wider bridge may reach out on each side of a contact run, when no
+#: small push clears it: a few control samples.
+BRIDGE_GROW_S = 0.1
 
 
 def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
-                    fps: float | None = None, bad: np.ndarray | None = None) -> np.ndarray:
+                    fps: float | None = None, bad: np.ndarray | None = None,
+                    grow: int = 0) -> np.ndarray:
     """q (T,n) with each short run (≤ `max_run` frames) of MuJoCo contact frames between two clear
     frames replaced by a clear one between those neighbours: the straight line, the line pushed
     clear (`_Separator.frame`), or the neighbours held; the first that MuJoCo finds clear on
@@ -134,7 +171,10 @@ def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
     other on frames 121 and 123, 120 and 122 clear); pushing such a frame apart along MuJoCo's
     normals moved the arms by up to 76° over ±0.5 s, while its clear neighbours already bound
     a local, collision-free answer. `bad` (T,) bool: MuJoCo's verdict on q when the caller
-    already has it (the IK's contact phase checks the same q just before)."""
+    already has it (the IK's contact phase checks the same q just before). `grow`: when no
+    candidate between the run's own neighbours works, the bridge is retried between clear samples
+    up to `grow` further out on each side (a longer path: more time for the same change, so a
+    velocity-feasible one is likelier; the samples in between are replaced too, and must be clear)."""
     q = np.array(q, dtype=np.float64)
     sep = _Separator(robot)
     if bad is None:
@@ -149,59 +189,105 @@ def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
         while end < n and bad[end]:
             end += 1
         if t > 0 and end < n and end - t <= max_run:
-            w = (np.arange(t, end) - (t - 1))[:, None] / float(end - (t - 1))
-            line = (1.0 - w) * q[t - 1] + w * q[end]
-            for cand in (line, np.stack([sep.frame(x, robot.lower, robot.upper) for x in line]),
-                         np.where(w < 0.5, q[t - 1], q[end])):  # straight, pushed, held
-                path = np.concatenate([q[t - 1: t], cand, q[end: end + 1]])
-                if fps is not None and velocity_violations(path, robot.velocity_limits, fps):
+            for g in range(grow + 1):
+                a, b = t - 1 - g, end + g  # the clear samples the bridge joins
+                if a < 0 or b >= n or bad[a] or bad[b]:
                     continue
-                if not any(sep.contacts(x, jacobians=False) for x in cand):
-                    q[t:end] = cand
+                if _bridge(sep, robot, q, a, b, fps):
                     break
         t = end
     return q
 
 
+def _bridge(sep: _Separator, robot: Robot, q: np.ndarray, a: int, b: int, fps: float | None) -> bool:
+    """Replace q[a+1:b] in place by the first clear candidate joining q[a] and q[b] (straight,
+    pushed clear, held) that, with `fps`, keeps the velocity limits; whether one was found. The
+    push stays within the neighbours' range ± the smallest trust radius: a local answer."""
+    w = (np.arange(a + 1, b) - a)[:, None] / float(b - a)
+    line = (1.0 - w) * q[a] + w * q[b]
+    r = np.radians(TRUST_DEG[0])
+    lo = np.maximum(robot.lower, np.minimum(q[a], q[b]) - r)
+    hi = np.minimum(robot.upper, np.maximum(q[a], q[b]) + r)
+    for cand in (line, np.stack([sep.frame(x, lo, hi) for x in line]),
+                 np.where(w < 0.5, q[a], q[b])):  # straight, pushed, held
+        path = np.concatenate([q[a: a + 1], cand, q[b: b + 1]])
+        if fps is not None and velocity_violations(path, robot.velocity_limits, fps):
+            continue
+        if not any(sep.contacts(x, jacobians=False) for x in cand):
+            q[a + 1: b] = cand
+            return True
+    return False
+
+
 def separate(robot: Robot, q: np.ndarray, fps: float, *, passes: int = PASSES, blend_s: float = 0.1,
              box_margin: float = 0.0, velocity_margin: float = 0.0,
-             clearance: float = CLEARANCE, enforce_velocity: bool = True) -> np.ndarray:
+             clearance: float = CLEARANCE, enforce_velocity: bool = True,
+             trust_deg: tuple[float | None, ...] = TRUST_DEG) -> np.ndarray:
     """q (T,n) with every sample's penetrating self-contacts removed (MuJoCo's verdict), inside
     the joint box (shrunk by `box_margin`) and the velocity limits (× (1 − velocity_margin))."""
     return separate_checked(robot, q, fps, passes=passes, blend_s=blend_s, box_margin=box_margin,
                             velocity_margin=velocity_margin, clearance=clearance,
-                            enforce_velocity=enforce_velocity)[0]
+                            enforce_velocity=enforce_velocity, trust_deg=trust_deg)[0]
 
 
 def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = PASSES, blend_s: float = 0.1,
                      box_margin: float = 0.0, velocity_margin: float = 0.0, clearance: float = CLEARANCE,
-                     enforce_velocity: bool = True) -> tuple[np.ndarray, bool]:
+                     enforce_velocity: bool = True,
+                     trust_deg: tuple[float | None, ...] = TRUST_DEG) -> tuple[np.ndarray, bool]:
     """`separate`, and whether MuJoCo checked every returned sample clear (False only when the
-    passes ran out): a caller then need not run the same collision check again."""
+    passes ran out at every trust radius): a caller then need not run the same collision check
+    again. The repair is tried inside each trust radius of `trust_deg` in turn (no joint of any
+    sample leaves ± that many degrees of its input value; None: unbounded) and the first that
+    clears every sample wins: the smallest correction that works, never a wide swing when a
+    small one exists."""
     q = np.array(q, dtype=np.float64)
-    lower, upper = robot.lower + box_margin, robot.upper - box_margin
-    vmax = robot.velocity_limits * (1.0 - velocity_margin)
+    out, clear = q, False
     sep = _Separator(robot, clearance)
+    check = np.ones(len(q), dtype=bool)
+    for radius in trust_deg:
+        out, clear, check = _separate_within(sep, q, fps, None if radius is None else np.radians(radius),
+                                             passes, blend_s, box_margin, velocity_margin,
+                                             enforce_velocity, check)
+        if clear:
+            break
+    return out, clear
+
+
+def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float | None, passes: int,
+                     blend_s: float, box_margin: float, velocity_margin: float,
+                     enforce_velocity: bool, check: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray]:
+    """The repair passes with every joint kept within `radius` (rad) of q (None: the joint box
+    only); the result, whether it is clear, and the samples of q whose verdict the caller does
+    not know (`check` in: the samples to check on the first pass; out: the first pass's touching
+    samples, all that a retry at another radius must look at again)."""
+    robot = sep.robot
+    lower, upper = robot.lower + box_margin, robot.upper - box_margin
+    lo = np.broadcast_to(lower, q.shape) if radius is None else np.maximum(lower, q - radius)
+    hi = np.broadcast_to(upper, q.shape) if radius is None else np.minimum(upper, q + radius)
+    vmax = robot.velocity_limits * (1.0 - velocity_margin)
     half = max(int(round(blend_s * fps)), 0)
-    check = np.ones(len(q), dtype=bool)  # samples whose verdict is unknown (unchanged ones keep theirs)
+    first = None
     for _ in range(passes):
         bad = [t for t in np.flatnonzero(check) if sep.contacts(q[t], jacobians=False)]
+        if first is None:
+            first = np.zeros(len(q), dtype=bool)
+            first[bad] = True
         if not bad:
-            return q, True
+            return q, True, first
         delta = np.zeros_like(q)
         for t in bad:
-            delta[t] = sep.frame(q[t], lower, upper) - q[t]
+            delta[t] = sep.frame(q[t], lo[t], hi[t]) - q[t]
         # a wide enough hat that its ramps take at most half of each joint's velocity budget
         with np.errstate(divide="ignore", invalid="ignore"):
             ramp = np.nan_to_num(np.abs(delta) / (vmax / fps), nan=0.0, posinf=0.0)
         width = max(half, int(np.ceil(2.0 * ramp.max())))
-        new = np.clip(q + _spread(delta, width), lower, upper)
+        new = np.clip(q + _spread(delta, width), lo, hi)
         if enforce_velocity:
             new = clamp_velocity(new, vmax, fps)
         check = np.any(new != q, axis=1)
         check[bad] = True  # a repair undone by the clip/clamp leaves its verdict unknown
         q = new
-    return q, False
+    return q, False, first
 
 
 def control_trajectory(robot: Robot, q: np.ndarray, fps: float, rate: float,
@@ -221,5 +307,19 @@ def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: fl
         return qc, False
     # interpolated samples that touch between clear ones: bridged locally first, as at the source
     # rate (the repair alone moved synth seqs 15 and 17's exported arms by 89-101°)
-    qc = bridge_contacts(robot, qc, max_run=int(np.ceil(BRIDGE_FRAMES * rate / fps)), fps=rate)
-    return separate_checked(robot, qc, rate, box_margin=BOX_MARGIN, velocity_margin=VELOCITY_MARGIN)
+    run = int(np.ceil(BRIDGE_FRAMES * rate / fps))
+    qc = bridge_contacts(robot, qc, max_run=run, fps=rate)
+    kw = {"box_margin": BOX_MARGIN, "velocity_margin": VELOCITY_MARGIN}
+    out, clear = separate_checked(robot, qc, rate, trust_deg=TRUST_DEG[:SMALL], **kw)
+    if clear:
+        return out, clear
+    # no small push clears it: a bridge over a wider window, or a wider push, whichever changes
+    # the resample less (the bridge is a straight path between clear samples, but it may still
+    # move more than a 15° push would)
+    out, clear = separate_checked(robot, qc, rate, trust_deg=TRUST_DEG[SMALL:], **kw)
+    wide = bridge_contacts(robot, qc, max_run=run, fps=rate, grow=int(np.ceil(BRIDGE_GROW_S * rate)))
+    if not np.array_equal(wide, qc):
+        bridged, bridged_clear = separate_checked(robot, wide, rate, **kw)
+        if bridged_clear and (not clear or np.abs(bridged - qc).max() <= np.abs(out - qc).max()):
+            return bridged, bridged_clear
+    return out, clear
