@@ -328,7 +328,9 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 #     the control-rate samples between frames (`ik.contact_samples`): other solves where hands pass (s9-ikwin).
 # v10: contact repair inside trust radii (`retarget.control.TRUST_DEG`), a bounded active-set
 #      step, the bridge's push kept near its neighbours; the export's wider bridge (s11-separate).
-RETARGET = Step("retarget", "10", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v11: a touching sample on a run at the velocity limit is cleared inside its neighbours' reach
+#      (`control._within_velocity`; synth seq 15's 50 Hz export was left touching).
+RETARGET = Step("retarget", "11", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -340,7 +342,8 @@ RETARGET = Step("retarget", "10", ("body", "robot", "ik"), _retarget, _ik_soluti
 #      in every round's solve.
 # v11: the windowed contact phase with midpoints (retarget v9) in every round's solve.
 # v12: the local contact repair (retarget v10) in every round's solve and its 50 Hz export.
-REFINE = Step("refine", "12", ("body", "robot", "ik", "render", "critic"), _refine,
+# v13: the repair at the velocity limit (retarget v11).
+REFINE = Step("refine", "13", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import pickle
+from pathlib import Path
 
 import mujoco
 import numpy as np
@@ -281,3 +282,25 @@ def test_separate_stays_inside_its_trust_radius(robot, passing):
     assert not clear  # 0.5° cannot separate hands passing through each other
     out, clear = separate_checked(robot, plain, RATE)
     assert clear and self_collision_contacts(robot, out).sum() == 0
+
+
+def test_repair_clears_a_sample_on_a_run_at_the_velocity_limit(robot):
+    """21 samples of a real 50 Hz export (the default run's synth seq 15 after the s11 merges,
+    `tests/data`): the wrists move at their velocity limit through sample 10, where the two
+    wrist yaw links touch (0.9 mm). A hat there changes the run's slope and the velocity clamp
+    undoes it, every pass (the repair before this fix returned not clear, export-invalid);
+    the sample is cleared inside its neighbours' reach instead, and only it moves."""
+    from embody.retarget.control import BOX_MARGIN, VELOCITY_MARGIN, separate_checked
+
+    data = np.load(Path(__file__).parent / "data" / "g1_wrists_at_velocity_limit_50hz.npz")
+    assert list(data["joint_names"]) == list(robot.joint_names)
+    q, rate = data["q"], float(data["rate"])
+    assert np.flatnonzero(self_collision_contacts(robot, q)).tolist() == [10]
+    step = np.abs(np.diff(q, axis=0)) / (robot.velocity_limits / rate)
+    assert step[9:11].max() > 0.999                                 # saturated into and out of 10
+    out, clear = separate_checked(robot, q, rate, box_margin=BOX_MARGIN, velocity_margin=VELOCITY_MARGIN)
+    assert clear
+    assert all(v == 0 for v in validation_counts(robot, out, rate).values())
+    moved = np.flatnonzero(np.abs(out - q).max(axis=1) > 0)
+    assert moved.tolist() == [10]
+    assert np.degrees(np.abs(out - q).max()) < 5.0
