@@ -203,3 +203,27 @@ def test_refreshed_candidates_give_the_exact_energy(body, model):
     moved = body.joint_transforms(torch.as_tensor(pose + 0.002, dtype=torch.float64), betas)
     assert torch.equal(frame_energies(model, moved, 0.001, near),
                        frame_energies(model, moved, 0.001))
+
+
+def test_energies_and_exact_from_one_narrow_phase(body, model):
+    """The optimiser's refresh: the clearance energy (with its gradient) and the clear test
+    from one selection are `frame_energies` at each tolerance, bit for bit; the exact one's
+    tolerance may not be below the other's (its rows would not be a subset)."""
+    from embody.collision.energy import contacts, frame_energies_and_exact
+    pose = crossing_poses()
+    betas = torch.zeros(10, dtype=torch.float64)
+    p = torch.tensor(pose, dtype=torch.float64, requires_grad=True)
+    tr = body.joint_transforms(p, betas)
+    near = contacts(model, tr.detach(), 0.022)
+    e, exact = frame_energies_and_exact(model, tr, -0.002, 0.001, near)
+    assert torch.equal(exact, frame_energies(model, tr.detach(), 0.001))
+    ref = frame_energies(model, tr, -0.002, near)
+    assert torch.equal(e, ref) and exact.gt(0).any() and not exact.requires_grad
+    g, = torch.autograd.grad(e.sum(), p, retain_graph=True)
+    g_ref, = torch.autograd.grad(ref.sum(), p)
+    assert torch.equal(g, g_ref)
+    free = body.joint_transforms(torch.zeros(2, 55, 3, dtype=torch.float64), betas)
+    e0, x0 = frame_energies_and_exact(model, free, -0.002, 0.001, contacts(model, free, 0.022))
+    assert torch.equal(x0, torch.zeros(2)) and torch.equal(e0, frame_energies(model, free, -0.002))
+    with pytest.raises(ValueError):
+        frame_energies_and_exact(model, tr, 0.001, 0.0, near)

@@ -434,6 +434,35 @@ def frame_energies(model: CollisionModel, transforms: torch.Tensor, tolerance: f
     return zero.index_add(0, sel.t, depth * depth)
 
 
+def frame_energies_and_exact(model: CollisionModel, transforms: torch.Tensor, tolerance: float,
+                             exact_tolerance: float, near: Contacts
+                             ) -> tuple[torch.Tensor, torch.Tensor]:
+    """`frame_energies` at `tolerance` (differentiable) and, without gradients, at a larger
+    `exact_tolerance`, from one narrow phase.
+
+    Why: the optimiser's refresh steps needed both (the clearance objective and the clear
+    test), and each `penetrations` pass re-skins every candidate row. A point's deepest piece
+    is the same at either tolerance when it is deeper than `exact_tolerance` (the minimum over
+    a superset of rows that reaches below it), so the exact energy is the selection's rows
+    with f < −exact_tolerance, each the same depth, added in the same order: the same values
+    as `frame_energies(model, transforms, exact_tolerance, near)`."""
+    if exact_tolerance < tolerance:
+        raise ValueError("exact_tolerance must be ≥ tolerance (its rows are a subset)")
+    t_frames = transforms.shape[0]
+    zero = transforms.new_zeros(t_frames) + 0.0 * transforms[:, :1, 0, 0].sum()
+    exact = transforms.new_zeros(t_frames)
+    sel = penetrations(model, transforms, tolerance, near)
+    if sel is None:
+        return zero, exact
+    signed = point_depths(model, transforms, sel)
+    depth = torch.relu(signed - tolerance)
+    with torch.no_grad():
+        inside = torch.nonzero(sel.f < -exact_tolerance).squeeze(1)
+        deep = torch.relu(signed.detach()[inside] - exact_tolerance)
+        exact = exact.index_add(0, sel.t[inside], deep * deep)
+    return zero.index_add(0, sel.t, depth * depth), exact
+
+
 @dataclass(frozen=True)
 class Penetrations:
     """Penetrating points: (frame, chunk, point, part b) and the deepest piece's active plane
@@ -444,6 +473,8 @@ class Penetrations:
     n: torch.Tensor
     b: torch.Tensor
     plane: torch.Tensor
+    #: the active plane's value (−depth, no gradients) as the selection measured it
+    f: torch.Tensor | None = None
 
 
 def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: float = 0.0,
@@ -469,7 +500,8 @@ def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: flo
         # a part's SDF is the min over its pieces: keep the deepest piece per (frame, point, part)
         keep = deepest_per_point(d, p.t[r], p.h[r], p.n[r], p.b[r], f)
         rk = r[keep]
-        return Penetrations(p.t[rk], p.h[rk], p.n[rk], p.b[rk], d["planes"][p.k[rk], plane[keep]])
+        return Penetrations(p.t[rk], p.h[rk], p.n[rk], p.b[rk], d["planes"][p.k[rk], plane[keep]],
+                            f[keep])
 
 
 def deepest_per_point(d: dict[str, torch.Tensor], t: torch.Tensor, h: torch.Tensor, n: torch.Tensor,
@@ -479,11 +511,15 @@ def deepest_per_point(d: dict[str, torch.Tensor], t: torch.Tensor, h: torch.Tens
     n_chunks, n_parts = d["chunk_part"].shape[0], d["part_radius"].shape[0]
     size = d["chunk_mask"].shape[1]
     key = ((t * n_chunks + h) * size + n) * n_parts + b
-    order = torch.sort(f, stable=True).indices                  # deepest first
-    order = order[torch.sort(key[order], stable=True).indices]  # grouped by key
-    first = torch.ones_like(order, dtype=torch.bool)
-    first[1:] = key[order][1:] != key[order][:-1]
-    return order[first]
+    # per key (in sorted key order) the least f, ties to the lowest row: what a stable sort by
+    # f then by key picked first, with one sort instead of two
+    _, inv = torch.unique(key, return_inverse=True)
+    k = int(inv.max()) + 1 if inv.numel() else 0
+    least = torch.full((k,), float("inf"), dtype=f.dtype, device=f.device) \
+        .scatter_reduce(0, inv, f, "amin")
+    tied = torch.nonzero(f == least[inv]).squeeze(1)
+    return torch.full((k,), len(f), dtype=torch.long, device=f.device) \
+        .scatter_reduce(0, inv[tied], tied, "amin")
 
 
 def _piece_planes(model: CollisionModel, d: dict[str, torch.Tensor], k: torch.Tensor,

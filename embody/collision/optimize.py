@@ -34,7 +34,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -43,7 +43,8 @@ import torch
 from embody.body.base import BodyModel
 from embody.collision.capsules import arm_capsules, capsule_energies
 from embody.collision.depth import depth_metrics, motion_depths
-from embody.collision.energy import CollisionModel, collision_model, contacts, frame_energies
+from embody.collision.energy import (CollisionModel, Contacts, collision_model, contacts,
+                                     frame_energies, frame_energies_and_exact)
 from embody.collision.masks import mask_joints
 from embody.collision.metrics import sequence_metrics
 from embody.collision.solve import solve
@@ -422,6 +423,20 @@ class _FrameAdam:
         self.u.sub_(self.param_groups[0]["lr"] * m_hat / (v_hat.sqrt() + self.eps))
 
 
+def _live_contacts(model: CollisionModel, transforms: torch.Tensor, margin: float,
+                   frames: torch.Tensor | None) -> Contacts:
+    """`contacts` of the given frames only (all when None), indexed like `transforms`.
+
+    Why: frames with blend weight 0 between two corrected stretches are x0 and their energy
+    is multiplied by 0, yet their broad phase and narrow-phase rows cost as much as any
+    other's. The frame map is increasing, so the rows keep their order (the same energies,
+    bit for bit)."""
+    if frames is None:
+        return contacts(model, transforms, margin)
+    c = contacts(model, transforms.index_select(0, frames), margin)
+    return replace(c, t=frames[c.t], points=replace(c.points, t=frames[c.points.t]))
+
+
 def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.ndarray,
               weight: np.ndarray, cfg: CollisionConfig) -> tuple[np.ndarray, int]:
     """Adam over the masked joints of the frames near a penetration, with a per-frame λ_col
@@ -442,6 +457,7 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
     x0 = x0_full[lo:hi]
     w = torch.as_tensor(weight[lo:hi], dtype=torch.float32, device=dev)[:, None, None]
     live = torch.as_tensor(weight[lo:hi] > 0, device=dev)
+    live_frames = None if bool(live.all()) else torch.nonzero(live).squeeze(1)
     betas = torch.as_tensor(motion.betas, dtype=torch.float32, device=dev)
     t = x0.shape[0]
     jidx = torch.as_tensor(idx, device=dev)
@@ -459,13 +475,17 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
         transforms = body.joint_transforms(x, betas)
         check = (step - 1) % cfg.refresh_every == 0
         if check:
-            td = transforms.detach()
-            near = contacts(model, td, cfg.refresh_margin + cfg.clearance)
-            exact = frame_energies(model, td, cfg.tolerance, near) * live  # near ⊇ exact rows
+            near = _live_contacts(model, transforms.detach(), cfg.refresh_margin + cfg.clearance,
+                                  live_frames)
+            # the clear test (near ⊇ its rows) from the objective's own narrow phase
+            e, exact = frame_energies_and_exact(model, transforms, cfg.tolerance - cfg.clearance,
+                                                cfg.tolerance, near)
+            e, exact = e * live, exact * live
             e_sum = float(exact.sum())
             pen = exact > 0
             lam = torch.where(pen, torch.clamp(lam * cfg.lambda_growth, max=cfg.lambda_max), lam)
-        e = frame_energies(model, transforms, cfg.tolerance - cfg.clearance, near) * live
+        else:
+            e = frame_energies(model, transforms, cfg.tolerance - cfg.clearance, near) * live
         if caps is not None:  # crossed limbs: the point energy alone sits at a saddle
             e = e + cfg.capsule_weight * capsule_energies(caps, transforms) * live
         close = (delta ** 2).sum() / t
