@@ -162,6 +162,11 @@ class IKConfig(Section):
     #: that pass through each other between two clear frames are otherwise found only by the
     #: export, whose per-sample repair moved synth seqs 15-16's arms 73-101°.
     contact_samples: bool = True
+    #: End a contact round at the first accepted step after which MuJoCo finds nothing touching
+    #: on the window's frames and samples (instead of running `contact_iterations` or to the
+    #: tolerance): the rounds' LM steps oscillate round the contact set, and each costs MuJoCo
+    #: rows at every checked frame and sample.
+    contact_stop: bool = True
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.
     tolerance: float = Field(3e-3, ge=0, le=1)
     # --- output ---

@@ -204,7 +204,8 @@ class _Problem:
 
     def solve(self, qi0: np.ndarray, cold: bool, full: bool = True, lam: float = LAMBDA0,
               contact_frames: np.ndarray | None = None,
-              contact_between: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+              contact_between: tuple[np.ndarray, np.ndarray] | None = None,
+              clear: Callable[[np.ndarray], bool] | None = None) -> np.ndarray:
         """Levenberg-Marquardt (Nielsen's damping rule). From a cold start the collision term comes
         on in full after a tracking phase: with it on from the rest pose, hands block each other and
         the trunk on their way to the targets (3× the wrist error on the synthetic set). Without it
@@ -215,7 +216,9 @@ class _Problem:
         benchmarks/ik_vs_mink.py's 4 sequences, lower jerk, still 0 contacts). `full=False` stops
         after the cold phases (the coarse pass of `solve_joints`); `lam` is the starting damping.
         `contact_frames` (T,) bool: only the exact-contact phase, on those frames (`resolve_contacts`);
-        `contact_between` (frame, fraction) arrays: also on those samples between frames."""
+        `contact_between` (frame, fraction) arrays: also on those samples between frames; `clear`
+        (qi → bool, MuJoCo's verdict): the contact phase stops at the first accepted step that
+        leaves no MuJoCo row penetrating and that `clear` passes."""
         lower, upper = self.robot.lower[self.ik], self.robot.upper[self.ik]
         qi = np.clip(qi0, lower, upper)
         use_col = self.residuals.proxies is not None
@@ -253,7 +256,8 @@ class _Problem:
                     qi, cost = cand, c_new
                     lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                     nu = 2.0
-                    if done:
+                    if done or (exact and clear is not None and self.residuals.exact.deepest >= 0
+                                and clear(qi)):
                         break
                     h, g = normal()
                 else:
@@ -438,9 +442,20 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
         t, a = between
         pick = _dilate(near, cfg.contact_pad)[t] & rows[t] & rows[t + 1] if len(t) else np.zeros(0, bool)
         sub = (np.searchsorted(idx, t[pick]), a[pick])
-        qi = problem.solve(q[idx][:, problem.ik], cold=False, contact_frames=rows[idx], contact_between=sub)
+        seen: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+
+        def clear(qi: np.ndarray) -> bool:
+            """MuJoCo's verdict on the window's moved frames and samples at qi: none touching."""
+            trial = q.copy()
+            trial[idx] = robot.clip(problem.q_full(qi))
+            seen[qi.tobytes()] = found_now = _touching(robot, trial, free, between)
+            return not found_now[0].any() and not found_now[1].any()
+
+        qi = problem.solve(q[idx][:, problem.ik], cold=False, contact_frames=rows[idx], contact_between=sub,
+                           clear=clear if cfg.contact_stop else None)
         q[idx] = robot.clip(problem.q_full(qi))
-        now, now_smp = _touching(robot, q, free, between)  # the other frames kept their verdict
+        # the other frames kept their verdict; the early stop already has this q's
+        now, now_smp = seen.get(qi.tobytes()) or _touching(robot, q, free, between)
         contacts = now  # every contact frame lies inside `free`
         if not now.any() and not now_smp.any():
             break
