@@ -167,6 +167,10 @@ class IKConfig(Section):
     #: tolerance): the rounds' LM steps oscillate round the contact set, and each costs MuJoCo
     #: rows at every checked frame and sample.
     contact_stop: bool = True
+    #: The contact phase's samples between frames also get the proxies' rows (smooth, with the
+    #: proxies' margin), not only MuJoCo's: MuJoCo's rows exist only for pairs already within
+    #: `contact_margin`, so steps that clear one pair ran into the next and were rejected.
+    contact_sample_proxies: bool = True
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.
     tolerance: float = Field(3e-3, ge=0, le=1)
     # --- output ---

@@ -241,6 +241,8 @@ class _Problem:
                 self.residuals.exact.frames = (self._polish_frames(qi) if contact_frames is None
                                                else contact_frames)
                 self.residuals.exact.between = contact_between
+                if self.cfg.contact_sample_proxies and contact_between is not None:
+                    self.residuals.sample_points = contact_between
             cost, normal = self.evaluate(qi, collision, exact)
             h, g = normal()
             nu = 2.0
@@ -266,6 +268,7 @@ class _Problem:
                     if lam > 1e8:
                         break
         self.dtd = smooth
+        self.residuals.sample_points = None
         self.lam = lam  # where the damping ended: a finer solve of the same problem goes on from it
         return qi
 
@@ -416,6 +419,15 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
         return q, None
     none = (np.zeros(0, np.int64), np.zeros(0))
     between = _between(len(q), targets.fps, cfg.control_rate_hz) if cfg.contact_samples else none
+    if cfg.enforce_velocity_limits:
+        # MuJoCo judges the trajectory the export gets: `finish_solution` clamps the velocities
+        # next, and the clamp alone put a 50 Hz sample back in touch (benchmark seq 2, s11)
+        def exported(x: np.ndarray) -> np.ndarray:
+            return clamp_velocity(x, robot.velocity_limits, targets.fps)
+    else:
+        def exported(x: np.ndarray) -> np.ndarray:
+            return x
+    q = exported(q)
     hit, smp = _touching(robot, q, np.ones(len(q), dtype=bool), between)
     contacts = hit.copy()
     if not hit.any() and not smp.any():
@@ -442,21 +454,29 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
         t, a = between
         pick = _dilate(near, cfg.contact_pad)[t] & rows[t] & rows[t + 1] if len(t) else np.zeros(0, bool)
         sub = (np.searchsorted(idx, t[pick]), a[pick])
-        seen: dict[bytes, tuple[np.ndarray, np.ndarray]] = {}
+        seen: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+        def judged(qi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """q with the window at qi (clamped as exported) and MuJoCo's verdict on its frames and
+            samples that moved (the window's, and any the clamp carried past it); the others keep
+            theirs."""
+            key = qi.tobytes()
+            if key not in seen:
+                trial = q.copy()
+                trial[idx] = robot.clip(problem.q_full(qi))
+                trial = exported(trial)
+                moved = _dilate(free | (np.abs(trial - q).max(1) > 1e-12), 1)
+                seen[key] = (trial, *_touching(robot, trial, moved, between))
+            return seen[key]
 
         def clear(qi: np.ndarray) -> bool:
-            """MuJoCo's verdict on the window's moved frames and samples at qi: none touching."""
-            trial = q.copy()
-            trial[idx] = robot.clip(problem.q_full(qi))
-            seen[qi.tobytes()] = found_now = _touching(robot, trial, free, between)
-            return not found_now[0].any() and not found_now[1].any()
+            _, now, now_smp = judged(qi)
+            return not now.any() and not now_smp.any()
 
         qi = problem.solve(q[idx][:, problem.ik], cold=False, contact_frames=rows[idx], contact_between=sub,
                            clear=clear if cfg.contact_stop else None)
-        q[idx] = robot.clip(problem.q_full(qi))
-        # the other frames kept their verdict; the early stop already has this q's
-        now, now_smp = seen.get(qi.tobytes()) or _touching(robot, q, free, between)
-        contacts = now  # every contact frame lies inside `free`
+        q, now, now_smp = judged(qi)
+        contacts = now  # every earlier contact frame lies inside `free`, checked again
         if not now.any() and not now_smp.any():
             break
         left = int(now.sum() + now_smp.sum())
