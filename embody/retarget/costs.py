@@ -173,7 +173,7 @@ class Residuals:
         col = self._collision(rot, pos, float(collision)) if self.proxies is not None and collision else None
         if exact and self.exact is not None and col is not None:
             col = self._exact_rows(q, col, None if smp is None else
-                                   self._sample_rows(len(q), smp, rot_s, pos_s, float(collision) * float(__import__("os").environ.get("S11SC", "1"))))
+                                   self._sample_rows(len(q), smp, rot_s, pos_s, float(collision)))
         self.n_task_rows = sum(x.shape[1] for x in res)  # rows before the collision rows
         if col is not None:
             res.append(col[0])
@@ -192,6 +192,11 @@ class Residuals:
         frame's share of the Jacobian. Frame-local rows (T,K) and their Jacobian (T,K,n_ik) on
         demand, or None when no proxy pair is within the margin at any sample."""
         r, jac = self._collision(rot, pos, collision)
+        # the hinge at `contact_sample_margin`, not the proxies' margin: w·relu(m − clearance)
+        # is the proxies' row shifted down by w·(margin − m), with the same Jacobian where active
+        shift = self.w_col * collision**0.5 * max(self.cfg.collision_margin - self.cfg.contact_sample_margin, 0.0)
+        active = r > shift
+        r = np.where(active, r - shift, 0.0)
         p = r.shape[1]
         if not p or not r.any():
             return None
@@ -209,7 +214,7 @@ class Residuals:
 
         def jacobian() -> np.ndarray:
             z, o = self.fk.joint_frames(rot, pos, list(self.ik))
-            js = jac(z, o)
+            js = jac(z, o) * active[..., None]
             out = np.zeros((t, out_r.shape[1], js.shape[2]))
             out[owner[:, None], cols] = scale[:, None, None] * js[src]
             return out
