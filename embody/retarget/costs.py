@@ -156,14 +156,12 @@ class Residuals:
         proxies'."""
         smp = self.sample_points if exact and self.exact is not None and self.proxies is not None else None
         if smp is not None and len(smp[0]) and collision:
-            # the samples' configurations ride in the frames' FK batch (one call, a fixed shape)
             t_s, a_s = smp
             qs = (1.0 - a_s)[:, None] * q[t_s] + a_s[:, None] * q[t_s + 1]
-            rot, pos = self.fk.forward(np.concatenate([q, qs]))
-            rot_s, pos_s, rot, pos = rot[len(q):], pos[len(q):], rot[: len(q)], pos[: len(q)]
+            rot_s, pos_s = self.fk.forward_once(qs)  # the frames' FK below keeps its cache
         else:
             smp = None
-            rot, pos = self.fk.forward(q)
+        rot, pos = self.fk.forward(q)
         r_link = rot[:, self.link_body]
         p_link = pos[:, self.link_body] + np.einsum("tlab,lb->tla", r_link, self.link_offset)
         e_pos = (p_link[:, :4] - self.target_pos) * self.w_pos[..., None]

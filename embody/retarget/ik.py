@@ -407,7 +407,8 @@ def resolve_contacts(robot: Robot, targets: Targets, cfg: IKConfig, q: np.ndarra
 def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
                              q: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """q (T,n) with the contacts the proxies leaked resolved inside the optimisation, and MuJoCo's
-    verdict on the returned frames (T,) bool (None when off: nothing checked). Where MuJoCo finds
+    verdict on the returned frames (T,) bool as exported, i.e. after the velocity clamp (None
+    when off: nothing checked; q comes back velocity-clamped when a round ran, else as it came). Where MuJoCo finds
     a counted contact on a frame or (`contact_samples`) on a control-rate sample between two
     frames (hands passing through each other between two clear frames, which the export's
     per-sample repair then pulls apart), an LM phase whose collision rows on those frames (± `cfg.contact_pad`) are
@@ -432,11 +433,11 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
     else:
         def exported(x: np.ndarray) -> np.ndarray:
             return x
-    q = exported(q)
-    hit, smp = _touching(robot, q, np.ones(len(q), dtype=bool), between)
+    hit, smp = _touching(robot, exported(q), np.ones(len(q), dtype=bool), between)
     contacts = hit.copy()
     if not hit.any() and not smp.any():
-        return q, contacts
+        return q, contacts  # as it came: the clamp after it finds it clear
+    q = exported(q)
     sub_cfg = cfg.model_copy(update={"polish_iterations": 0})
     exact = ExactContacts(robot, cfg.contact_margin, cfg.w_contact)
     q = q.copy()
