@@ -325,7 +325,9 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 #     the same rows to ~1e-15, which moves some chaotic solves into another basin (s8-ikspeed).
 # v9: the contact phase on windows around the contacts (`ik.contact_window`, edges held) and on
 #     the control-rate samples between frames (`ik.contact_samples`): other solves where hands pass (s9-ikwin).
-RETARGET = Step("retarget", "9", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v10: contact rounds end when MuJoCo finds them clear, with the proxies' rows at the samples
+#      (`ik.contact_stop`, `ik.contact_sample_proxies`), judged after the velocity clamp (s11-iksamples).
+RETARGET = Step("retarget", "10", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -336,7 +338,8 @@ RETARGET = Step("retarget", "9", ("body", "robot", "ik"), _retarget, _ik_solutio
 # v10: the IK's contact phase, bridge and finger rate limit, and the faster IK kernels (retarget v8)
 #      in every round's solve.
 # v11: the windowed contact phase with midpoints (retarget v9) in every round's solve.
-REFINE = Step("refine", "11", ("body", "robot", "ik", "render", "critic"), _refine,
+# v12: the s11 contact phase (retarget v10) in every round's solve.
+REFINE = Step("refine", "12", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
