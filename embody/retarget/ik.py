@@ -206,7 +206,8 @@ class _Problem:
               contact_frames: np.ndarray | None = None,
               contact_between: tuple[np.ndarray, np.ndarray] | None = None,
               clear: Callable[[np.ndarray], bool] | None = None,
-              contact_proxies: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+              contact_proxies: tuple[np.ndarray, np.ndarray] | None = None,
+              tolerance_stop: bool = True) -> np.ndarray:
         """Levenberg-Marquardt (Nielsen's damping rule). From a cold start the collision term comes
         on in full after a tracking phase: with it on from the rest pose, hands block each other and
         the trunk on their way to the targets (3× the wrist error on the synthetic set). Without it
@@ -219,7 +220,8 @@ class _Problem:
         `contact_frames` (T,) bool: only the exact-contact phase, on those frames (`resolve_contacts`);
         `contact_between` (frame, fraction) arrays: also on those samples between frames; `clear`
         (qi → bool, MuJoCo's verdict): the contact phase stops at the first accepted step that
-        leaves no MuJoCo row penetrating and that `clear` passes (and not on the tolerance);
+        leaves no MuJoCo row penetrating and that `clear` passes (on the tolerance only with
+        `tolerance_stop`);
         `contact_proxies` (frame, fraction) arrays: the proxies' rows at those samples too."""
         lower, upper = self.robot.lower[self.ik], self.robot.upper[self.ik]
         qi = np.clip(qi0, lower, upper)
@@ -260,10 +262,12 @@ class _Problem:
                     lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                     nu = 2.0
                     if exact and clear is not None:
-                        # a contact round ends when MuJoCo finds it clear, not on the tolerance:
-                        # its steps stall at a high damping round the contact set, and a round
-                        # stopped there left the contacts to the repair (benchmark seq 0, s11)
-                        done = self.residuals.exact.deepest >= 0 and clear(qi)
+                        # a contact round ends when MuJoCo finds it clear; on the tolerance only
+                        # when `tolerance_stop`: its steps stall at a high damping round the
+                        # contact set, and a first round stopped there left the contacts to the
+                        # repair (benchmark seq 0, s11)
+                        done = ((done and tolerance_stop)
+                                or (self.residuals.exact.deepest >= 0 and clear(qi)))
                     if done:
                         break
                     h, g = normal()
@@ -442,7 +446,7 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
     exact = ExactContacts(robot, cfg.contact_margin, cfg.w_contact)
     q = q.copy()
     found = int(hit.sum() + smp.sum())
-    for _ in range(cfg.contact_rounds):
+    for round_ in range(cfg.contact_rounds):
         touch, near = hit.copy(), np.zeros(len(q), dtype=bool)
         near[between[0][smp]] = True
         touch |= near
@@ -483,7 +487,11 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
 
         qi = problem.solve(q[idx][:, problem.ik], cold=False, contact_frames=rows[idx], contact_between=sub,
                            clear=clear if cfg.contact_stop else None,
-                           contact_proxies=sub if cfg.contact_sample_proxies else None)
+                           contact_proxies=sub if cfg.contact_sample_proxies else None,
+                           # later rounds work on what the first could not route round: where
+                           # they stall, the repair takes over (synth seq 6's second round ran
+                           # its whole budget for no progress)
+                           tolerance_stop=round_ > 0)
         q, now, now_smp = judged(qi)
         contacts = now  # every earlier contact frame lies inside `free`, checked again
         if not now.any() and not now_smp.any():
