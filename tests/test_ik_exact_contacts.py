@@ -125,21 +125,86 @@ def test_contact_phase_is_local_and_hands_its_verdict_on(robot):
 def test_contact_phase_resolves_a_pass_between_clear_frames(robot):
     """Left hand above the right, then below it: both frames clear, the control-rate samples
     between them (what the export resamples) have the hands inside each other. The contact phase
-    finds and resolves them with `contact_samples`, and sees nothing without."""
+    finds and resolves them with `contact_samples`, and sees nothing without. (No velocity clamp
+    here: the swap in one frame is faster than the arms may move, and the clamp would spread the
+    pass over the frames themselves; see the next test.)"""
     from embody.retarget.ik import resolve_contacts_checked
     from embody.retarget.limits import resample
+
+    q, targets = _swap(robot)
+    free = IKConfig(enforce_velocity_limits=False)
+    rate = free.control_rate_hz
+    assert self_collision_contacts(robot, q).sum() == 0
+    assert self_collision_contacts(robot, resample(q, targets.fps, rate)).sum() > 0
+    off, verdict = resolve_contacts_checked(robot, targets, free.model_copy(update={"contact_samples": False}), q)
+    np.testing.assert_array_equal(off, q)
+    assert not verdict.any()
+    out, verdict = resolve_contacts_checked(robot, targets, free, q)
+    assert self_collision_contacts(robot, out).sum() == 0 and not verdict.any()
+    assert self_collision_contacts(robot, resample(out, targets.fps, rate)).sum() == 0
+
+
+def _swap(robot):
+    """Left hand above the right for 6 frames, then below it for 6: q and its targets."""
     from tests.test_retarget_ik import _targets_from_q
 
     above = _pose(robot, [0.30, 0.0, 0.20], [0.30, 0.0, 0.0], IKConfig())
     below = _pose(robot, [0.30, 0.0, 0.0], [0.30, 0.0, 0.20], IKConfig())
     q = np.concatenate([np.tile(above, (6, 1)), np.tile(below, (6, 1))])
-    targets = _targets_from_q(robot, q)
-    rate = IKConfig().control_rate_hz
+    return q, _targets_from_q(robot, q)
+
+
+def test_contact_phase_judges_the_velocity_clamped_trajectory(robot):
+    """The export clamps joint speeds after the IK, and the clamp alone can put hands through each
+    other (here it spreads the one-frame swap over several frames): the contact phase judges and
+    returns the clamped trajectory, clear of contacts at the frames and the 50 Hz samples."""
+    from embody.retarget.ik import resolve_contacts_checked
+    from embody.retarget.limits import clamp_velocity, resample, velocity_violations
+
+    q, targets = _swap(robot)
+    clamp = lambda x: clamp_velocity(x, robot.velocity_limits, targets.fps)  # noqa: E731
     assert self_collision_contacts(robot, q).sum() == 0
-    assert self_collision_contacts(robot, resample(q, targets.fps, rate)).sum() > 0
-    off, verdict = resolve_contacts_checked(robot, targets, IKConfig(contact_samples=False), q)
-    np.testing.assert_array_equal(off, q)
-    assert not verdict.any()
+    assert self_collision_contacts(robot, clamp(q)).sum() > 0
     out, verdict = resolve_contacts_checked(robot, targets, IKConfig(), q)
-    assert self_collision_contacts(robot, out).sum() == 0 and not verdict.any()
-    assert self_collision_contacts(robot, resample(out, targets.fps, rate)).sum() == 0
+    assert velocity_violations(out, robot.velocity_limits, targets.fps) == 0
+    assert not verdict.any() and self_collision_contacts(robot, clamp(out)).sum() == 0
+    assert self_collision_contacts(robot, resample(clamp(out), targets.fps, IKConfig().control_rate_hz)).sum() == 0
+
+
+def test_sample_proxy_rows_give_the_samples_gradient(robot):
+    """The proxies' rows at samples between frames (`Residuals._sample_rows`), split onto the two
+    frames: their Gauss-Newton gradient Σ Jᵀr equals the gradient of ½‖r‖² over the samples'
+    interpolated configurations (finite differences), and they ask only `contact_sample_margin`."""
+    from embody.retarget.costs import Residuals
+    from tests.test_retarget_ik import _targets_from_q
+
+    q, _ = _swap(robot)
+    q = q[4:8]  # above, above, below, below: the samples between frames 1 and 2 have the hands inside
+    cfg = IKConfig()
+    res = Residuals(robot, _targets_from_q(robot, q), cfg)
+    ik = res.ik
+    smp = (np.array([0, 1, 1, 2]), np.array([0.6, 0.4, 0.6, 0.4]))
+
+    def rows(qq):
+        qs = (1.0 - smp[1])[:, None] * qq[smp[0]] + smp[1][:, None] * qq[smp[0] + 1]
+        rot, pos = res.fk.forward_once(qs)
+        return res._sample_rows(len(qq), smp, rot, pos, 1.0), (rot, pos)
+
+    (r, jac), (rot, pos) = rows(q)
+    assert r.shape[0] == len(q) and (r > 0).any()
+    # √(1 − α)·r and √α·r: the same cost as the samples' own rows, whose hinge is at the sample margin
+    raw, _ = res._collision(rot, pos, 1.0)
+    shift = res.w_col * (cfg.collision_margin - cfg.contact_sample_margin)
+    np.testing.assert_allclose(0.5 * (r**2).sum(), 0.5 * (np.maximum(raw - shift, 0.0) ** 2).sum(), rtol=1e-12)
+    g = np.einsum("tkj,tk->tj", jac(), r)  # (T, n_ik)
+
+    def cost(qq):
+        out = rows(qq)[0]
+        return 0.5 * float((out[0] ** 2).sum()) if out is not None else 0.0
+
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(len(q), len(ik))) * 1e-6
+    qp, qm = q.copy(), q.copy()
+    qp[:, ik] += d
+    qm[:, ik] -= d
+    np.testing.assert_allclose((cost(qp) - cost(qm)) / 2.0, float((g * d).sum()), rtol=1e-3)

@@ -162,6 +162,22 @@ class IKConfig(Section):
     #: that pass through each other between two clear frames are otherwise found only by the
     #: export, whose per-sample repair moved synth seqs 15-16's arms 73-101°.
     contact_samples: bool = True
+    #: End a contact round at the first accepted step after which MuJoCo finds nothing touching
+    #: on the window's frames and samples (velocity-clamped, as exported); the first round not
+    #: on `tolerance` (later ones still): the rounds' LM steps oscillate round the contact set
+    #: (each costing MuJoCo rows at every checked frame and sample), and a first round stopped on
+    #: the tolerance with contacts left handed them to the repair. Off: rounds run to the
+    #: tolerance or `contact_iterations` (before s11).
+    contact_stop: bool = True
+    #: The contact phase's samples between frames also get the proxies' rows (hinged at
+    #: `contact_sample_margin`), not only MuJoCo's: MuJoCo's rows exist only for pairs already
+    #: within `contact_margin`, so a step that cleared one pair ran into the next and was
+    #: rejected; the proxies see a pair coming (benchmarks/ik_vs_mink.py, s11: LM evaluations
+    #: 244 → 188 and MuJoCo calls 8818 → 5891 on its 4 sequences, 0 touching 50 Hz samples).
+    contact_sample_proxies: bool = True
+    #: Clearance (m) the proxies' rows at samples ask (≤ the proxies' `collision_margin`): the
+    #: full 15 mm pushed hands apart between frames (wrist 4.03 → 4.23 mm); 8 mm: 4.10 mm.
+    contact_sample_margin: float = Field(0.008, ge=0, le=0.05)
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.
     tolerance: float = Field(3e-3, ge=0, le=1)
     # --- output ---

@@ -137,6 +137,9 @@ class Residuals:
         hold = np.sqrt(np.asarray(targets.wrist_rot_weight, dtype=np.float64))  # (T,2), > 1 at a touch
         self.w_rot = self.w_rot * np.concatenate([hold, np.ones((len(hold), len(self.rot_links)))], 1)
         self.w_col = float(s(cfg.w_collision))
+        #: (frame, fraction) arrays of samples between frames where the exact phase also puts the
+        #: proxies' rows (`_sample_rows`); None: none
+        self.sample_points: tuple[np.ndarray, np.ndarray] | None = None
         self.exact = (ExactContacts(robot, cfg.polish_margin, cfg.w_collision)
                       if self.proxies is not None and cfg.polish_iterations else None)
 
@@ -151,6 +154,13 @@ class Residuals:
         """r(q) now, J(q) on demand: a rejected step never pays for its Jacobian. `exact`: the
         polish phase's collision rows, MuJoCo's own contacts (`exact_contacts.py`), replace the
         proxies'."""
+        smp = self.sample_points if exact and self.exact is not None and self.proxies is not None else None
+        if smp is not None and len(smp[0]) and collision:
+            t_s, a_s = smp
+            qs = (1.0 - a_s)[:, None] * q[t_s] + a_s[:, None] * q[t_s + 1]
+            rot_s, pos_s = self.fk.forward_once(qs)  # the frames' FK below keeps its cache
+        else:
+            smp = None
         rot, pos = self.fk.forward(q)
         r_link = rot[:, self.link_body]
         p_link = pos[:, self.link_body] + np.einsum("tlab,lb->tla", r_link, self.link_offset)
@@ -160,7 +170,8 @@ class Residuals:
         res = [e_pos.reshape(len(q), -1), e_rot.reshape(len(q), -1)]
         col = self._collision(rot, pos, float(collision)) if self.proxies is not None and collision else None
         if exact and self.exact is not None and col is not None:
-            col = self._exact_rows(q, col)
+            col = self._exact_rows(q, col, None if smp is None else
+                                   self._sample_rows(len(q), smp, rot_s, pos_s, float(collision)))
         self.n_task_rows = sum(x.shape[1] for x in res)  # rows before the collision rows
         if col is not None:
             res.append(col[0])
@@ -171,11 +182,52 @@ class Residuals:
             res += [r for r, _ in extra]
         return np.concatenate(res, 1), lambda: self._jacobian(q, rot, pos, p_link, r_rot, col, extra)
 
-    def _exact_rows(self, q: np.ndarray, col: tuple[np.ndarray, Callable]) -> tuple[np.ndarray, Callable]:
+    def _sample_rows(self, t: int, smp: tuple[np.ndarray, np.ndarray], rot: np.ndarray, pos: np.ndarray,
+                     collision: float) -> tuple[np.ndarray, Callable] | None:
+        """The proxies' rows at the samples between frames `sample_points` ((frame, α) arrays; FK
+        (S,B,3,3), (S,B,3) at (1 − α)·q_t + α·q_t+1), split onto the two frames like MuJoCo's
+        sample rows (`ExactContacts.rows`): √(1 − α)·r on frame t, √α·r on t+1, each with its
+        frame's share of the Jacobian. Frame-local rows (T,K) and their Jacobian (T,K,n_ik) on
+        demand, or None when no proxy pair is within the margin at any sample."""
+        r, jac = self._collision(rot, pos, collision)
+        # the hinge at `contact_sample_margin`, not the proxies' margin: w·relu(m − clearance)
+        # is the proxies' row shifted down by w·(margin − m), with the same Jacobian where active
+        shift = self.w_col * collision**0.5 * max(self.cfg.collision_margin - self.cfg.contact_sample_margin, 0.0)
+        active = r > shift
+        r = np.where(active, r - shift, 0.0)
+        p = r.shape[1]
+        if not p or not r.any():
+            return None
+        s_t, a = smp
+        owner = np.concatenate([s_t, s_t + 1])
+        scale = np.concatenate([np.sqrt(1.0 - a), np.sqrt(a)])
+        src = np.tile(np.arange(len(s_t)), 2)
+        order = np.argsort(owner, kind="stable")
+        count = np.bincount(owner, minlength=t)
+        slot = np.empty(len(owner), dtype=np.int64)
+        slot[order] = np.arange(len(owner)) - (np.cumsum(count) - count)[owner[order]]
+        cols = slot[:, None] * p + np.arange(p)  # each sample's p rows, in its slot of each frame
+        out_r = np.zeros((t, int(count.max()) * p))
+        out_r[owner[:, None], cols] = scale[:, None] * r[src]
+
+        def jacobian() -> np.ndarray:
+            z, o = self.fk.joint_frames(rot, pos, list(self.ik))
+            js = jac(z, o) * active[..., None]
+            out = np.zeros((t, out_r.shape[1], js.shape[2]))
+            out[owner[:, None], cols] = scale[:, None, None] * js[src]
+            return out
+
+        return out_r, jacobian
+
+    def _exact_rows(self, q: np.ndarray, col: tuple[np.ndarray, Callable],
+                    samples: tuple[np.ndarray, Callable] | None = None) -> tuple[np.ndarray, Callable]:
         """The polish phase's collision rows: MuJoCo's contacts on the frames `exact.frames` picks,
-        the proxies' rows on the others."""
+        the proxies' rows on the others (and at `samples`, `_sample_rows`, when given)."""
         frames = self.exact.frames if self.exact.frames is not None else np.ones(len(q), dtype=bool)
         r_ex, j_ex = self.exact.rows(q)
+        if samples is not None:
+            j_ex_now = j_ex
+            r_ex, j_ex = np.concatenate([r_ex, samples[0]], 1), None
         r_px = np.where(frames[:, None], 0.0, col[0])
 
         def jacobian(z: np.ndarray, o: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
@@ -186,7 +238,11 @@ class Residuals:
                 out = np.zeros((len(q), n_px + j_ex.shape[1], z.shape[1]))
             col[1](z, o, out[:, :n_px])
             out[:, :n_px][frames] = 0.0
-            out[:, n_px:] = j_ex
+            if samples is None:
+                out[:, n_px:] = j_ex
+            else:
+                out[:, n_px: n_px + j_ex_now.shape[1]] = j_ex_now
+                out[:, n_px + j_ex_now.shape[1]:] = samples[1]()
             return out
 
         return np.concatenate([r_px, r_ex], 1), jacobian

@@ -35,6 +35,9 @@ class ExactContacts:
         self.frames: np.ndarray | None = None
         #: also these samples between frames: (frame t, fraction α) arrays, (1 − α)·q_t + α·q_t+1
         self.between: tuple[np.ndarray, np.ndarray] | None = None
+        #: the smallest distance (m) MuJoCo reported in the last `rows` call (inf: none within
+        #: the margin): ≥ 0 means no checked frame or sample penetrates
+        self.deepest = np.inf
         self.jac1 = np.zeros((3, self.model.nv))
         self.jac2 = np.zeros((3, self.model.nv))
 
@@ -53,6 +56,7 @@ class ExactContacts:
                 rows: list[tuple] = []
                 self._contacts((1.0 - a) * q[t] + a * q[t + 1], t, np.sqrt(1.0 - a), 1 + 2 * k, rows)
                 found += rows + [(t + 1, r[1], np.sqrt(a), *r[3:5], 2 + 2 * k) for r in rows]  # MuJoCo asked once
+        self.deepest = min((f[1] for f in found), default=np.inf)
         # one row per geom pair and frame: MuJoCo reports up to several points of one mesh pair
         # at the same depth; the pair's row is its deepest distance with the mean separation rate
         # of the points at that depth (each pair weighs the same, however many points it has)

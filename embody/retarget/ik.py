@@ -204,7 +204,10 @@ class _Problem:
 
     def solve(self, qi0: np.ndarray, cold: bool, full: bool = True, lam: float = LAMBDA0,
               contact_frames: np.ndarray | None = None,
-              contact_between: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+              contact_between: tuple[np.ndarray, np.ndarray] | None = None,
+              clear: Callable[[np.ndarray], bool] | None = None,
+              contact_proxies: tuple[np.ndarray, np.ndarray] | None = None,
+              tolerance_stop: bool = True) -> np.ndarray:
         """Levenberg-Marquardt (Nielsen's damping rule). From a cold start the collision term comes
         on in full after a tracking phase: with it on from the rest pose, hands block each other and
         the trunk on their way to the targets (3× the wrist error on the synthetic set). Without it
@@ -215,7 +218,11 @@ class _Problem:
         benchmarks/ik_vs_mink.py's 4 sequences, lower jerk, still 0 contacts). `full=False` stops
         after the cold phases (the coarse pass of `solve_joints`); `lam` is the starting damping.
         `contact_frames` (T,) bool: only the exact-contact phase, on those frames (`resolve_contacts`);
-        `contact_between` (frame, fraction) arrays: also on those samples between frames."""
+        `contact_between` (frame, fraction) arrays: also on those samples between frames; `clear`
+        (qi → bool, MuJoCo's verdict): the contact phase stops at the first accepted step that
+        leaves no MuJoCo row penetrating and that `clear` passes (on the tolerance only with
+        `tolerance_stop`);
+        `contact_proxies` (frame, fraction) arrays: the proxies' rows at those samples too."""
         lower, upper = self.robot.lower[self.ik], self.robot.upper[self.ik]
         qi = np.clip(qi0, lower, upper)
         use_col = self.residuals.proxies is not None
@@ -238,6 +245,7 @@ class _Problem:
                 self.residuals.exact.frames = (self._polish_frames(qi) if contact_frames is None
                                                else contact_frames)
                 self.residuals.exact.between = contact_between
+                self.residuals.sample_points = contact_proxies
             cost, normal = self.evaluate(qi, collision, exact)
             h, g = normal()
             nu = 2.0
@@ -253,6 +261,13 @@ class _Problem:
                     qi, cost = cand, c_new
                     lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                     nu = 2.0
+                    if exact and clear is not None:
+                        # a contact round ends when MuJoCo finds it clear; on the tolerance only
+                        # when `tolerance_stop`: its steps stall at a high damping round the
+                        # contact set, and a first round stopped there left the contacts to the
+                        # repair (benchmark seq 0, s11)
+                        done = ((done and tolerance_stop)
+                                or (self.residuals.exact.deepest >= 0 and clear(qi)))
                     if done:
                         break
                     h, g = normal()
@@ -262,6 +277,7 @@ class _Problem:
                     if lam > 1e8:
                         break
         self.dtd = smooth
+        self.residuals.sample_points = None
         self.lam = lam  # where the damping ended: a finer solve of the same problem goes on from it
         return qi
 
@@ -395,7 +411,8 @@ def resolve_contacts(robot: Robot, targets: Targets, cfg: IKConfig, q: np.ndarra
 def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
                              q: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
     """q (T,n) with the contacts the proxies leaked resolved inside the optimisation, and MuJoCo's
-    verdict on the returned frames (T,) bool (None when off: nothing checked). Where MuJoCo finds
+    verdict on the returned frames (T,) bool as exported, i.e. after the velocity clamp (None
+    when off: nothing checked; q comes back velocity-clamped when a round ran, else as it came). Where MuJoCo finds
     a counted contact on a frame or (`contact_samples`) on a control-rate sample between two
     frames (hands passing through each other between two clear frames, which the export's
     per-sample repair then pulls apart), an LM phase whose collision rows on those frames (± `cfg.contact_pad`) are
@@ -412,15 +429,24 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
         return q, None
     none = (np.zeros(0, np.int64), np.zeros(0))
     between = _between(len(q), targets.fps, cfg.control_rate_hz) if cfg.contact_samples else none
-    hit, smp = _touching(robot, q, np.ones(len(q), dtype=bool), between)
+    if cfg.enforce_velocity_limits:
+        # MuJoCo judges the trajectory the export gets: `finish_solution` clamps the velocities
+        # next, and the clamp alone put a 50 Hz sample back in touch (benchmark seq 2, s11)
+        def exported(x: np.ndarray) -> np.ndarray:
+            return clamp_velocity(x, robot.velocity_limits, targets.fps)
+    else:
+        def exported(x: np.ndarray) -> np.ndarray:
+            return x
+    hit, smp = _touching(robot, exported(q), np.ones(len(q), dtype=bool), between)
     contacts = hit.copy()
     if not hit.any() and not smp.any():
-        return q, contacts
+        return q, contacts  # as it came: the clamp after it finds it clear
+    q = exported(q)
     sub_cfg = cfg.model_copy(update={"polish_iterations": 0})
     exact = ExactContacts(robot, cfg.contact_margin, cfg.w_contact)
     q = q.copy()
     found = int(hit.sum() + smp.sum())
-    for _ in range(cfg.contact_rounds):
+    for round_ in range(cfg.contact_rounds):
         touch, near = hit.copy(), np.zeros(len(q), dtype=bool)
         near[between[0][smp]] = True
         touch |= near
@@ -434,14 +460,40 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
         problem.residuals.exact = exact
         problem.held = ~free[idx]
         rows = _dilate(touch, cfg.contact_pad)
-        # sample rows near a sample contact, between two frames with rows (inside one window)
+        # sample rows near a contact (a sample's or a frame's: the samples next to a touching
+        # frame touched in the round after), between two frames with rows (inside one window)
         t, a = between
-        pick = _dilate(near, cfg.contact_pad)[t] & rows[t] & rows[t + 1] if len(t) else np.zeros(0, bool)
+        pick = (_dilate(near | hit, cfg.contact_pad)[t] & rows[t] & rows[t + 1] if len(t)
+                else np.zeros(0, bool))
         sub = (np.searchsorted(idx, t[pick]), a[pick])
-        qi = problem.solve(q[idx][:, problem.ik], cold=False, contact_frames=rows[idx], contact_between=sub)
-        q[idx] = robot.clip(problem.q_full(qi))
-        now, now_smp = _touching(robot, q, free, between)  # the other frames kept their verdict
-        contacts = now  # every contact frame lies inside `free`
+        seen: dict[bytes, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+        def judged(qi: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            """q with the window at qi (clamped as exported) and MuJoCo's verdict on its frames and
+            samples that moved (the window's, and any the clamp carried past it); the others keep
+            theirs."""
+            key = qi.tobytes()
+            if key not in seen:
+                trial = q.copy()
+                trial[idx] = robot.clip(problem.q_full(qi))
+                trial = exported(trial)
+                moved = _dilate(free | (np.abs(trial - q).max(1) > 1e-12), 1)
+                seen[key] = (trial, *_touching(robot, trial, moved, between))
+            return seen[key]
+
+        def clear(qi: np.ndarray) -> bool:
+            _, now, now_smp = judged(qi)
+            return not now.any() and not now_smp.any()
+
+        qi = problem.solve(q[idx][:, problem.ik], cold=False, contact_frames=rows[idx], contact_between=sub,
+                           clear=clear if cfg.contact_stop else None,
+                           contact_proxies=sub if cfg.contact_sample_proxies else None,
+                           # later rounds work on what the first could not route round: where
+                           # they stall, the repair takes over (synth seq 6's second round ran
+                           # its whole budget for no progress)
+                           tolerance_stop=round_ > 0)
+        q, now, now_smp = judged(qi)
+        contacts = now  # every earlier contact frame lies inside `free`, checked again
         if not now.any() and not now_smp.any():
             break
         left = int(now.sum() + now_smp.sum())

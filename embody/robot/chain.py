@@ -90,6 +90,11 @@ class ChainFK(BodyFK):
             pos = t[..., :3, 3] @ self.base_rot.T + self.base_pos
         return rot.cpu().numpy(), pos.cpu().numpy()
 
+    def forward_once(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The whole chain, bypassing the static-body cache (which a batch of another shape
+        would evict: the next `forward` would then take the other path, ~1e-16 apart)."""
+        return self._chain_forward((self.chain, self.cols, self.frames), q)
+
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         red = self.reduced
         if red is None:

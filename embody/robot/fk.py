@@ -48,6 +48,11 @@ class BodyFK(ABC):
     def forward(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Rotations (T,B,3,3) and positions (T,B,3), float64, of every walked body for q (T, n_joints)."""
 
+    def forward_once(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """`forward` for a one-off batch: it leaves any state a backend keeps between calls (and
+        so the rounding of the next `forward`) as it was."""
+        return self.forward(q)
+
     def joint_frames(self, rot: np.ndarray, pos: np.ndarray, joints: list[int]) -> tuple[np.ndarray, np.ndarray]:
         """World axes (T,J,3) and pivots (T,J,3) of robot joints `joints` (pivots are body origins)."""
         key = tuple(joints)
