@@ -7,6 +7,7 @@ two callables: `compute(ctx, inputs) -> result` (one library call) and `load(arr
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -19,13 +20,22 @@ __all__ = ["Context", "Pipeline", "Step", "resource"]
 
 #: Expensive per-process objects (body model, robot), keyed by what determines them.
 _RESOURCES: dict[tuple[str, str], Any] = {}
+#: One lock per slot: a worker thread asking for a model another thread is building waits for it
+#: instead of building a second copy (the flow's start-up thread builds them, `flows.prestart`).
+_SLOT_LOCKS: dict[tuple[str, str], threading.Lock] = {}
+_LOCKS_LOCK = threading.Lock()
 
 
 def resource(name: str, identity: str, factory: Callable[[], Any]) -> Any:
     """Build `factory()` once per process and identity; batches in one worker share it."""
     slot = (name, identity)
-    if slot not in _RESOURCES:
-        _RESOURCES[slot] = factory()
+    if slot in _RESOURCES:
+        return _RESOURCES[slot]
+    with _LOCKS_LOCK:
+        lock = _SLOT_LOCKS.setdefault(slot, threading.Lock())
+    with lock:
+        if slot not in _RESOURCES:
+            _RESOURCES[slot] = factory()
     return _RESOURCES[slot]
 
 
