@@ -107,13 +107,19 @@ def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray,
             near[c] = ((va > lo[:, None]) & (va < hi[:, None])).all(-1)  # (T, hand points)
             out[start:start + len(verts), c] = np.where(near[c].any(1), np.nan, _REACH)
         for t, v in enumerate(verts):
-            trees = {}
             for c, a, b in live:
                 if not near[c][t].any():
                     continue
-                if b not in trees:
-                    trees[b] = cKDTree(v[part[b]])
-                d, _ = trees[b].query(v[part[a]][near[c][t]], k=1, distance_upper_bound=_REACH)
+                # The few hand points near the other part go in the tree, and only that part's
+                # points within reach of their box are queried: the same pairs within reach,
+                # each distance the same |a - b|, so the same least distance.
+                va = v[part[a]][near[c][t]]
+                vb = v[part[b]]
+                vb = vb[((vb > va.min(0) - _REACH) & (vb < va.max(0) + _REACH)).all(1)]
+                if len(vb) == 0:
+                    out[start + t, c] = _REACH
+                    continue
+                d, _ = cKDTree(va).query(vb, k=1, distance_upper_bound=_REACH)
                 out[start + t, c] = float(min(d.min(), _REACH))
     return out
 
