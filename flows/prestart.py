@@ -13,6 +13,8 @@ prestart there.
 
 from __future__ import annotations
 
+import os
+import sys
 import threading
 from concurrent.futures import Future
 from embody.config import Config
@@ -21,6 +23,8 @@ from embody.tasks.pipeline import Context, Pipeline
 
 __all__ = ["Prestart", "discard", "start", "take"]
 
+#: Niceness of the prestart thread (Linux): it uses the cores the server's start leaves idle.
+_NICE = 10
 _CURRENT: "Prestart | None" = None
 _LOCK = threading.Lock()
 
@@ -38,6 +42,11 @@ class Prestart:
         self.thread = threading.Thread(target=self._run, name="embody-prestart", daemon=True)
 
     def _run(self) -> None:
+        if sys.platform.startswith("linux"):  # this thread only (a Linux thread id is a pid)
+            try:  # idle cycles only: on a busy machine the server's start must not wait for us
+                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), _NICE)
+            except OSError:
+                pass
         for step in self.steps:
             fut = self.futures[step.name]
             try:
