@@ -17,6 +17,7 @@ import os
 import sys
 import threading
 from concurrent.futures import Future
+
 from embody.config import Config
 from embody.tasks.execute import run_shared
 from embody.tasks.pipeline import Context, Pipeline
@@ -42,7 +43,9 @@ class Prestart:
         self.thread = threading.Thread(target=self._run, name="embody-prestart", daemon=True)
 
     def _run(self) -> None:
-        if sys.platform.startswith("linux"):  # this thread only (a Linux thread id is a pid)
+        # this thread only (a Linux thread id is a pid; libgomp teams are per calling thread, so
+        # the workers' torch threads are not niced)
+        if sys.platform.startswith("linux"):
             try:  # idle cycles only: on a busy machine the server's start must not wait for us
                 os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), _NICE)
             except OSError:
