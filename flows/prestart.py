@@ -9,12 +9,15 @@ share) and computes the run's shared steps without inputs (the shape fit) throug
 here (`take`) instead of submitting their tasks: the store, keys, metrics and computation log are
 what the task would have written. Process and Dask runners compute in other processes: no
 prestart there.
+
+The thread runs at normal priority. At nice 10 on a saturated machine its shape fit took 59 s of
+wall time, and meanwhile it can hold the body and robot models' build locks that the workers'
+first steps wait on (priority inversion). On a quiet machine it uses the core that the server's
+start leaves idle either way.
 """
 
 from __future__ import annotations
 
-import os
-import sys
 import threading
 from concurrent.futures import Future
 
@@ -24,8 +27,6 @@ from embody.tasks.pipeline import Context, Pipeline
 
 __all__ = ["Prestart", "discard", "start", "take"]
 
-#: Niceness of the prestart thread (Linux): it uses the cores the server's start leaves idle.
-_NICE = 10
 _CURRENT: "Prestart | None" = None
 _LOCK = threading.Lock()
 
@@ -43,13 +44,6 @@ class Prestart:
         self.thread = threading.Thread(target=self._run, name="embody-prestart", daemon=True)
 
     def _run(self) -> None:
-        # this thread only (a Linux thread id is a pid; libgomp teams are per calling thread, so
-        # the workers' torch threads are not niced)
-        if sys.platform.startswith("linux"):
-            try:  # idle cycles only: on a busy machine the server's start must not wait for us
-                os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), _NICE)
-            except OSError:
-                pass
         for step in self.steps:
             fut = self.futures[step.name]
             try:
