@@ -25,7 +25,10 @@ from embody.config import Config
 from embody.tasks.execute import run_shared
 from embody.tasks.pipeline import Context, Pipeline
 
-__all__ = ["Prestart", "discard", "start", "take"]
+__all__ = ["THREAD_NAME", "Prestart", "discard", "start", "take"]
+
+#: The prestart thread's name (the store's computation log records each computation's thread).
+THREAD_NAME = "embody-prestart"
 
 _CURRENT: "Prestart | None" = None
 _LOCK = threading.Lock()
@@ -41,7 +44,7 @@ class Prestart:
         self.ctx = Context(cfg=cfg, store_root=store_root, run=run)
         self.steps = [s for s in pipeline.shared if not s.inputs]
         self.futures: dict[str, Future] = {s.name: Future() for s in self.steps}
-        self.thread = threading.Thread(target=self._run, name="embody-prestart", daemon=True)
+        self.thread = threading.Thread(target=self._run, name=THREAD_NAME, daemon=True)
 
     def _run(self) -> None:
         for step in self.steps:

@@ -169,7 +169,8 @@ def test_prestart_computes_the_shared_steps_the_driver_takes(tmp_path):
     store = ArtifactStore(tmp_path)
     assert rec["status"] == "ok" and store.has("shape_fit", rec["key"])
     # the first prestart computed it, the second found it stored: one computation, the same key
-    assert [r["step"] for r in store.computations()] == ["shape_fit"]
+    assert [(r["step"], r["thread"]) for r in store.computations()] == [
+        ("shape_fit", prestart.THREAD_NAME)]
     again = run_shared(SHAPE_FIT, Context(cfg=cfg, store_root=str(tmp_path), run="toy"), {})
     assert again["key"] == rec["key"] and not again["computed"] and not rec["computed"]
 
