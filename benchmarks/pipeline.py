@@ -8,10 +8,9 @@ figures are the summed compute seconds of that step divided by the same number, 
 they add up to about N × seconds_per_seq; `<step>_cpu_s` is the CPU time of the worker thread
 that computed it (recorded by `tasks.execute`; GL raster threads and the x264 child excluded),
 and `outside_steps_s` the worker-seconds spent outside any step's computation (Prefect task
-runs, store reads/writes, the driver, workers idle at the tail; the shape fit that
-`flows.prestart` computes while Prefect starts is no worker's). `cpu_s_per_seq` (this process
-and its finished children) and the load average at the end are printed too: on a shared machine
-compare runs made back to back or side by side, never against a figure from another day.
+runs, store reads/writes, the driver, workers idle at the tail). `cpu_s_per_seq` (this process and its finished
+children) and the load average at the end are printed too: on a shared machine compare runs made
+back to back or side by side, never against a figure from another day.
 
     python benchmarks/pipeline.py [--limit N] [--workers 2] [--out DIR]
 """
@@ -50,7 +49,6 @@ def main() -> None:
     from embody.synth import default_dataset
     from embody.flows.dataset import run_flow
     from embody.flows.env import configure
-    from embody.flows.prestart import THREAD_NAME as PRESTART_THREAD
     from embody.store import ArtifactStore
 
     configure(store_dir)
@@ -64,15 +62,12 @@ def main() -> None:
     n = summary["ok"] + summary["failed"]
     per_step: dict[str, float] = defaultdict(float)
     cpu_step: dict[str, float] = defaultdict(float)
-    on_workers = 0.0
     for row in ArtifactStore(store_dir).computations():
         per_step[row["step"]] += float(row.get("compute_s", 0.0))
         cpu_step[row["step"]] += float(row.get("cpu_s", 0.0))
-        if row.get("thread") != PRESTART_THREAD:  # the shape fit made while Prefect started
-            on_workers += float(row.get("compute_s", 0.0))
     # what the workers spent outside step computations: Prefect task runs, store reads and
     # writes, the driver, idle workers at the tail (all worker-seconds not in a compute_s)
-    overhead = args.workers * wall - on_workers
+    overhead = args.workers * wall - sum(per_step.values())
     m = max(n, 1)
     print(f"sequences={n} ok={summary['ok']} failed={summary['failed']} workers={args.workers} "
           f"flow_s={wall:.1f} report_s={summary['report_s']:.1f}")

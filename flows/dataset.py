@@ -94,7 +94,7 @@ class _Driver:
     """
 
     def __init__(self, pipeline: Pipeline, ctx: Context, manifest: Manifest, progress: Progress,
-                 max_inflight: int, prestarted: dict[str, Any] | None = None) -> None:
+                 max_inflight: int) -> None:
         self.pipeline, self.ctx, self.manifest, self.progress = pipeline, ctx, manifest, progress
         self.steps = pipeline.per_sequence
         self.max_inflight = max_inflight
@@ -110,8 +110,6 @@ class _Driver:
         self._save_every = _SAVE_EVERY_S
         self.recovered = 0
         self.save_error: str | None = None
-        #: Shared steps' records computed while Prefect started (`flows.prestart`), as futures.
-        self.prestarted = dict(prestarted or {})
 
     def run(self, batches: list[list[dict[str, Any]]]) -> None:
         self.batches = batches
@@ -140,10 +138,8 @@ class _Driver:
             if step.name in self.shared or any(s.name not in self.shared for s in step.inputs):
                 continue
             self.shared[step.name] = {"status": "running"}
-            fut = self.prestarted.pop(step.name, None)
-            if fut is None:
-                from embody.tasks.steps import shared_task  # Prefect: imported once needed
-                fut = shared_task(step).submit(step, self.ctx, self._shared_keys())
+            from embody.tasks.steps import shared_task  # Prefect: imported once a task is needed
+            fut = shared_task(step).submit(step, self.ctx, self._shared_keys())
             self._watch(fut, ("shared", step.name))
 
     def _fill(self) -> None:
@@ -349,9 +345,7 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     size = min(cfg.run.batch_size, max(1, -(-len(refs) // (2 * cfg.run.workers))))
     batches = [[new_record(r) for r in refs[i:i + size]] for i in range(0, len(refs), size)]
     bar = Progress([s.name for s in pipeline.per_sequence], len(refs), enabled=progress)
-    from embody.flows.prestart import take
-    driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers,
-                     prestarted=take(cfg, str(store.root)))
+    driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers)
     with worker_blas(cfg.run.workers):
         driver.run(batches)
     return finish_run(store, run, manifest, cfg, dataset=dataset, split=split, t0=t0,
@@ -388,25 +382,7 @@ def __getattr__(name: str) -> Any:
 
 def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
              pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
-    """Run `dataset_flow` with the task runner `cfg.run` asks for.
-
-    While Prefect starts its server (seconds), this process is warmed for the run and its
-    shared steps computed (`flows.prestart`, thread runner only); BLAS is single-threaded from
-    here on when several workers will share it (`flows.threads`)."""
-    from embody.flows.prestart import discard, start
-    from embody.flows.threads import worker_blas
+    """Run `dataset_flow` with the task runner `cfg.run` asks for."""
     runner = make_task_runner(cfg.run)
-    with worker_blas(cfg.run.workers):
-        pre = None
-        try:
-            pre = start(cfg, str(ArtifactStore(cfg.run.store).root), run_name(cfg, dataset, split),
-                        pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render))
-        except Exception:  # noqa: BLE001 - a bad run name etc.: the flow reports it
-            pre = None
-        try:
-            return prefect_flow().with_options(task_runner=runner)(
-                str(dataset), split, cfg.model_dump(mode="json"), pipeline, progress)
-        finally:
-            if pre is not None:
-                discard(pre)
-                pre.join()  # never leave it computing into a store the caller may delete
+    return prefect_flow().with_options(task_runner=runner)(
+        str(dataset), split, cfg.model_dump(mode="json"), pipeline, progress)

@@ -7,7 +7,6 @@ marked failed and skipped by later steps; the rest of the batch goes on.
 
 from __future__ import annotations
 
-import threading
 import time
 import traceback
 from typing import Any
@@ -96,8 +95,7 @@ def _compute(step: Step, ctx: Context, key: str, inputs: dict[str, Any], input_k
         "inputs": input_keys, "config": step.config(ctx.cfg), "version": step.version,
         "timings": {"compute_s": compute_s}, "run": ctx.run, "sequence": seq_id, "metrics": metrics})
     store.record(step.name, key, sequence=seq_id, run=ctx.run, compute_s=compute_s,
-                 cpu_s=cpu_s, published=published, reason=reason,
-                 thread=threading.current_thread().name)  # a worker's, or the prestart's
+                 cpu_s=cpu_s, published=published, reason=reason)
     return metrics
 
 

@@ -21,7 +21,7 @@ __all__ = ["Context", "Pipeline", "Step", "resource"]
 #: Expensive per-process objects (body model, robot), keyed by what determines them.
 _RESOURCES: dict[tuple[str, str], Any] = {}
 #: One lock per slot: a worker thread asking for a model another thread is building waits for it
-#: instead of building a second copy (the flow's start-up thread builds them, `flows.prestart`).
+#: instead of building a second copy (a run's two workers start their first steps at once).
 _SLOT_LOCKS: dict[tuple[str, str], threading.Lock] = {}
 _LOCKS_LOCK = threading.Lock()
 

@@ -150,31 +150,6 @@ def test_resource_is_built_once_when_threads_ask_at_once():
     assert len(built) == 1 and len({id(g) for g in got}) == 1
 
 
-def test_prestart_computes_the_shared_steps_the_driver_takes(tmp_path):
-    """While Prefect starts, `flows.prestart` computes the shared shape fit into the store with the
-    task's own `run_shared`; the driver takes that record once, for this run's config only."""
-    from embody.flows import prestart
-    from embody.tasks.execute import run_shared
-
-    cfg = _cfg(tmp_path)
-    assert prestart.start(_cfg(tmp_path, runner="processes"), str(tmp_path), "toy", TOY) is None
-    pre = prestart.start(cfg, str(tmp_path), "toy", TOY)
-    pre.join()
-    assert prestart.take(_cfg(tmp_path, workers=3), str(tmp_path)) == {}  # another run's config
-    pre = prestart.start(cfg, str(tmp_path), "toy", TOY)
-    taken = prestart.take(cfg, str(tmp_path))
-    assert set(taken) == {"shape_fit"} and prestart.take(cfg, str(tmp_path)) == {}
-    rec = taken["shape_fit"].result(timeout=60)
-    pre.join()
-    store = ArtifactStore(tmp_path)
-    assert rec["status"] == "ok" and store.has("shape_fit", rec["key"])
-    # the first prestart computed it, the second found it stored: one computation, the same key
-    assert [(r["step"], r["thread"]) for r in store.computations()] == [
-        ("shape_fit", prestart.THREAD_NAME)]
-    again = run_shared(SHAPE_FIT, Context(cfg=cfg, store_root=str(tmp_path), run="toy"), {})
-    assert again["key"] == rec["key"] and not again["computed"] and not rec["computed"]
-
-
 # -- flows (one shared Prefect harness) ----------------------------------------------------------
 def test_failure_isolation_then_resume(prefect_harness, data, tmp_path):
     store = ArtifactStore(tmp_path)
