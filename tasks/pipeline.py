@@ -7,6 +7,7 @@ two callables: `compute(ctx, inputs) -> result` (one library call) and `load(arr
 
 from __future__ import annotations
 
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -19,13 +20,22 @@ __all__ = ["Context", "Pipeline", "Step", "resource"]
 
 #: Expensive per-process objects (body model, robot), keyed by what determines them.
 _RESOURCES: dict[tuple[str, str], Any] = {}
+#: One lock per slot: a worker thread asking for a model another thread is building waits for it
+#: instead of building a second copy (a run's two workers start their first steps at once).
+_SLOT_LOCKS: dict[tuple[str, str], threading.Lock] = {}
+_LOCKS_LOCK = threading.Lock()
 
 
 def resource(name: str, identity: str, factory: Callable[[], Any]) -> Any:
     """Build `factory()` once per process and identity; batches in one worker share it."""
     slot = (name, identity)
-    if slot not in _RESOURCES:
-        _RESOURCES[slot] = factory()
+    if slot in _RESOURCES:
+        return _RESOURCES[slot]
+    with _LOCKS_LOCK:
+        lock = _SLOT_LOCKS.setdefault(slot, threading.Lock())
+    with lock:
+        if slot not in _RESOURCES:
+            _RESOURCES[slot] = factory()
     return _RESOURCES[slot]
 
 
@@ -91,16 +101,20 @@ class Context:
     cfg: Config
     store_root: str
     run: str
-    _configs: dict[str, dict[str, str]] = field(default_factory=dict, init=False, repr=False,
-                                                compare=False)
+
+    def __post_init__(self) -> None:
+        # The memo of `key` is no dataclass field, so Prefect's walk of a task's parameters
+        # never reads it: with `return_data` that walk reads each field twice and, when the
+        # driver had replaced the memo in between, rebuilt the context with
+        # `dataclasses.replace`, which refuses an `init=False` field ("Failed to resolve inputs
+        # in parameter 'ctx'": a whole batch lost on a loaded machine, 2026-11-27).
+        self._configs: dict[str, dict[str, str]] = {}
 
     def key(self, step: Step, input_keys: Mapping[str, str]) -> str:
         """`step.key` with the step's config JSON computed once per context, not per sequence.
 
-        The memo is replaced, never mutated: Prefect walks every field of a task's parameters
-        (this context included) in its worker threads while the driver and other workers add
-        steps here, and a dict that grows under an iterator raises "dictionary changed size
-        during iteration" in whichever task happened to be submitted at that moment.
+        The memo is replaced, never mutated, so a thread iterating an older one (the driver and
+        the workers key steps concurrently) never sees it change size.
         """
         configs = self._configs
         if step.name not in configs:

@@ -54,3 +54,22 @@ def test_keys_are_unchanged_by_the_memo_and_stable_under_threads(tmp_path):
     assert errors == []
     for name, key in keys.items():
         assert key == plain[name]
+
+
+def test_prefect_resolving_the_context_survives_a_step_keyed_mid_walk(tmp_path):
+    """Prefect's task engine walks parameters with `return_data=True`, reading each dataclass field
+    twice; a step keyed in between (the driver, another worker) must not make it rebuild the
+    context (`dataclasses.replace` refused the memo field: "Failed to resolve inputs")."""
+    from embody.tasks.pipeline import Step
+
+    ctx = Context(cfg=Config(), store_root=str(tmp_path), run="t")
+    first, *_ = _steps()
+    ctx.key(first, {})
+    fresh = iter(range(10_000))
+
+    def visit(expr):  # every visited value: another thread keys one more step meanwhile
+        ctx.key(Step(f"s{next(fresh)}", "1", (), lambda c, i: None, lambda a, b: None), {})
+        return expr
+
+    assert visit_collection(ctx, visit_fn=visit, return_data=True) is ctx
+    assert ctx.key(first, {}) == first.key(Config(), {})

@@ -164,3 +164,35 @@ def test_contact_events_match_when_runs_overlap():
     assert ev == {"human": 2, "robot": 2, "found": 1, "right": 1}
     p, rc, f = event_f1(ev)
     assert (p, rc, f) == (0.5, 0.5, 0.5)
+
+
+def test_human_contacts_are_the_least_mesh_distances_capped_at_reach():
+    """`human_contacts` (broad phase per chunk, a KD-tree of the nearby hand points) gives the
+    brute-force least vertex distance between each channel's parts, capped at its reach."""
+    import torch
+    from scipy.spatial.distance import cdist
+
+    from embody.body import load_body_model
+    from embody.metrics import embodiments as emb
+    from embody.synth import generate_sequence
+
+    body = load_body_model()
+    m = generate_sequence(0, 7)
+    betas = np.asarray(m.betas, dtype=np.float64)
+    frames = np.arange(0, m.num_frames, 6)
+    with torch.no_grad():
+        tr = body.joint_transforms(torch.as_tensor(np.asarray(m.pose)[frames], dtype=torch.float64),
+                                   torch.as_tensor(betas)).numpy()
+    channels = ("left_chest", "hands", "right_face")  # any subset, in the order asked
+    got = emb.human_contacts(body, tr, betas, channels)
+    sets = emb._vertex_sets(body)
+    with torch.no_grad():
+        verts = body.vertices(torch.as_tensor(np.asarray(m.pose)[frames], dtype=torch.float64),
+                              torch.as_tensor(betas)).numpy()
+    pairs = {"hands": ("left_hand", "right_hand"), "left_chest": ("left_hand", "chest"),
+             "right_face": ("right_hand", "face")}
+    want = np.array([[min(cdist(v[sets[pairs[c][0]]], v[sets[pairs[c][1]]]).min(), emb._REACH)
+                      for c in channels] for v in verts])
+    assert got.shape == (len(frames), 3)
+    assert (want < emb._REACH).any()  # some frames in contact range: the narrow phase is tested
+    np.testing.assert_allclose(got, want, atol=1e-6)

@@ -130,6 +130,26 @@ def test_batch_step_hits_do_no_work(data, tmp_path):
     assert len(ArtifactStore(tmp_path).computations()) == 4
 
 
+def test_resource_is_built_once_when_threads_ask_at_once():
+    import threading
+
+    from embody.tasks.pipeline import resource
+    built = []
+
+    def factory():
+        time.sleep(0.2)
+        built.append(1)
+        return object()
+    got = []
+    threads = [threading.Thread(target=lambda: got.append(resource("test", "once", factory)))
+               for _ in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(built) == 1 and len({id(g) for g in got}) == 1
+
+
 # -- flows (one shared Prefect harness) ----------------------------------------------------------
 def test_failure_isolation_then_resume(prefect_harness, data, tmp_path):
     store = ArtifactStore(tmp_path)

@@ -266,3 +266,15 @@ def test_reference_hands_keep_the_fine_cell(fitted):
     assert np.all(cells[~on_hand] == cfg.reference_body_cell_m)
     same = reference_cells(body, RenderConfig(reference_body_cell_m=None))
     assert np.all(same == cfg.reference_cell_m)
+
+
+def test_downsample_is_the_rounded_block_mean():
+    from embody.render.scene import downsample
+
+    rng = np.random.default_rng(0)
+    x = rng.integers(0, 256, (2, 12, 18, 3), dtype=np.uint8)
+    assert downsample(x, 1) is x
+    for f in (2, 3):
+        s = x.reshape(2, 12 // f, f, 18 // f, f, 3).astype(np.int64).sum(axis=(2, 4))
+        got = downsample(x, f)
+        assert got.dtype == np.uint8 and np.array_equal(got, (s + f * f // 2) // (f * f))

@@ -88,24 +88,38 @@ def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray,
              "right_face": ("right_hand", "face"), "left_chest": ("left_hand", "chest"),
              "right_chest": ("right_hand", "chest")}
     out = np.zeros((len(transforms), len(channels)))
+    live = []  # (channel, hand part, other part) of the channels whose parts have vertices
+    for c, name in enumerate(channels):
+        if any(part[p].stop == part[p].start for p in pairs[name]):
+            out[:, c] = np.nan
+        else:
+            live.append((c, *pairs[name]))
     for start in range(0, len(transforms), _CHUNK):
         verts = skin(np.asarray(transforms[start:start + _CHUNK], dtype=np.float64))
+        # Broad phase for the whole chunk at once (the same comparisons the per-frame test made):
+        # only hand points inside the other part's box grown by the reach count; a frame with
+        # none is at least `_REACH` apart without building a tree.
+        boxes = {p: (verts[:, part[p]].min(1) - _REACH, verts[:, part[p]].max(1) + _REACH)
+                 for p in {b for _, _, b in live}}
+        near = {}
+        for c, a, b in live:
+            va, (lo, hi) = verts[:, part[a]], boxes[b]
+            near[c] = ((va > lo[:, None]) & (va < hi[:, None])).all(-1)  # (T, hand points)
+            out[start:start + len(verts), c] = np.where(near[c].any(1), np.nan, _REACH)
         for t, v in enumerate(verts):
-            trees = {}
-            for c, name in enumerate(channels):
-                a, b = pairs[name]
-                if len(v[part[a]]) == 0 or len(v[part[b]]) == 0:
-                    out[start + t, c] = np.nan
+            for c, a, b in live:
+                if not near[c][t].any():
                     continue
-                va, vb = v[part[a]], v[part[b]]
-                lo, hi = vb.min(0) - _REACH, vb.max(0) + _REACH
-                va = va[((va > lo) & (va < hi)).all(1)]  # broad phase: only hand points nearby
-                if len(va) == 0:
+                # The few hand points near the other part go in the tree, and only that part's
+                # points within reach of their box are queried: the same pairs within reach,
+                # each distance the same |a - b|, so the same least distance.
+                va = v[part[a]][near[c][t]]
+                vb = v[part[b]]
+                vb = vb[((vb > va.min(0) - _REACH) & (vb < va.max(0) + _REACH)).all(1)]
+                if len(vb) == 0:
                     out[start + t, c] = _REACH
                     continue
-                if b not in trees:
-                    trees[b] = cKDTree(vb)
-                d, _ = trees[b].query(va, k=1, distance_upper_bound=_REACH)
+                d, _ = cKDTree(va).query(vb, k=1, distance_upper_bound=_REACH)
                 out[start + t, c] = float(min(d.min(), _REACH))
     return out
 
