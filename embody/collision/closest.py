@@ -1,13 +1,18 @@
-"""Compiled closest-triangle scan for the mesh judge (`depth._Surface.query`).
+"""Compiled (numba) kernels of the mesh judge (`depth`): the exact closest triangle, and crossing
+triangle pairs.
 
-Why: the judge's time went to `query` (half of it), which per point runs ~15 candidate
-triangles through a dozen small NumPy operations (~30 µs a point, almost all interpreter and
-temporary-array overhead). Here the same scan runs as one numba loop per point: the same
-candidates (the k-d tree's k nearest and its ball, found by SciPy as before), the same filters,
-the same Ericson closest-point formula written operation for operation as
-`depth._closest_on_triangles` (IEEE float64, no fast-math, no contraction), and the same
-tie-break (the first of equal distances in ball order, then the k nearest), so the depths keep
-their bits (`tests/test_depth_exact.py`)."""
+Why: after s9-judge the judge's time went to `_Surface.query` (a k-d tree k-nearest + ball scan,
+~30 µs a point in small NumPy operations) and to `_crossing` (a python-fcl BVH built per
+component pair and frame). Here:
+
+- `grid_nearest`: a ring search on a grid of triangle centroids; a triangle is skipped only when
+  a lower bound on its distance exceeds the best found, ties go to the lowest triangle index
+  (what the k-d tree scan's stable sort picked), and the per-triangle formula is
+  `depth._closest_on_triangles` operation for operation (IEEE float64, no fast-math, sums in
+  NumPy's order), so the judge's depths keep their bits (`tests/test_depth_exact.py`).
+- `crossing_pairs`: a box sweep and a separating-axis test; the same pairs as fcl's BVH collide.
+
+`error_model="numpy"`: a 0/0 on a degenerate triangle is NaN as in NumPy, not an exception."""
 
 from __future__ import annotations
 
@@ -21,6 +26,19 @@ MAX_CELLS = 64
 @njit(cache=True, nogil=True, error_model="numpy")
 def _dot(x0: float, x1: float, x2: float, y0: float, y1: float, y2: float) -> float:
     return x0 * y0 + x1 * y1 + x2 * y2
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _corner(out: np.ndarray, x: np.ndarray, feature: int) -> int:
+    out[0], out[1], out[2] = x[0], x[1], x[2]
+    return feature
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _on_edge(out: np.ndarray, x: np.ndarray, e0: float, e1: float, e2: float, t: float,
+             feature: int) -> int:
+    out[0], out[1], out[2] = x[0] + e0 * t, x[1] + e1 * t, x[2] + e2 * t
+    return feature
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -44,28 +62,18 @@ def closest_point(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
     vb = d5 * d2 - d1 * d6
     vc = d1 * d4 - d3 * d2
     if d1 <= 0 and d2 <= 0:
-        out[0], out[1], out[2] = a[0], a[1], a[2]
-        return 0
+        return _corner(out, a, 0)
     if d3 >= 0 and d4 <= d3:
-        out[0], out[1], out[2] = b[0], b[1], b[2]
-        return 1
+        return _corner(out, b, 1)
     if vc <= 0 and d1 >= 0 and d3 <= 0:
-        t = d1 / (d1 - d3)
-        out[0], out[1], out[2] = a[0] + ab0 * t, a[1] + ab1 * t, a[2] + ab2 * t
-        return 3
+        return _on_edge(out, a, ab0, ab1, ab2, d1 / (d1 - d3), 3)
     if d6 >= 0 and d5 <= d6:
-        out[0], out[1], out[2] = c[0], c[1], c[2]
-        return 2
+        return _corner(out, c, 2)
     if vb <= 0 and d2 >= 0 and d6 <= 0:
-        t = d2 / (d2 - d6)
-        out[0], out[1], out[2] = a[0] + ac0 * t, a[1] + ac1 * t, a[2] + ac2 * t
-        return 5
+        return _on_edge(out, a, ac0, ac1, ac2, d2 / (d2 - d6), 5)
     if va <= 0 and d4 - d3 >= 0 and d5 - d6 >= 0:
-        t = (d4 - d3) / ((d4 - d3) + (d5 - d6))
-        out[0] = b[0] + (c[0] - b[0]) * t
-        out[1] = b[1] + (c[1] - b[1]) * t
-        out[2] = b[2] + (c[2] - b[2]) * t
-        return 4
+        return _on_edge(out, b, c[0] - b[0], c[1] - b[1], c[2] - b[2],
+                        (d4 - d3) / ((d4 - d3) + (d5 - d6)), 4)
     denom = va + vb + vc
     safe = denom if abs(denom) > 1e-300 else 1.0
     v = vb / safe
@@ -79,83 +87,6 @@ def closest_point(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
 @njit(cache=True, nogil=True, error_model="numpy")
 def _norm3(x0: float, x1: float, x2: float) -> float:
     return np.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def nearest_bound(p: np.ndarray, tri: np.ndarray, near: np.ndarray, upper: np.ndarray) -> None:
-    """Per point the distance to the nearest of its k nearest-centroid triangles `near[i]`:
-    an upper bound on its distance to the surface (NaN when one of them is degenerate, as
-    NumPy's `min` propagates it)."""
-    n, k = near.shape
-    q = np.empty(3)
-    for i in range(n):
-        pi = p[i]
-        u = np.inf
-        for j in range(k):
-            t = near[i, j]
-            closest_point(pi, tri[t, 0], tri[t, 1], tri[t, 2], q)
-            d = _norm3(q[0] - pi[0], q[1] - pi[1], q[2] - pi[2])
-            if d != d:
-                u = d
-                break
-            if d < u:
-                u = d
-        upper[i] = u
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def nearest_triangles(p: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: np.ndarray,
-                      plane: np.ndarray, offset: np.ndarray, slack: np.ndarray,
-                      near: np.ndarray, upper: np.ndarray, ball: np.ndarray,
-                      ball_start: np.ndarray,
-                      dist: np.ndarray, point: np.ndarray, feat: np.ndarray,
-                      which: np.ndarray) -> None:
-    """Per point p[i] the closest of its candidate triangles (indices into `tri`): first the
-    ball's `ball[ball_start[i]:ball_start[i+1]]` that pass the centroid and plane bounds of
-    `_Surface.query`, then its k nearest `near[i]`; the first of equal distances wins, a NaN
-    distance counts as +inf; `upper` from `nearest_bound`. Writes distance, closest point,
-    feature and triangle index."""
-    n, k = near.shape
-    q = np.empty(3)
-    for i in range(n):
-        pi = p[i]
-        u = upper[i]
-        best = np.inf
-        best_t = -1
-        best_f = 6
-        b0 = b1 = b2 = 0.0
-        first = True
-        for s in range(ball_start[i], ball_start[i + 1]):
-            t = ball[s]
-            cd = _norm3(centroid[t, 0] - pi[0], centroid[t, 1] - pi[1], centroid[t, 2] - pi[2])
-            if not cd <= u + radius[t] + 1e-12:
-                continue
-            off = abs(_dot(plane[t, 0], plane[t, 1], plane[t, 2], pi[0], pi[1], pi[2])
-                      - offset[t])
-            if off > u + slack[t] + 1e-9:
-                continue
-            f = closest_point(pi, tri[t, 0], tri[t, 1], tri[t, 2], q)
-            d = _norm3(q[0] - pi[0], q[1] - pi[1], q[2] - pi[2])
-            if d != d:
-                d = np.inf
-            if first or d < best:
-                first = False
-                best, best_t, best_f = d, t, f
-                b0, b1, b2 = q[0], q[1], q[2]
-        for j in range(k):
-            t = near[i, j]
-            f = closest_point(pi, tri[t, 0], tri[t, 1], tri[t, 2], q)
-            d = _norm3(q[0] - pi[0], q[1] - pi[1], q[2] - pi[2])
-            if d != d:
-                d = np.inf
-            if first or d < best:
-                first = False
-                best, best_t, best_f = d, t, f
-                b0, b1, b2 = q[0], q[1], q[2]
-        dist[i] = best
-        point[i, 0], point[i, 1], point[i, 2] = b0, b1, b2
-        feat[i] = best_f
-        which[i] = best_t
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
