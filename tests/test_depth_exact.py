@@ -1,6 +1,7 @@
-"""The mesh judge's fast paths give the bits of the plain ones: closest points on triangles (NumPy
-and the compiled `closest.closest_point`), the grid closest-triangle query against brute force, the one-ring gather, the skin, and the
-per-frame memo of `motion_depths`."""
+"""The mesh judge's fast paths give the bits of the plain ones: the compiled closest point on a
+triangle against the NumPy form, the grid closest-triangle query against brute force, the
+crossing pairs against python-fcl, the one-ring gather, the skin, and the per-frame memo of
+`motion_depths`."""
 
 from __future__ import annotations
 
@@ -12,11 +13,14 @@ import trimesh
 from embody.body import MannequinBody
 from embody.body.kinematics import skin
 from embody.collision import closest, depth
-from embody.collision.depth import DepthMesh, _closest_on_triangles, _normals, _Surface
+from embody.collision.depth import DepthMesh, _normals, _Surface
 
 
 def _closest_where(p, a, b, c):
-    """The region selection written with np.where over every row (the judge before s9)."""
+    """Closest points on triangles abc to points p (all (N,3)) and the feature hit (0,1,2
+    vertex a,b,c; 3,4,5 edge ab, bc, ca; 6 face; Ericson), the region selection written with
+    np.where over every row: the NumPy judge's form before s9, the reference the compiled
+    `closest.closest_point` must match bit for bit."""
     ab, ac, ap = b - a, c - a, p - a
     d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
     bp = p - b
@@ -46,28 +50,14 @@ def _closest_where(p, a, b, c):
     return out, feat
 
 
-def test_closest_on_triangles_matches_the_where_form_bit_for_bit():
-    rng = np.random.default_rng(0)
-    n = 20000
-    p, a, b, c = (rng.normal(size=(n, 3)) for _ in range(4))
-    c[:500] = a[:500] + 0.5 * (b[:500] - a[:500])        # degenerate (collinear) triangles
-    b[500:800] = a[500:800]                               # a repeated corner
-    with np.errstate(invalid="ignore", divide="ignore"):  # 0/0 on the repeated corners
-        q, f = _closest_on_triangles(p, a, b, c)
-        q0, f0 = _closest_where(p, a, b, c)
-    np.testing.assert_array_equal(q, q0)
-    np.testing.assert_array_equal(f, f0)
-    assert set(np.unique(f)) == set(range(7))             # every region visited
-
-
 def test_compiled_closest_point_has_the_numpy_bits():
-    rng = np.random.default_rng(4)
+    rng = np.random.default_rng(0)
     n = 20000
     p, a, b, c = (rng.normal(size=(n, 3)) for _ in range(4))
     c[:500] = a[:500] + 0.5 * (b[:500] - a[:500])        # degenerate (collinear) triangles
     b[500:800] = a[500:800]                               # a repeated corner: 0/0, NumPy's NaN
     with np.errstate(invalid="ignore", divide="ignore"):
-        q0, f0 = _closest_on_triangles(p, a, b, c)
+        q0, f0 = _closest_where(p, a, b, c)
     q, f = np.empty((n, 3)), np.empty(n, dtype=np.int64)
     out = np.empty(3)
     for i in range(n):
@@ -75,11 +65,12 @@ def test_compiled_closest_point_has_the_numpy_bits():
         q[i] = out
     np.testing.assert_array_equal(q, q0)
     np.testing.assert_array_equal(f, f0)
+    assert set(np.unique(f)) == set(range(7))             # every region visited
 
 
 def _brute(p, tri):
     rows = np.repeat(np.arange(len(p)), len(tri))
-    q, _ = _closest_on_triangles(p[rows], *(np.tile(tri[:, k], (len(p), 1)) for k in range(3)))
+    q, _ = _closest_where(p[rows], *(np.tile(tri[:, k], (len(p), 1)) for k in range(3)))
     return np.linalg.norm(q - p[rows], axis=1).reshape(len(p), len(tri))
 
 
@@ -121,7 +112,7 @@ def test_surface_query_is_the_brute_force_closest_triangle():
     dist, side, face, _ = surf.query(p)
     tri = surf.tri
     rows = np.repeat(np.arange(len(p)), len(tri))
-    q, _ = _closest_on_triangles(p[rows], *(np.tile(tri[:, k], (len(p), 1)) for k in range(3)))
+    q, _ = _closest_where(p[rows], *(np.tile(tri[:, k], (len(p), 1)) for k in range(3)))
     brute = np.linalg.norm(q - p[rows], axis=1).reshape(len(p), len(tri)).min(1)
     np.testing.assert_allclose(dist, brute, rtol=0, atol=1e-15)
     inside = np.linalg.norm(p / [0.1, 0.06, 0.14], axis=1) < 1

@@ -7,9 +7,10 @@ component pair and frame). Here:
 
 - `grid_nearest`: a ring search on a grid of triangle centroids; a triangle is skipped only when
   a lower bound on its distance exceeds the best found, ties go to the lowest triangle index
-  (what the k-d tree scan's stable sort picked), and the per-triangle formula is
-  `depth._closest_on_triangles` operation for operation (IEEE float64, no fast-math, sums in
-  NumPy's order), so the judge's depths keep their bits (`tests/test_depth_exact.py`).
+  (what the k-d tree scan's stable sort picked), and the per-triangle formula is the NumPy
+  judge's Ericson closest point operation for operation (IEEE float64, no fast-math, sums in
+  NumPy's order; `tests/test_depth_exact.py` keeps that form as the reference), so the judge's
+  depths keep their bits.
 - `crossing_pairs`: a box sweep and a separating-axis test; the same pairs as fcl's BVH collide.
 
 `error_model="numpy"`: a 0/0 on a degenerate triangle is NaN as in NumPy, not an exception."""
@@ -46,7 +47,7 @@ def closest_point(p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray,
                   out: np.ndarray) -> int:
     """Closest point on triangle abc to p, written into `out` (3,); returns the feature:
     0,1,2 vertex a,b,c; 3,4,5 edge ab, bc, ca; 6 face (the region precedence of
-    `depth._closest_on_triangles`: a, b, ab, c, ca, bc, face)."""
+    NumPy judge's: a, b, ab, c, ca, bc, face)."""
     ab0, ab1, ab2 = b[0] - a[0], b[1] - a[1], b[2] - a[2]
     ac0, ac1, ac2 = c[0] - a[0], c[1] - a[1], c[2] - a[2]
     ap0, ap1, ap2 = p[0] - a[0], p[1] - a[1], p[2] - a[2]

@@ -18,8 +18,9 @@ surface of another group it is checked against. How:
    pair of groups and whose boxes overlap go on.
 3. *Crossing triangles.* The two components' triangles inside the boxes' overlap, tested
    pairwise (a box sweep, then separating axes; the same pairs as python-fcl's BVHs): without
-   a crossing pair of triangles the two surfaces do not interpenetrate and the pair scores 0 (a component wholly inside another, never crossing, is not counted; it cannot
-   arise in continuous motion without crossing first). This also keeps any sign error below
+   a crossing pair of triangles the two surfaces do not interpenetrate and the pair scores 0
+   (a component wholly inside another, never crossing, is not counted; it cannot arise in
+   continuous motion without crossing first). This also keeps any sign error below
    from turning clear frames into false depth.
 4. *Signed depth.* For each vertex of one component inside the overlap box, the closest point
    on the other solid (exact: nearest triangle centroids, widened until no farther triangle can
@@ -168,51 +169,6 @@ def depth_mesh(body: BodyModel, allow_pairs: Iterable[Sequence[str]] = ()) -> De
 
 
 # -- geometry ------------------------------------------------------------------------------------
-def _closest_on_triangles(p: np.ndarray, a: np.ndarray, b: np.ndarray,
-                          c: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Closest points (N,3) on triangles abc to points p (all (N,3)) and the feature hit:
-    0,1,2 vertex a,b,c; 3,4,5 edge ab, bc, ca; 6 face (Ericson, Real-Time Collision Detection)."""
-    ab, ac, ap = b - a, c - a, p - a
-    d1, d2 = (ab * ap).sum(-1), (ac * ap).sum(-1)
-    bp = p - b
-    d3, d4 = (ab * bp).sum(-1), (ac * bp).sum(-1)
-    cp = p - c
-    d5, d6 = (ab * cp).sum(-1), (ac * cp).sum(-1)
-    va, vb, vc = d3 * d6 - d5 * d4, d5 * d2 - d1 * d6, d1 * d4 - d3 * d2
-    denom = va + vb + vc
-    safe = np.where(np.abs(denom) > 1e-300, denom, 1.0)
-    v, w = vb / safe, vc / safe
-    out = a + ab * v[:, None] + ac * w[:, None]
-    feat = np.full(len(p), 6)
-    # in reverse order of precedence, so the first matching region wins; each region's point
-    # is computed on its own rows only (the same formula per row: the same bits as on all rows)
-    m = (va <= 0) & (d4 - d3 >= 0) & (d5 - d6 >= 0)
-    if m.any():
-        t = (d4[m] - d3[m]) / ((d4[m] - d3[m]) + (d5[m] - d6[m]))
-        out[m] = b[m] + (c[m] - b[m]) * t[:, None]
-        feat[m] = 4
-    m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-    if m.any():
-        t = d2[m] / (d2[m] - d6[m])
-        out[m] = a[m] + ac[m] * t[:, None]
-        feat[m] = 5
-    m = (d6 >= 0) & (d5 <= d6)
-    out[m] = c[m]
-    feat[m] = 2
-    m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-    if m.any():
-        t = d1[m] / (d1[m] - d3[m])
-        out[m] = a[m] + ab[m] * t[:, None]
-        feat[m] = 3
-    m = (d3 >= 0) & (d4 <= d3)
-    out[m] = b[m]
-    feat[m] = 1
-    m = (d1 <= 0) & (d2 <= 0)
-    out[m] = a[m]
-    feat[m] = 0
-    return out, feat
-
-
 def _normals(v: np.ndarray, comp: _Component) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """(face normals (m,3), edge pseudo-normals (E,3), angle-weighted vertex normals (n,3))."""
     tri = v[comp.faces]
