@@ -208,3 +208,40 @@ def test_sample_proxy_rows_give_the_samples_gradient(robot):
     qp[:, ik] += d
     qm[:, ik] -= d
     np.testing.assert_allclose((cost(qp) - cost(qm)) / 2.0, float((g * d).sum()), rtol=1e-3)
+
+
+def test_contact_phase_gives_up_when_the_deepest_contact_stalls(robot):
+    """A contact the phase cannot move (here: MuJoCo's rows weigh nothing, so nothing pushes the
+    hands apart) ends the round `contact_stall` LM evaluations after the deepest contact last
+    improved, and no further round runs; with the stall off the same phase runs its budget."""
+    from embody.retarget import ik as ikmod
+    from embody.retarget.ik import resolve_contacts_checked
+    from tests.test_retarget_ik import _targets_from_q
+
+    planted = _pose(robot, [0.30, 0.05, 0.10], [0.30, -0.05, 0.10],
+                    IKConfig(w_collision=0.0, contact_rounds=0))
+    q = np.tile(planted, (12, 1))
+    targets = _targets_from_q(robot, q)
+    assert (self_collision_contacts(robot, q) > 0).all()
+    calls: list[tuple[int, bool]] = []
+    original = ikmod._Problem.evaluate
+
+    def counted(self, *args, **kwargs):
+        calls.append((id(self), bool(args[2] if len(args) > 2 else kwargs.get("exact", False))))
+        return original(self, *args, **kwargs)
+
+    weightless = IKConfig(w_contact=1e-12, contact_iterations=40, contact_rounds=3, tolerance=0.0,
+                          contact_samples=False, contact_sample_proxies=False)
+    try:
+        ikmod._Problem.evaluate = counted
+        out, verdict = resolve_contacts_checked(robot, targets, weightless.model_copy(update={"contact_stall": 4}), q)
+        stalled = list(calls)
+        calls.clear()
+        resolve_contacts_checked(robot, targets, weightless.model_copy(update={"contact_stall": 0}), q)
+        budget = list(calls)
+    finally:
+        ikmod._Problem.evaluate = original
+    assert verdict.any()  # still touching: the repair's
+    assert len({p for p, _ in stalled}) == 1  # one round
+    assert len(stalled) == 1 + 4  # the start, then 4 evaluations without a better deepest contact
+    assert len(budget) > 2 * len(stalled)

@@ -169,6 +169,13 @@ class IKConfig(Section):
     #: the tolerance with contacts left handed them to the repair. Off: rounds run to the
     #: tolerance or `contact_iterations` (before s11).
     contact_stop: bool = True
+    #: End a contact round, and the contact phase, when MuJoCo's deepest penetration on the
+    #: checked frames and samples has not improved by `contact_stall_mm` over the last
+    #: `contact_stall` evaluations: a contact the window cannot route round (interlocked fingers,
+    #: benchmark seq 0: stuck at 12 mm for 20 evaluations and a second round) is the repair's,
+    #: and the rounds spent on it were half our IK time on benchmarks/ik_vs_mink.py. 0: off.
+    contact_stall: int = Field(6, ge=0, le=10_000)
+    contact_stall_mm: float = Field(0.5, ge=0, le=100)
     #: The contact phase's samples between frames also get the proxies' rows (hinged at
     #: `contact_sample_margin`), not only MuJoCo's: MuJoCo's rows exist only for pairs already
     #: within `contact_margin`, so a step that cleared one pair ran into the next and was

@@ -225,6 +225,7 @@ class _Problem:
         `contact_proxies` (frame, fraction) arrays: the proxies' rows at those samples too."""
         lower, upper = self.robot.lower[self.ik], self.robot.upper[self.ik]
         qi = np.clip(qi0, lower, upper)
+        self.stalled = False
         use_col = self.residuals.proxies is not None
         phases = []
         if cold and use_col:  # continuation: faint → partial → full collision weight
@@ -250,6 +251,8 @@ class _Problem:
             h, g = normal()
             nu = 2.0
             lam = max(lam, LAMBDA_MIN)
+            watch = exact and clear is not None and self.cfg.contact_stall > 0
+            best, since = (self.residuals.exact.deepest, 0) if watch else (0.0, 0)
             for _ in range(budget):
                 step = self.step(h, g, lam)
                 cand = np.clip(qi + step, lower, upper)
@@ -271,11 +274,17 @@ class _Problem:
                     if done:
                         break
                     h, g = normal()
+                    if watch and self.residuals.exact.deepest > best + self.cfg.contact_stall_mm * 1e-3:
+                        best, since = self.residuals.exact.deepest, -1
                 else:
                     lam = max(lam * nu, LAMBDA_MIN)
                     nu *= 2.0
                     if lam > 1e8:
                         break
+                since += 1
+                if watch and since >= self.cfg.contact_stall:
+                    self.stalled = True  # MuJoCo's deepest contact no longer improves
+                    break
         self.dtd = smooth
         self.residuals.sample_points = None
         self.lam = lam  # where the damping ended: a finer solve of the same problem goes on from it
@@ -495,6 +504,8 @@ def resolve_contacts_checked(robot: Robot, targets: Targets, cfg: IKConfig,
         q, now, now_smp = judged(qi)
         contacts = now  # every earlier contact frame lies inside `free`, checked again
         if not now.any() and not now_smp.any():
+            break
+        if problem.stalled:  # the deepest contact stopped improving: another round would too
             break
         left = int(now.sum() + now_smp.sum())
         if left >= found:  # no progress: a pass the windows cannot route round (the repair's)
