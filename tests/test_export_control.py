@@ -236,6 +236,43 @@ def test_bridge_replaces_a_short_contact_run_between_clear_frames(robot, passing
     np.testing.assert_array_equal(bridge_contacts(robot, q, max_run=0), q)
 
 
+def test_bridge_verdict_is_mujocos_and_spares_the_repair_a_second_check(robot, passing):
+    """`bridge_contacts_checked` hands on MuJoCo's verdict on what it returns (bridged samples
+    clear, an unbridged run still touching); `separate_checked` given it returns exactly what it
+    returns checking every sample itself, and asks MuJoCo only about the touching ones."""
+    from embody.retarget import control
+
+    q = np.stack([_pose(robot, z) for z in (-0.4, -0.2, 0.0, 0.2, 0.4)])
+    out, verdict = control.bridge_contacts_checked(robot, q)
+    np.testing.assert_array_equal(verdict, self_collision_contacts(robot, out) > 0)
+    assert not verdict.any()
+    kept, verdict = control.bridge_contacts_checked(robot, q, max_run=0)
+    np.testing.assert_array_equal(kept, q)
+    assert verdict.tolist() == [False, False, True, False, False]
+    plain = resample(*passing, RATE)
+    _, touching = control.bridge_contacts_checked(robot, plain, max_run=0)
+    assert touching.sum() >= 3
+    asked: list[int] = []
+    original = control._Separator.contacts
+
+    def counted(self, x, jacobians=True):
+        asked.append(1)
+        return original(self, x, jacobians)
+
+    full, full_clear = control.separate_checked(robot, plain, RATE)
+    control._Separator.contacts = counted
+    try:
+        given, given_clear = control.separate_checked(robot, plain, RATE, touching=touching)
+        first = len(asked)
+        asked.clear()
+        control.separate_checked(robot, plain, RATE)
+    finally:
+        control._Separator.contacts = original
+    np.testing.assert_array_equal(given, full)
+    assert given_clear == full_clear and given_clear
+    assert len(asked) - first == len(plain) - int(touching.sum())  # the clear samples, asked once less
+
+
 def test_export_repair_is_local_where_the_bridge_fails(robot):
     """Hands passing through each other between two clear 10 fps frames: four 50 Hz samples
     touch, and the straight (= resampled), pushed and held bridges between their clear

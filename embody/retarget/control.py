@@ -161,6 +161,13 @@ BRIDGE_GROW_S = 0.1
 def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
                     fps: float | None = None, bad: np.ndarray | None = None,
                     grow: int = 0) -> np.ndarray:
+    """`bridge_contacts_checked`'s trajectory."""
+    return bridge_contacts_checked(robot, q, max_run, fps, bad, grow)[0]
+
+
+def bridge_contacts_checked(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
+                            fps: float | None = None, bad: np.ndarray | None = None,
+                            grow: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """q (T,n) with each short run (≤ `max_run` frames) of MuJoCo contact frames between two clear
     frames replaced by a clear one between those neighbours: the straight line, the line pushed
     clear (`_Separator.frame`), or the neighbours held; the first that MuJoCo finds clear on
@@ -174,12 +181,15 @@ def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
     already has it (the IK's contact phase checks the same q just before). `grow`: when no
     candidate between the run's own neighbours works, the bridge is retried between clear samples
     up to `grow` further out on each side (a longer path: more time for the same change, so a
-    velocity-feasible one is likelier; the samples in between are replaced too, and must be clear)."""
+    velocity-feasible one is likelier; the samples in between are replaced too, and must be clear).
+    Also MuJoCo's verdict (T,) bool on the returned q: the input's, with every bridged sample
+    clear (each was checked), so the repair after it need not check the clear samples again."""
     q = np.array(q, dtype=np.float64)
     sep = _Separator(robot)
     if bad is None:
         bad = np.array([bool(sep.contacts(x, jacobians=False)) for x in q])
     bad = np.asarray(bad, dtype=bool)
+    verdict = bad.copy()
     t, n = 0, len(q)
     while t < n:
         if not bad[t]:
@@ -194,9 +204,10 @@ def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
                 if a < 0 or b >= n or bad[a] or bad[b]:
                     continue
                 if _bridge(sep, robot, q, a, b, fps):
+                    verdict[a + 1: b] = False
                     break
         t = end
-    return q
+    return q, verdict
 
 
 def _bridge(sep: _Separator, robot: Robot, q: np.ndarray, a: int, b: int, fps: float | None) -> bool:
@@ -233,17 +244,19 @@ def separate(robot: Robot, q: np.ndarray, fps: float, *, passes: int = PASSES, b
 def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = PASSES, blend_s: float = 0.1,
                      box_margin: float = 0.0, velocity_margin: float = 0.0, clearance: float = CLEARANCE,
                      enforce_velocity: bool = True,
-                     trust_deg: tuple[float | None, ...] = TRUST_DEG) -> tuple[np.ndarray, bool]:
+                     trust_deg: tuple[float | None, ...] = TRUST_DEG,
+                     touching: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
     """`separate`, and whether MuJoCo checked every returned sample clear (False only when the
     passes ran out at every trust radius): a caller then need not run the same collision check
     again. The repair is tried inside each trust radius of `trust_deg` in turn (no joint of any
     sample leaves ± that many degrees of its input value; None: unbounded) and the first that
     clears every sample wins: the smallest correction that works, never a wide swing when a
-    small one exists."""
+    small one exists. `touching` (T,) bool: MuJoCo's verdict on q when the caller has it (the
+    bridge's); the samples it finds clear are not checked again on the first pass."""
     q = np.array(q, dtype=np.float64)
     out, clear = q, False
     sep = _Separator(robot, clearance)
-    check = np.ones(len(q), dtype=bool)
+    check = np.ones(len(q), dtype=bool) if touching is None else np.array(touching, dtype=bool)
     for radius in trust_deg:
         out, clear, check = _separate_within(sep, q, fps, None if radius is None else np.radians(radius),
                                              passes, blend_s, box_margin, velocity_margin,
@@ -332,18 +345,19 @@ def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: fl
     # interpolated samples that touch between clear ones: bridged locally first, as at the source
     # rate (the repair alone moved synth seqs 15 and 17's exported arms by 89-101°)
     run = int(np.ceil(BRIDGE_FRAMES * rate / fps))
-    qc = bridge_contacts(robot, qc, max_run=run, fps=rate)
+    qc, touching = bridge_contacts_checked(robot, qc, max_run=run, fps=rate)
     kw = {"box_margin": BOX_MARGIN, "velocity_margin": VELOCITY_MARGIN}
-    out, clear = separate_checked(robot, qc, rate, trust_deg=TRUST_DEG[:SMALL], **kw)
+    out, clear = separate_checked(robot, qc, rate, trust_deg=TRUST_DEG[:SMALL], touching=touching, **kw)
     if clear:
         return out, clear
     # no small push clears it: a bridge over a wider window, or a wider push, whichever changes
     # the resample less (the bridge is a straight path between clear samples, but it may still
     # move more than a 15° push would)
-    out, clear = separate_checked(robot, qc, rate, trust_deg=TRUST_DEG[SMALL:], **kw)
-    wide = bridge_contacts(robot, qc, max_run=run, fps=rate, grow=int(np.ceil(BRIDGE_GROW_S * rate)))
+    out, clear = separate_checked(robot, qc, rate, trust_deg=TRUST_DEG[SMALL:], touching=touching, **kw)
+    wide, wide_touching = bridge_contacts_checked(robot, qc, max_run=run, fps=rate, bad=touching,
+                                                  grow=int(np.ceil(BRIDGE_GROW_S * rate)))
     if not np.array_equal(wide, qc):
-        bridged, bridged_clear = separate_checked(robot, wide, rate, **kw)
+        bridged, bridged_clear = separate_checked(robot, wide, rate, touching=wide_touching, **kw)
         if bridged_clear and (not clear or np.abs(bridged - qc).max() <= np.abs(out - qc).max()):
             return bridged, bridged_clear
     return out, clear

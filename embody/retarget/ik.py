@@ -34,7 +34,7 @@ from embody.config.ik import IKConfig
 from embody.metrics.trajectory import mean_jerk, position_error, rotation_error_deg
 from embody.retarget.banded import block_banded_solve
 from embody.retarget.costs import WRIST_ELBOW, Residuals
-from embody.retarget.control import bridge_contacts, control_trajectory_checked, separate_checked
+from embody.retarget.control import bridge_contacts_checked, control_trajectory_checked, separate_checked
 from embody.retarget.exact_contacts import ExactContacts
 from embody.retarget.limits import clamp_velocity, limit_violations, velocity_violations
 from embody.retarget.targets import _ARRAYS, Targets
@@ -531,14 +531,20 @@ def finish_solution(robot: Robot, q: np.ndarray, targets: Targets, cfg: IKConfig
     (whole or windowed): velocity clamp, MuJoCo contact repair, evaluation (with `extra` metrics)
     and the verified control-rate array. `contacts` (T,) bool: MuJoCo's verdict on exactly this
     q, when the contact phase already has it (not checked twice)."""
+    touching = None
     if cfg.contact_repair:  # short contact runs: their clear neighbours bound a local answer
-        q = bridge_contacts(robot, q, fps=targets.fps if cfg.enforce_velocity_limits else None, bad=contacts)
+        q, touching = bridge_contacts_checked(robot, q, fps=targets.fps if cfg.enforce_velocity_limits else None,
+                                              bad=contacts)
     if cfg.enforce_velocity_limits:
-        q = clamp_velocity(q, robot.velocity_limits, targets.fps)
+        clamped = clamp_velocity(q, robot.velocity_limits, targets.fps)
+        if not np.array_equal(clamped, q):
+            touching = None  # the verdict was on the unclamped q
+        q = clamped
     # MuJoCo has the last word at both rates: every written sample is collision-free
     clear = False
     if cfg.contact_repair:
-        q, clear = separate_checked(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits)
+        q, clear = separate_checked(robot, q, targets.fps, enforce_velocity=cfg.enforce_velocity_limits,
+                                    touching=touching)
     frames, metrics = evaluate(robot, q, targets, np.zeros(len(q), np.int64) if clear else None)
     metrics.update(extra or {})
     q_control, clear = control_trajectory_checked(robot, q, targets.fps, cfg.control_rate_hz,
