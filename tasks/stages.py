@@ -334,7 +334,9 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 #      (`ik.contact_stop`, `ik.contact_sample_proxies`), judged after the velocity clamp (s11-iksamples).
 # v13: a contact round that stops improving MuJoCo's deepest contact ends the contact phase
 #      (`ik.contact_stall`, `ik.contact_stall_mm`; s12).
-RETARGET = Step("retarget", "13", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v14: the human's hand gaps (`targets.hand_gaps`) from the float64 subset skinning
+#      (`metrics.embodiments._SubsetSkin`; within 1e-7 m of the float32 blend's).
+RETARGET = Step("retarget", "14", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -349,7 +351,8 @@ RETARGET = Step("retarget", "13", ("body", "robot", "ik"), _retarget, _ik_soluti
 # v13: the repair at the velocity limit (retarget v11).
 # v14: the s11 contact phase (retarget v12) in every round's solve.
 # v15: the stalled-contact stop (retarget v13) in every round's solve.
-REFINE = Step("refine", "15", ("body", "robot", "ik", "render", "critic"), _refine,
+# v16: retarget v14's targets.
+REFINE = Step("refine", "16", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
@@ -362,9 +365,10 @@ RENDER_REFINED = Step("render", "3", ("body", "robot", "render"), _render, _rend
 # v5: the exported control-rate array (validated), sign fidelity on that array, the report's wrist tracks.
 # v6: location agreement with ties (and the exact figure), contact events; IK-only baseline reuse.
 # v7: robot contacts: MuJoCo's false 0.0 distances of separated meshes recomputed (convex_distance).
-METRICS = Step("metrics", "7", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+# v8: the human contacts from the float64 subset skinning (retarget v14).
+METRICS = Step("metrics", "8", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "7", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "8", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 
