@@ -26,6 +26,7 @@ robot's measure calls a contact, and a gap it does not call one maps to one it d
 from __future__ import annotations
 
 from collections.abc import Callable
+from types import SimpleNamespace
 
 import numpy as np
 
@@ -52,9 +53,20 @@ class HandClearanceTerm:
     (left points vs right hulls and back), each hand vs the chest hulls."""
 
     def __init__(self, robot: Robot, gap: np.ndarray, w: float) -> None:
-        px = robot_proxies(robot)
         self.gap = np.asarray(gap, dtype=np.float64).reshape(len(gap), -1)
         self.w = float(w)
+        # the tables below depend on the robot (and the gap's channel count) only: built once per
+        # robot, not per solve (~60 ms each; the IK builds a term per LM problem, several per solve)
+        key = ("hand_clearance", self.gap.shape[1])
+        if key not in robot.derived:
+            robot.derived[key] = self._tables(robot, self.gap.shape[1])
+        self.__dict__.update(robot.derived[key])
+
+    @staticmethod
+    def _tables(robot: Robot, channels: int) -> dict[str, object]:
+        """The term's robot tables (attributes): pairs, bodies, width, bound planes, rows, hands."""
+        self = SimpleNamespace()
+        px = robot_proxies(robot)
         m = robot.model
         hand: dict[str, set[str]] = {}
         for s in SIDES:
@@ -80,7 +92,7 @@ class HandClearanceTerm:
         self.pairs = [(0, points["left"], hulls["right"]), (0, points["right"], hulls["left"]),
                       (1, points["left"], chest), (2, points["right"], chest),
                       (3, points["left"], face), (4, points["right"], face)]
-        self.pairs = [(c, p, h) for c, p, h in self.pairs if c < self.gap.shape[1] and len(p) and len(h)]
+        self.pairs = [(c, p, h) for c, p, h in self.pairs if c < channels and len(p) and len(h)]
         self.px = px
         used = {px.bodies[b] for _, p, h in self.pairs for b in np.r_[px.sphere_body[p]]}
         used |= {px.bodies[b] for _, p, h in self.pairs for b in px.hull_body[h]}
@@ -101,6 +113,7 @@ class HandClearanceTerm:
         self.row0 = np.cumsum([0] + [len(h) for _, _, h in self.pairs])[:-1]
         #: per hand (keyed by its point array): its points in clusters on one body, each one's ball
         self.hands = {id(p): _hand_table(px, p) for _, p, _ in self.pairs}
+        return vars(self)
 
     def _hand(self, pose, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World points (T,P,3) of a hand's proxy points, the centres of its clusters' balls (T,nc,3)
