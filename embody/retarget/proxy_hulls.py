@@ -137,19 +137,20 @@ def _hull_contacts(rot, pos, part_body, part_centre, hull_body, hull_centre, gro
                 if q < 0:
                     continue
                 inside = True
-                for a in range(3):
+                for a in range(3):  # the first axis outside decides
                     xl[a] = (rel[a, 0] * centres_t[g, 0, m] + rel[a, 1] * centres_t[g, 1, m]
                              + rel[a, 2] * centres_t[g, 2, m]) + p_rel[a]
                     if not abs(xl[a] - box_mid[h, a]) - reach_t[g, a, m] < 0:
                         inside = False
+                        break
                 if not inside:
                     continue
-                best, face = -np.inf, 0
+                best, face, radius = -np.inf, 0, pair_radius[q]
                 for f in range(plane_count[h]):
                     sd = (xl[0] * planes[h, f, 0] + xl[1] * planes[h, f, 1] + xl[2] * planes[h, f, 2]) + planes[h, f, 3]
                     if f == 0 or sd > best:
                         best, face = sd, f
-                val = best - pair_radius[q]
+                val = best - radius
                 if not val < margin:
                     continue
                 if n == cap:  # grow the output
