@@ -332,7 +332,9 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 #      (`control._within_velocity`; synth seq 15's 50 Hz export was left touching).
 # v12: contact rounds end when MuJoCo finds them clear, with the proxies' rows at the samples
 #      (`ik.contact_stop`, `ik.contact_sample_proxies`), judged after the velocity clamp (s11-iksamples).
-RETARGET = Step("retarget", "12", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v13: the sphere/hull proxy rows compiled (`retarget.proxy_hulls`): the same rows to round-off
+#      (~1e-16), solutions within ~5e-13 rad, not bit for bit (s12-nbproxy).
+RETARGET = Step("retarget", "13", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -346,7 +348,8 @@ RETARGET = Step("retarget", "12", ("body", "robot", "ik"), _retarget, _ik_soluti
 # v12: the local contact repair (retarget v10) in every round's solve and its 50 Hz export.
 # v13: the repair at the velocity limit (retarget v11).
 # v14: the s11 contact phase (retarget v12) in every round's solve.
-REFINE = Step("refine", "14", ("body", "robot", "ik", "render", "critic"), _refine,
+# v15: the compiled sphere/hull proxy rows (retarget v13) in every round's solve.
+REFINE = Step("refine", "15", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
