@@ -120,7 +120,8 @@ class Residuals:
                 group_box_reach=self.part_radius[self.group_part] + cfg.collision_margin,
                 group_members=self.group_members,
                 # axis-major (G,3,M): the NumPy reference's per-point test is one batched matmul
-                member_centres_t=np.ascontiguousarray(np.swapaxes(px.centres[px.hull_pairs[self.group_members, 0]], 1, 2)),
+                member_centres_t=np.ascontiguousarray(
+                    np.swapaxes(px.centres[px.hull_pairs[self.group_members, 0]], 1, 2)),
                 member_reach_t=np.ascontiguousarray(np.swapaxes(reach, 1, 2)),
                 box_mid=self.box_mid, box_half=half, hull_planes=self.hull_planes,
                 plane_table=self.plane_table, plane_count=self.plane_count,
