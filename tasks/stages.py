@@ -336,7 +336,9 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 #      (`ik.contact_stall`, `ik.contact_stall_mm`; s12).
 # v14: the human's hand gaps (`targets.hand_gaps`) from the float64 subset skinning
 #      (`metrics.embodiments._SubsetSkin`; within 1e-7 m of the float32 blend's).
-RETARGET = Step("retarget", "14", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v15: the sphere/hull proxy rows compiled (`retarget.proxy_hulls`): the same rows to round-off
+#      (~1e-16), solutions within ~5e-13 rad, not bit for bit (s12-nbproxy).
+RETARGET = Step("retarget", "15", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -352,7 +354,8 @@ RETARGET = Step("retarget", "14", ("body", "robot", "ik"), _retarget, _ik_soluti
 # v14: the s11 contact phase (retarget v12) in every round's solve.
 # v15: the stalled-contact stop (retarget v13) in every round's solve.
 # v16: retarget v14's targets.
-REFINE = Step("refine", "16", ("body", "robot", "ik", "render", "critic"), _refine,
+# v17: the compiled sphere/hull proxy rows (retarget v15) in every round's solve.
+REFINE = Step("refine", "17", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.

@@ -26,6 +26,7 @@ from embody.retarget.exact_contacts import ExactContacts
 from embody.retarget.hand_clearance import hand_clearance_term
 from embody.retarget.hand_points import hand_point_term
 from embody.retarget.jacobians import normal_jacobian
+from embody.retarget.proxy_hulls import Contacts, HullTables, hull_contacts, plane_table
 from embody.retarget.targets import Targets
 from embody.robot import Robot
 from embody.robot.fk import rotate
@@ -108,18 +109,24 @@ class Residuals:
             setattr(self, name, value)
         if self.proxies is not None:
             px = self.proxies
-            self.group_reach = (self.part_radius[self.group_part] + px.hull_radius[self.group_hull]
-                                + cfg.collision_margin)
             # per group member: how far from its hull's box centre it may be, per axis
             half = (px.hull_box[:, 1] - px.hull_box[:, 0]) / 2
             radii = np.where(self.group_members >= 0, px.radii[px.hull_pairs[self.group_members, 0]], -np.inf)
             reach = half[self.group_hull][:, None] + (cfg.collision_margin + radii)[..., None]
-            self.box_half = half
-            # axis-major copies (G,3,M) for the per-point test: one contiguous batched matmul
-            self.member_reach_t = np.ascontiguousarray(np.swapaxes(reach, 1, 2))
-            self.member_centres_t = np.ascontiguousarray(
-                np.swapaxes(px.centres[px.hull_pairs[self.group_members, 0]], 1, 2))
-            self.group_box_reach = self.part_radius[self.group_part] + cfg.collision_margin
+            self.hulls = HullTables(
+                part_body=self.part_body, part_centre=self.part_centre, hull_body=self.hull_body,
+                hull_centre=px.hull_centre, group_part=self.group_part, group_hull=self.group_hull,
+                group_reach=self.part_radius[self.group_part] + px.hull_radius[self.group_hull] + cfg.collision_margin,
+                group_box_reach=self.part_radius[self.group_part] + cfg.collision_margin,
+                group_members=self.group_members,
+                # axis-major (G,3,M): the NumPy reference's per-point test is one batched matmul
+                member_centres_t=np.ascontiguousarray(
+                    np.swapaxes(px.centres[px.hull_pairs[self.group_members, 0]], 1, 2)),
+                member_reach_t=np.ascontiguousarray(np.swapaxes(reach, 1, 2)),
+                box_mid=self.box_mid, box_half=half, hull_planes=self.hull_planes,
+                plane_table=self.plane_table, plane_count=self.plane_count,
+                pair_sphere=px.hull_pairs[:, 0], pair_hull=px.hull_pairs[:, 1],
+                pair_radius=px.radii[px.hull_pairs[:, 0]])
         self.target_pos = np.concatenate([targets.wrist_pos, targets.elbow_pos], 1).astype(np.float64)
         rots = [np.asarray(targets.wrist_rot, dtype=np.float64)]
         rots += [np.asarray(targets.torso_rot if n == "spine3" else targets.head_rot, dtype=np.float64)[:, None]
@@ -308,11 +315,15 @@ class Residuals:
             part_centre=np.array(centre).reshape(-1, 3), part_radius=np.array(radius),
             box_mid=px.hull_box.mean(1),
             hull_planes=[np.unique(p, axis=0) for p in px.hull_planes])  # unpadded plane sets
+        out["plane_table"], out["plane_count"] = plane_table(out["hull_planes"])
         return out
 
-    def _collision(self, rot: np.ndarray, pos: np.ndarray, scale: float = 1.0) -> tuple[np.ndarray, Callable]:
+    def _collision(self, rot: np.ndarray, pos: np.ndarray, scale: float = 1.0,
+                   hulls: Callable[..., Contacts] | None = None) -> tuple[np.ndarray, Callable]:
         """Hinge residuals w·relu(margin − clearance) (T,P+Q) over the sphere/sphere and sphere/hull
-        pairs within the margin somewhere, and a function of (axes, pivots) giving their Jacobian."""
+        pairs within the margin somewhere, and a function of (axes, pivots) giving their Jacobian.
+        `hulls`: the sphere/hull contact query (default the compiled `hull_contacts`; the tests
+        pass `hull_contacts_numpy`, the reference)."""
         px, margin, w = self.proxies, self.cfg.collision_margin, self.w_col * scale**0.5
         t, n_ik = len(rot), len(self.ik)
         sb, hb = self.sphere_body, self.hull_body
@@ -325,47 +336,9 @@ class Residuals:
         near = np.flatnonzero((clear < margin).any(0))  # the other pairs contribute exactly zero
         i, k, diff, dist, clear = i[near], k[near], diff[:, near], dist[:, near], clear[:, near]
         gap = np.maximum(margin - clear, 0.0)
-        # sphere/hull: broad phase per (body part, hull) on bounding spheres ...
-        pb = self.part_body
-        pc = pos[:, pb] + rotate(rot[:, pb], self.part_centre)
-        hc = pos[:, hb] + rotate(rot[:, hb], px.hull_centre)
-        gv = pc[:, self.group_part] - hc[:, self.group_hull]
-        tg, gg = np.nonzero(gv[..., 0] ** 2 + gv[..., 1] ** 2 + gv[..., 2] ** 2 < self.group_reach**2)
-        # ... then the part's bounding sphere against the hull's box, in the hull body's frame ...
-        h_of = self.group_hull[gg]
-        r_h, p_h = rot[tg, hb[h_of]], pos[tg, hb[h_of]]
-        r_ht = np.swapaxes(r_h, 1, 2)
-        centre_l = np.einsum("gba,gb->ga", r_h, pc[tg, self.group_part[gg]] - p_h)
-        out = np.maximum(np.abs(centre_l - self.box_mid[h_of]) - self.box_half[h_of], 0.0)
-        # per axis, so exactly the groups with no member passing the per-point test below go
-        keep = out.max(1) < self.group_box_reach[gg]
-        tg, gg, h_of, r_h, p_h, r_ht = tg[keep], gg[keep], h_of[keep], r_h[keep], p_h[keep], r_ht[keep]
-        # ... then per point against the hull's box ...
-        gb = pb[self.group_part[gg]]
-        r_rel = r_ht @ rot[tg, gb]
-        p_rel = rotate(r_ht, pos[tg, gb] - p_h)
-        members = self.group_members[gg]  # (G,M), −1 = padding
+        # sphere/hull: the pairs within the margin, sorted by frame then pair (`proxy_hulls.py`)
+        tc, qc, value, x, normal = (hulls or hull_contacts)(self.hulls, rot, pos, margin)
         si, hi = px.hull_pairs[:, 0], px.hull_pairs[:, 1]
-        xl = r_rel @ self.member_centres_t[gg] + p_rel[..., None]  # (G,3,M), hull-body frame
-        d = np.abs(xl - self.box_mid[h_of][..., None]) - self.member_reach_t[gg]
-        inside = np.maximum(np.maximum(d[:, 0], d[:, 1]), d[:, 2]) < 0
-        gsel, msel = np.nonzero(inside)
-        tc, qc, xl = tg[gsel], members[gsel, msel], xl[gsel, :, msel]
-        r_h, p_h = r_h[gsel], p_h[gsel]
-        # ... then the polytope's plane distances, hull by hull (no padded plane sets)
-        value, normal_l = np.empty(len(qc)), np.empty((len(qc), 3))
-        order = np.argsort(hi[qc], kind="stable")
-        hulls, starts = np.unique(hi[qc][order], return_index=True)
-        for h, idx in zip(hulls, np.split(order, starts[1:])):
-            planes = self.hull_planes[h]
-            sd = xl[idx] @ planes[:, :3].T + planes[:, 3]
-            face = sd.argmax(1)
-            value[idx] = sd[np.arange(len(idx)), face]
-            normal_l[idx] = planes[face, :3]
-        value -= px.radii[si[qc]]
-        sel = np.flatnonzero(value < margin)
-        sel = sel[np.lexsort((qc[sel], tc[sel]))]  # by frame, then pair: a stable row layout
-        tc, qc, value, r_h = tc[sel], qc[sel], value[sel], r_h[sel]
         # rows packed per frame (slot k = the frame's k-th active pair): the cost is a sum of
         # squares per frame, so K = the most pairs active in one frame rows suffice, not one
         # column per pair active anywhere (a third of the Jacobian and JᵀJ work on G1)
@@ -373,8 +346,6 @@ class Residuals:
         col = np.arange(len(tc)) - (np.cumsum(count) - count)[tc]
         hgap = np.zeros((t, int(count.max()) if len(tc) else 0))
         hgap[tc, col] = margin - value
-        x = rotate(r_h, xl[sel]) + p_h[sel]  # torso frame
-        normal = rotate(r_h, normal_l[sel])
 
         def jacobian(z: np.ndarray, o: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
             """(T, P+K, J); written into `out` (zeros, that shape) when given."""
