@@ -173,7 +173,7 @@ class IKConfig(Section):
     #: checked frames and samples has not improved by `contact_stall_mm` over the last
     #: `contact_stall` evaluations: a contact the window cannot route round (interlocked fingers,
     #: benchmark seq 0: stuck at 12 mm for 20 evaluations and a second round) is the repair's,
-    #: and the rounds spent on it were half our IK time on benchmarks/ik_vs_mink.py. 0: off.
+    #: and its rounds were 38 % of our IK CPU time on benchmarks/ik_vs_mink.py. 0: off.
     contact_stall: int = Field(6, ge=0, le=10_000)
     contact_stall_mm: float = Field(0.5, ge=0, le=100)
     #: The contact phase's samples between frames also get the proxies' rows (hinged at
