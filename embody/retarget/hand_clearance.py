@@ -65,7 +65,7 @@ class HandClearanceTerm:
     @staticmethod
     def _tables(robot: Robot, channels: int) -> dict[str, object]:
         """The term's robot tables (attributes): pairs, bodies, width, bound planes, rows, hands."""
-        self = SimpleNamespace()
+        tables = SimpleNamespace()
         px = robot_proxies(robot)
         m = robot.model
         hand: dict[str, set[str]] = {}
@@ -89,31 +89,31 @@ class HandClearanceTerm:
 
         chest, face = near(("sternum", "belly")), near(_FACE)
         #: (gap column, proxy points, hulls) per direction
-        self.pairs = [(0, points["left"], hulls["right"]), (0, points["right"], hulls["left"]),
+        tables.pairs = [(0, points["left"], hulls["right"]), (0, points["right"], hulls["left"]),
                       (1, points["left"], chest), (2, points["right"], chest),
                       (3, points["left"], face), (4, points["right"], face)]
-        self.pairs = [(c, p, h) for c, p, h in self.pairs if c < channels and len(p) and len(h)]
-        self.px = px
-        used = {px.bodies[b] for _, p, h in self.pairs for b in np.r_[px.sphere_body[p]]}
-        used |= {px.bodies[b] for _, p, h in self.pairs for b in px.hull_body[h]}
+        tables.pairs = [(c, p, h) for c, p, h in tables.pairs if c < channels and len(p) and len(h)]
+        tables.px = px
+        used = {px.bodies[b] for _, p, h in tables.pairs for b in np.r_[px.sphere_body[p]]}
+        used |= {px.bodies[b] for _, p, h in tables.pairs for b in px.hull_body[h]}
         #: bodies the FK must walk (the costs add them to their body set)
-        self.bodies = sorted(used)
+        tables.bodies = sorted(used)
         #: one row per (pair, hull)
-        self.width = sum(len(h) for _, _, h in self.pairs)
+        tables.width = sum(len(h) for _, _, h in tables.pairs)
         #: per hull, a few planes of well-spread normals: their max is a lower bound of the
         #: hull's max-plane value (every plane is), so points it puts at ≥ the gap are culled exactly
-        self.bound_planes = {h: px.hull_planes[h][_spread(px.hull_planes[h][:, :3], _BOUND_PLANES)]
-                             for _, _, hulls in self.pairs for h in hulls}
+        tables.bound_planes = {h: px.hull_planes[h][_spread(px.hull_planes[h][:, :3], _BOUND_PLANES)]
+                               for _, _, hulls in tables.pairs for h in hulls}
         #: per pair: its bound planes stacked (H,K,4) (short sets padded by repeating their first
         #: plane, which changes no max), its hulls' plane sets without the padding, its first row
         pad = lambda p: np.vstack([p, np.repeat(p[:1], _BOUND_PLANES - len(p), 0)])  # noqa: E731
-        self.pair_bounds = [np.stack([pad(self.bound_planes[h]) for h in hulls]) for _, _, hulls in self.pairs]
-        self.pair_bounds_t = [np.ascontiguousarray(np.swapaxes(b[..., :3], -1, -2)) for b in self.pair_bounds]
-        self.exact_planes = [[_unpadded(px.hull_planes[h]) for h in hulls] for _, _, hulls in self.pairs]
-        self.row0 = np.cumsum([0] + [len(h) for _, _, h in self.pairs])[:-1]
+        tables.pair_bounds = [np.stack([pad(tables.bound_planes[h]) for h in hulls]) for _, _, hulls in tables.pairs]
+        tables.pair_bounds_t = [np.ascontiguousarray(np.swapaxes(b[..., :3], -1, -2)) for b in tables.pair_bounds]
+        tables.exact_planes = [[_unpadded(px.hull_planes[h]) for h in hulls] for _, _, hulls in tables.pairs]
+        tables.row0 = np.cumsum([0] + [len(h) for _, _, h in tables.pairs])[:-1]
         #: per hand (keyed by its point array): its points in clusters on one body, each one's ball
-        self.hands = {id(p): _hand_table(px, p) for _, p, _ in self.pairs}
-        return vars(self)
+        tables.hands = {id(p): _hand_table(px, p) for _, p, _ in tables.pairs}
+        return vars(tables)
 
     def _hand(self, pose, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """World points (T,P,3) of a hand's proxy points, the centres of its clusters' balls (T,nc,3)
