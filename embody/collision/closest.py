@@ -138,71 +138,84 @@ def grid_nearest(p: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: n
                  lo: np.ndarray, dims: np.ndarray, cell: float, cell_start: np.ndarray,
                  cell_tri: np.ndarray, dist: np.ndarray, point: np.ndarray, feat: np.ndarray,
                  which: np.ndarray) -> None:
-    """Per point p[i] its closest triangle, exactly: the least distance, the lowest triangle
-    index among equal distances (the k-d tree scan's tie-break), a NaN distance as +inf.
-    Rings of grid cells are searched outward from the point's cell; a triangle is skipped
-    only when a lower bound on its distance (centroid distance less its radius, or its
-    plane's distance less its flatness slack) exceeds the best found, and the search stops
-    once every unvisited cell's triangles lie farther (ring r+1 is ≥ r·cell away)."""
+    """Per point p[i] its closest triangle, exactly (`nearest_one`), into dist[i], point[i],
+    feat[i] and which[i]."""
     q = np.empty(3)
     pc = np.empty(3, dtype=np.int64)
     for i in range(p.shape[0]):
-        pi = p[i]
-        for a in range(3):
-            pc[a] = int(np.floor((pi[a] - lo[a]) / cell))
-        # rings needed to cover the whole grid from here
-        r_max = 0
-        for a in range(3):
-            r_max = max(r_max, abs(pc[a]), abs(dims[a] - 1 - pc[a]))
-        best = np.inf
-        best_t = -1
-        best_f = 6
-        b0 = b1 = b2 = 0.0
-        for r in range(r_max + 1):
-            if r >= 1 and (r - 1) * cell - reach > best + 1e-9:
-                break
-            x0, x1 = max(pc[0] - r, 0), min(pc[0] + r, dims[0] - 1)
-            y0, y1 = max(pc[1] - r, 0), min(pc[1] + r, dims[1] - 1)
-            z0, z1 = max(pc[2] - r, 0), min(pc[2] + r, dims[2] - 1)
-            for x in range(x0, x1 + 1):
-                ex = abs(x - pc[0]) == r
-                for y in range(y0, y1 + 1):
-                    exy = ex or abs(y - pc[1]) == r
-                    if exy:
-                        zs, zstep = z0, 1
-                    else:  # only the two faces z = pc ± r of this column are on the ring
-                        zs, zstep = pc[2] - r, 2 * r
-                    z = zs
-                    while z <= z1:
-                        if z >= z0:
-                            c = (x * dims[1] + y) * dims[2] + z
-                            for s in range(cell_start[c], cell_start[c + 1]):
-                                t = cell_tri[s]
-                                cd = _norm3(centroid[t, 0] - pi[0], centroid[t, 1] - pi[1],
-                                            centroid[t, 2] - pi[2])
-                                if cd - radius[t] > best + 1e-12:
-                                    continue
-                                off = abs(_dot(plane[t, 0], plane[t, 1], plane[t, 2],
-                                               pi[0], pi[1], pi[2]) - offset[t])
-                                if off - slack[t] > best + 1e-9:
-                                    continue
-                                f = closest_point(pi, tri[t, 0], tri[t, 1], tri[t, 2], q)
-                                d = _norm3(q[0] - pi[0], q[1] - pi[1], q[2] - pi[2])
-                                if d != d:
-                                    d = np.inf
-                                if best_t < 0 or d < best or (d == best and t < best_t):
-                                    best, best_t, best_f = d, t, f
-                                    b0, b1, b2 = q[0], q[1], q[2]
-                        if zstep == 0:
-                            break
-                        z += zstep
-        dist[i] = best
-        point[i, 0], point[i, 1], point[i, 2] = b0, b1, b2
-        feat[i] = best_f
-        which[i] = best_t
+        d, f, t = nearest_one(p[i], tri, centroid, radius, reach, plane, offset, slack, lo,
+                              dims, cell, cell_start, cell_tri, point[i], q, pc)
+        dist[i] = d
+        feat[i] = f
+        which[i] = t
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def nearest_one(pi: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: np.ndarray,
+                reach: float, plane: np.ndarray, offset: np.ndarray, slack: np.ndarray,
+                lo: np.ndarray, dims: np.ndarray, cell: float, cell_start: np.ndarray,
+                cell_tri: np.ndarray, point: np.ndarray, q: np.ndarray, pc: np.ndarray):
+    """The closest triangle to the point pi (3,), exactly: the least distance, the lowest
+    triangle index among equal distances (the k-d tree scan's tie-break), a NaN distance as
+    +inf. Returns (distance, feature, triangle) and writes the closest point into `point`
+    (3,); `q` (3,) and `pc` (3,) int64 are scratch. Rings of grid cells are searched outward from the
+    point's cell; a triangle is skipped only when a lower bound on its distance (centroid
+    distance less its radius, or its plane's distance less its flatness slack) exceeds the
+    best found, and the search stops once every unvisited cell's triangles lie farther (ring
+    r+1 is ≥ r·cell away)."""
+    for a in range(3):
+        pc[a] = int(np.floor((pi[a] - lo[a]) / cell))
+    # rings needed to cover the whole grid from here
+    r_max = 0
+    for a in range(3):
+        r_max = max(r_max, abs(pc[a]), abs(dims[a] - 1 - pc[a]))
+    best = np.inf
+    best_t = -1
+    best_f = 6
+    b0 = b1 = b2 = 0.0
+    for r in range(r_max + 1):
+        if r >= 1 and (r - 1) * cell - reach > best + 1e-9:
+            break
+        x0, x1 = max(pc[0] - r, 0), min(pc[0] + r, dims[0] - 1)
+        y0, y1 = max(pc[1] - r, 0), min(pc[1] + r, dims[1] - 1)
+        z0, z1 = max(pc[2] - r, 0), min(pc[2] + r, dims[2] - 1)
+        for x in range(x0, x1 + 1):
+            ex = abs(x - pc[0]) == r
+            for y in range(y0, y1 + 1):
+                exy = ex or abs(y - pc[1]) == r
+                if exy:
+                    zs, zstep = z0, 1
+                else:  # only the two faces z = pc ± r of this column are on the ring
+                    zs, zstep = pc[2] - r, 2 * r
+                z = zs
+                while z <= z1:
+                    if z >= z0:
+                        c = (x * dims[1] + y) * dims[2] + z
+                        for s in range(cell_start[c], cell_start[c + 1]):
+                            t = cell_tri[s]
+                            cd = _norm3(centroid[t, 0] - pi[0], centroid[t, 1] - pi[1],
+                                        centroid[t, 2] - pi[2])
+                            if cd - radius[t] > best + 1e-12:
+                                continue
+                            off = abs(_dot(plane[t, 0], plane[t, 1], plane[t, 2],
+                                           pi[0], pi[1], pi[2]) - offset[t])
+                            if off - slack[t] > best + 1e-9:
+                                continue
+                            f = closest_point(pi, tri[t, 0], tri[t, 1], tri[t, 2], q)
+                            d = _norm3(q[0] - pi[0], q[1] - pi[1], q[2] - pi[2])
+                            if d != d:
+                                d = np.inf
+                            if best_t < 0 or d < best or (d == best and t < best_t):
+                                best, best_t, best_f = d, t, f
+                                b0, b1, b2 = q[0], q[1], q[2]
+                    if zstep == 0:
+                        break
+                    z += zstep
+    point[0], point[1], point[2] = b0, b1, b2
+    return best, best_f, best_t
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _separates(ax0: float, ax1: float, ax2: float, p: np.ndarray, q: np.ndarray) -> bool:
     """Whether the axis separates triangles p and q (3,3): their projections do not meet
     (touching counts as meeting)."""
@@ -222,12 +235,17 @@ def triangles_meet(p: np.ndarray, q: np.ndarray) -> bool:
     """Separating-axis test of two triangles (3,3) (both normals, the 9 edge-edge cross products,
     and each normal crossed with its own edges for the coplanar case): True when no axis
     separates them, i.e. they intersect or touch."""
-    e = np.empty((2, 3, 3))
-    n = np.empty((2, 3))
-    for s, t in ((0, p), (1, q)):
-        for k in range(3):
-            for a in range(3):
-                e[s, k, a] = t[(k + 1) % 3, a] - t[k, a]
+    return _meet(p, q, np.empty((2, 3, 3)), np.empty((2, 3)))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _meet(p: np.ndarray, q: np.ndarray, e: np.ndarray, n: np.ndarray) -> bool:
+    """`triangles_meet` with scratch e (2,3,3) and n (2,3) (no allocation per pair)."""
+    for k in range(3):
+        for a in range(3):
+            e[0, k, a] = p[(k + 1) % 3, a] - p[k, a]
+            e[1, k, a] = q[(k + 1) % 3, a] - q[k, a]
+    for s in range(2):
         n[s, 0] = e[s, 0, 1] * e[s, 1, 2] - e[s, 0, 2] * e[s, 1, 1]
         n[s, 1] = e[s, 0, 2] * e[s, 1, 0] - e[s, 0, 0] * e[s, 1, 2]
         n[s, 2] = e[s, 0, 0] * e[s, 1, 1] - e[s, 0, 1] * e[s, 1, 0]
@@ -252,10 +270,21 @@ def triangles_meet(p: np.ndarray, q: np.ndarray) -> bool:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _grow(ia: np.ndarray, ib: np.ndarray, n: int):
+    cap = 2 * n
+    ia2 = np.empty(cap, dtype=np.int64)
+    ib2 = np.empty(cap, dtype=np.int64)
+    ia2[:n] = ia[:n]
+    ib2[:n] = ib[:n]
+    return ia2, ib2, cap
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def crossing_pairs(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarray):
     """All pairs (i, j) of triangles fa[i] (corners in va) and fb[j] (in vb) that intersect or
-    touch: their boxes overlap (a sweep along x over fa sorted by its boxes' low x), then
-    `triangles_meet`. Returns (ia, ib), sorted by i then j."""
+    touch: their boxes overlap (a sweep and prune along x over both sides' boxes sorted by
+    low x), then `triangles_meet`. Returns (ia, ib), sorted by i then j (the pairs do not
+    depend on the sweep's order)."""
     na, nb = fa.shape[0], fb.shape[0]
     ta = np.empty((na, 3, 3))
     tb = np.empty((nb, 3, 3))
@@ -279,29 +308,67 @@ def crossing_pairs(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarra
         for a in range(3):
             lo_b[j, a] = min(tb[j, 0, a], tb[j, 1, a], tb[j, 2, a])
             hi_b[j, a] = max(tb[j, 0, a], tb[j, 1, a], tb[j, 2, a])
-    order = np.argsort(lo_a[:, 0], kind="mergesort")
+    # sweep and prune along x: boxes enter in order of their low x (fa's first on a tie); an
+    # entering box is tested against the other side's boxes still open (high x ≥ its low x)
+    order_a = np.argsort(lo_a[:, 0], kind="mergesort")
+    order_b = np.argsort(lo_b[:, 0], kind="mergesort")
+    open_a = np.empty(na, dtype=np.int64)
+    open_b = np.empty(nb, dtype=np.int64)
+    n_open_a = n_open_b = 0
+    e = np.empty((2, 3, 3))
+    nrm = np.empty((2, 3))
     cap = 256
     ia = np.empty(cap, dtype=np.int64)
     ib = np.empty(cap, dtype=np.int64)
     n = 0
-    for j in range(nb):
-        for s in range(na):
-            i = order[s]
-            if lo_a[i, 0] > hi_b[j, 0]:
-                break
-            if (hi_a[i, 0] < lo_b[j, 0] or lo_a[i, 1] > hi_b[j, 1] or hi_a[i, 1] < lo_b[j, 1]
-                    or lo_a[i, 2] > hi_b[j, 2] or hi_a[i, 2] < lo_b[j, 2]):
-                continue
-            if triangles_meet(ta[i], tb[j]):
-                if n == cap:
-                    cap *= 2
-                    ia2 = np.empty(cap, dtype=np.int64)
-                    ib2 = np.empty(cap, dtype=np.int64)
-                    ia2[:n] = ia[:n]
-                    ib2[:n] = ib[:n]
-                    ia, ib = ia2, ib2
-                ia[n] = i
-                ib[n] = j
-                n += 1
+    sa = sb = 0
+    while sa < na or sb < nb:
+        from_a = sb >= nb or (sa < na and lo_a[order_a[sa], 0] <= lo_b[order_b[sb], 0])
+        if from_a:
+            i = order_a[sa]
+            sa += 1
+            x = lo_a[i, 0]
+            kept = 0
+            for k in range(n_open_b):
+                j = open_b[k]
+                if hi_b[j, 0] < x:
+                    continue
+                open_b[kept] = j
+                kept += 1
+                if (lo_a[i, 1] > hi_b[j, 1] or hi_a[i, 1] < lo_b[j, 1]
+                        or lo_a[i, 2] > hi_b[j, 2] or hi_a[i, 2] < lo_b[j, 2]):
+                    continue
+                if _meet(ta[i], tb[j], e, nrm):
+                    if n == cap:
+                        ia, ib, cap = _grow(ia, ib, n)
+                    ia[n] = i
+                    ib[n] = j
+                    n += 1
+            n_open_b = kept
+            open_a[n_open_a] = i
+            n_open_a += 1
+        else:
+            j = order_b[sb]
+            sb += 1
+            x = lo_b[j, 0]
+            kept = 0
+            for k in range(n_open_a):
+                i = open_a[k]
+                if hi_a[i, 0] < x:
+                    continue
+                open_a[kept] = i
+                kept += 1
+                if (lo_a[i, 1] > hi_b[j, 1] or hi_a[i, 1] < lo_b[j, 1]
+                        or lo_a[i, 2] > hi_b[j, 2] or hi_a[i, 2] < lo_b[j, 2]):
+                    continue
+                if _meet(ta[i], tb[j], e, nrm):
+                    if n == cap:
+                        ia, ib, cap = _grow(ia, ib, n)
+                    ia[n] = i
+                    ib[n] = j
+                    n += 1
+            n_open_a = kept
+            open_b[n_open_b] = j
+            n_open_b += 1
     key = np.argsort(ia[:n] * nb + ib[:n], kind="mergesort")
     return ia[:n][key], ib[:n][key]
