@@ -17,7 +17,8 @@ from mannequin import _io as mannequin_io
 
 from embody.body.base import BodyModel, ConvexPiece
 from embody.body.convex import part_hulls
-from embody.body.kinematics import forward_kinematics, offsets_from_joints, skin, tree_levels
+from embody.body.kinematics import (forward_kinematics, offsets_from_joints, skin, skin_array,
+                                    sparse_weights, tree_levels)
 from embody.body.parts import dominant_parts
 from embody.body.rotations import axis_angle_to_matrix
 from embody.motion import JOINT_NAMES, NUM_BETAS, NUM_JOINTS
@@ -65,6 +66,8 @@ class MannequinBody(BodyModel):
         self._shapes: OrderedDict[bytes, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._hulls: OrderedDict[bytes, list[ConvexPiece]] = OrderedDict()
         self._constants: dict[tuple[torch.dtype, torch.device], tuple[torch.Tensor, ...]] = {}
+        #: The skin weights' nonzeros for `vertices_array` (`kinematics.sparse_weights`).
+        self._sparse: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # -- shape --------------------------------------------------------------------------------
     def _shaped(self, key: bytes) -> tuple[np.ndarray, np.ndarray]:
@@ -127,6 +130,19 @@ class MannequinBody(BodyModel):
                       for a in self._shaped(_betas_key(betas)))
         _, _, weights = self._tensors(pose.dtype, pose.device)
         return skin(transforms, rest, bind, weights)
+
+    def vertices_array(self, pose: torch.Tensor, betas: torch.Tensor) -> np.ndarray:
+        """`vertices` bit for bit as NumPy (`kinematics.skin_array`), without autograd."""
+        with torch.no_grad():
+            transforms = self.joint_transforms(pose, betas)
+            rest, bind = (torch.as_tensor(a, dtype=pose.dtype, device=pose.device)
+                          for a in self._shaped(_betas_key(betas)))
+            _, _, weights = self._tensors(pose.dtype, pose.device)
+            if pose.dtype != torch.float64:  # the compiled pass sums in float64
+                return skin(transforms, rest, bind, weights).cpu().numpy()
+            if self._sparse is None:
+                self._sparse = sparse_weights(weights.cpu().numpy())
+            return skin_array(transforms, rest, bind, weights, self._sparse)
 
     # -- collision ----------------------------------------------------------------------------
     def collision_geometry(self, betas: np.ndarray) -> list[ConvexPiece]:

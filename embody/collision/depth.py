@@ -540,7 +540,7 @@ def motion_depths(body: BodyModel, pose: np.ndarray, betas: np.ndarray,
             for s in range(0, len(todo), _BATCH):
                 x = torch.as_tensor(pose[todo[s:s + _BATCH]], dtype=torch.float64,
                                     device=device)
-                parts.append(frame_depths(mesh, body.vertices(x, b).cpu().numpy()))
+                parts.append(frame_depths(mesh, body.vertices_array(x, b)))
         out[todo] = np.concatenate(parts)
         with _memo_lock:
             for i in todo.tolist():
