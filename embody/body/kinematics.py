@@ -70,12 +70,13 @@ def skin(transforms: torch.Tensor, rest_vertices: torch.Tensor, bind_positions: 
 
 def skin_array(transforms: torch.Tensor, rest_vertices: torch.Tensor,
                bind_positions: torch.Tensor, weights: torch.Tensor,
-               sparse: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+               sparse: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
     """`skin`'s result, bit for bit, as a NumPy array (T,V,3) without autograd (the mesh
     judge's skin). The same bones; the blend either the same `torch.matmul` per chunk, or,
     given `sparse` (`sparse_weights`), on the CPU, where `_sparse_is_exact` found it so, each blended
     entry as a chain of fused multiply-adds over the vertex's nonzero weights in joint order
-    (what MKL's dgemm computes, skipping exact-zero terms: ~4 instead of J products); then
+    (what MKL's dgemm computes, less the zero-weight terms, which add ±0 to an accumulator
+    that starts at +0: ~4 instead of J products); then
     the columns summed in `skin`'s order ((m0·x + m1·y) + m2·z) + m3 (no fused multiply-add)
     in one compiled pass."""
     global _SPARSE_EXACT
@@ -104,9 +105,9 @@ def skin_array(transforms: torch.Tensor, rest_vertices: torch.Tensor,
 _SPARSE_EXACT: bool | None = None
 
 
-def sparse_weights(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(joint ids (V,K), weights (V,K), dense weights (V,J)) of each vertex's nonzero weights
-    in joint order (K the most per vertex; unused slots weight 0 at joint 0), float64."""
+def sparse_weights(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(joint ids (V,K), weights (V,K)) of each vertex's nonzero weights in joint order (K the
+    most per vertex; unused slots weight 0 at joint 0), float64."""
     w = np.asarray(weights, dtype=np.float64)
     k = max(int((w != 0).sum(1).max()), 1)
     idx = np.zeros((len(w), k), dtype=np.int64)
@@ -114,20 +115,23 @@ def sparse_weights(weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndar
     for v, row in enumerate(w):
         nz = np.flatnonzero(row)
         idx[v, :len(nz)], val[v, :len(nz)] = nz, row[nz]
-    return idx, val, np.ascontiguousarray(w)
+    return idx, val
 
 
 def _sparse_is_exact(bone: torch.Tensor, weights: torch.Tensor,
-                     sparse: tuple[np.ndarray, np.ndarray, np.ndarray]) -> bool:
+                     sparse: tuple[np.ndarray, np.ndarray]) -> bool:
     """Whether the fused multiply-add chains give `torch.matmul`'s bits on this machine (its
-    BLAS could sum in another order): checked once per process on these bones and on random
-    ones, every vertex and entry."""
+    BLAS could sum in another order, or start from another zero): checked once per process
+    on these bones and on random ones (some with exact and negative zeros), every vertex and
+    entry, signs of zeros included."""
     rng = np.random.default_rng(0)
-    probe = torch.cat((bone, torch.as_tensor(rng.normal(size=(2, *bone.shape[1:])))))
+    noise = rng.normal(size=(3, *bone.shape[1:]))
+    noise[1:][rng.random(noise[1:].shape) < 0.5] = 0.0     # exact zeros (identity rotations)
+    noise[2] = np.copysign(noise[2], -1.0)                  # and negative ones: -0.0
+    probe = torch.cat((bone, torch.as_tensor(noise)))
     ref = torch.matmul(weights, probe.to(weights.dtype)).cpu().numpy()
-    idx, val, dense = sparse
     ours = np.empty_like(ref)
-    _blend(np.ascontiguousarray(probe.cpu().numpy(), dtype=np.float64), idx, val, dense, ours)
+    _blend(np.ascontiguousarray(probe.cpu().numpy(), dtype=np.float64), *sparse, ours)
     return ours.tobytes() == np.ascontiguousarray(ref).tobytes()
 
 
@@ -142,31 +146,21 @@ def _fma(typingctx, a, b, c):
 
 
 @njit(cache=True, nogil=True)
-def _entry(bone: np.ndarray, t: int, v: int, c: int, idx: np.ndarray, val: np.ndarray,
-           dense: np.ndarray) -> float:
-    acc = 0.0
-    for k in range(idx.shape[1]):
-        acc = _fma(val[v, k], bone[t, idx[v, k], c], acc)
-    if acc == 0.0:  # a zero's sign may come from the zero-weight terms: run them all
-        acc = 0.0
-        for j in range(dense.shape[1]):
-            acc = _fma(dense[v, j], bone[t, j, c], acc)
-    return acc
-
-
-@njit(cache=True, nogil=True)
-def _blend(bone: np.ndarray, idx: np.ndarray, val: np.ndarray, dense: np.ndarray,
-           out: np.ndarray) -> None:
-    """out[t,v,c] = Σ_j w[v,j]·bone[t,j,c] (T,V,12), as `_entry` chains."""
+def _blend(bone: np.ndarray, idx: np.ndarray, val: np.ndarray, out: np.ndarray) -> None:
+    """out[t,v,c] = Σ_k val[v,k]·bone[t,idx[v,k],c] (T,V,12): per entry a chain of fused
+    multiply-adds from +0 in joint order (`_skin_sparse`'s blend)."""
     for t in range(bone.shape[0]):
         for v in range(idx.shape[0]):
             for c in range(12):
-                out[t, v, c] = _entry(bone, t, v, c, idx, val, dense)
+                acc = 0.0
+                for k in range(idx.shape[1]):
+                    acc = _fma(val[v, k], bone[t, idx[v, k], c], acc)
+                out[t, v, c] = acc
 
 
 @njit(cache=True, nogil=True)
-def _skin_sparse(bone: np.ndarray, idx: np.ndarray, val: np.ndarray, dense: np.ndarray,
-                 rest: np.ndarray, out: np.ndarray) -> None:
+def _skin_sparse(bone: np.ndarray, idx: np.ndarray, val: np.ndarray, rest: np.ndarray,
+                 out: np.ndarray) -> None:
     """`_blend` and `_skin_columns` in one pass (the chain written out: a call per entry
     costs more than the entry)."""
     m = np.empty(12)
@@ -180,9 +174,6 @@ def _skin_sparse(bone: np.ndarray, idx: np.ndarray, val: np.ndarray, dense: np.n
                 j = idx[v, k]
                 for c in range(12):
                     m[c] = _fma(w, bt[j, c], m[c])
-            for c in range(12):
-                if m[c] == 0.0:
-                    m[c] = _entry(bone, t, v, c, idx, val, dense)
             x, y, z = rest[v, 0], rest[v, 1], rest[v, 2]
             for r in range(3):
                 out[t, v, r] = ((m[4 * r] * x + m[4 * r + 1] * y) + m[4 * r + 2] * z) + m[4 * r + 3]
