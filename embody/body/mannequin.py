@@ -17,8 +17,7 @@ from mannequin import _io as mannequin_io
 
 from embody.body.base import BodyModel, ConvexPiece
 from embody.body.convex import part_hulls
-from embody.body.kinematics import (forward_kinematics, offsets_from_joints, skin, skin_array,
-                                    sparse_weights, tree_levels)
+from embody.body.kinematics import forward_kinematics, offsets_from_joints, skin, tree_levels
 from embody.body.parts import dominant_parts
 from embody.body.rotations import axis_angle_to_matrix
 from embody.motion import JOINT_NAMES, NUM_BETAS, NUM_JOINTS
@@ -66,7 +65,7 @@ class MannequinBody(BodyModel):
         self._shapes: OrderedDict[bytes, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._hulls: OrderedDict[bytes, list[ConvexPiece]] = OrderedDict()
         self._constants: dict[tuple[torch.dtype, torch.device], tuple[torch.Tensor, ...]] = {}
-        #: The skin weights' nonzeros for `vertices_array` (`kinematics.sparse_weights`).
+        #: The skin weights' nonzeros for `vertices_array` (`sparse_skin.sparse_weights`).
         self._sparse: tuple[np.ndarray, np.ndarray] | None = None
 
     # -- shape --------------------------------------------------------------------------------
@@ -132,7 +131,8 @@ class MannequinBody(BodyModel):
         return skin(transforms, rest, bind, weights)
 
     def vertices_array(self, pose: torch.Tensor, betas: torch.Tensor) -> np.ndarray:
-        """`vertices` bit for bit as NumPy (`kinematics.skin_array`), without autograd."""
+        """`vertices` bit for bit as NumPy (`sparse_skin.skin_array`), without autograd."""
+        from embody.body.sparse_skin import skin_array, sparse_weights  # numba: on first use
         with torch.no_grad():
             transforms = self.joint_transforms(pose, betas)
             rest, bind = (torch.as_tensor(a, dtype=pose.dtype, device=pose.device)

@@ -158,11 +158,11 @@ def nearest_one(pi: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: n
     """The closest triangle to the point pi (3,), exactly: the least distance, the lowest
     triangle index among equal distances (the k-d tree scan's tie-break), a NaN distance as
     +inf. Returns (distance, feature, triangle) and writes the closest point into `point`
-    (3,); `q` (3,) and `pc` (3,) int64 are scratch. Rings of grid cells are searched outward from the
-    point's cell; a triangle is skipped only when a lower bound on its distance (centroid
-    distance less its radius, or its plane's distance less its flatness slack) exceeds the
-    best found, and the search stops once every unvisited cell's triangles lie farther (ring
-    r+1 is ≥ r·cell away)."""
+    (3,); `q` (3,) and `pc` (3,) int64 are scratch. Rings of grid cells are searched
+    outward from the point's cell; a triangle is skipped only when a lower bound on its
+    distance (centroid distance less its radius, or its plane's distance less its flatness
+    slack) exceeds the best found, and the search stops once every unvisited cell's
+    triangles lie farther (ring r+1 is ≥ r·cell away)."""
     for a in range(3):
         pc[a] = int(np.floor((pi[a] - lo[a]) / cell))
     # rings needed to cover the whole grid from here
@@ -215,7 +215,7 @@ def nearest_one(pi: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: n
     return best, best_f, best_t
 
 
-@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+@njit(cache=True, nogil=True, error_model="numpy")
 def _separates(ax0: float, ax1: float, ax2: float, p: np.ndarray, q: np.ndarray) -> bool:
     """Whether the axis separates triangles p and q (3,3): their projections do not meet
     (touching counts as meeting)."""
@@ -270,13 +270,35 @@ def _meet(p: np.ndarray, q: np.ndarray, e: np.ndarray, n: np.ndarray) -> bool:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _grow(ia: np.ndarray, ib: np.ndarray, n: int):
-    cap = 2 * n
-    ia2 = np.empty(cap, dtype=np.int64)
-    ib2 = np.empty(cap, dtype=np.int64)
-    ia2[:n] = ia[:n]
-    ib2[:n] = ib[:n]
-    return ia2, ib2, cap
+def _enter(i: int, lo: np.ndarray, hi: np.ndarray, tri: np.ndarray, opened: np.ndarray,
+           n_open: int, lo_o: np.ndarray, hi_o: np.ndarray, tri_o: np.ndarray, first: bool,
+           mine: np.ndarray, other: np.ndarray, n: int, e: np.ndarray, nrm: np.ndarray):
+    """Box i of one side enters the sweep: the other side's open boxes that ended before its
+    low x are dropped, the rest that meet its box are tested (`_meet`, with the first side's
+    triangle first), and the meeting pairs appended to (mine, other). Returns (open count,
+    mine, other, pair count); both arrays grow together when full."""
+    kept = 0
+    for k in range(n_open):
+        j = opened[k]
+        if hi_o[j, 0] < lo[i, 0]:
+            continue
+        opened[kept] = j
+        kept += 1
+        if (lo[i, 1] > hi_o[j, 1] or hi[i, 1] < lo_o[j, 1]
+                or lo[i, 2] > hi_o[j, 2] or hi[i, 2] < lo_o[j, 2]):
+            continue
+        if _meet(tri[i], tri_o[j], e, nrm) if first else _meet(tri_o[j], tri[i], e, nrm):
+            if n == mine.shape[0]:
+                grown = np.empty(2 * n, dtype=np.int64)
+                grown[:n] = mine[:n]
+                mine = grown
+                grown = np.empty(2 * n, dtype=np.int64)
+                grown[:n] = other[:n]
+                other = grown
+            mine[n] = i
+            other[n] = j
+            n += 1
+    return kept, mine, other, n
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -317,57 +339,23 @@ def crossing_pairs(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarra
     n_open_a = n_open_b = 0
     e = np.empty((2, 3, 3))
     nrm = np.empty((2, 3))
-    cap = 256
-    ia = np.empty(cap, dtype=np.int64)
-    ib = np.empty(cap, dtype=np.int64)
+    ia = np.empty(256, dtype=np.int64)
+    ib = np.empty(256, dtype=np.int64)
     n = 0
     sa = sb = 0
     while sa < na or sb < nb:
-        from_a = sb >= nb or (sa < na and lo_a[order_a[sa], 0] <= lo_b[order_b[sb], 0])
-        if from_a:
+        if sb >= nb or (sa < na and lo_a[order_a[sa], 0] <= lo_b[order_b[sb], 0]):
             i = order_a[sa]
             sa += 1
-            x = lo_a[i, 0]
-            kept = 0
-            for k in range(n_open_b):
-                j = open_b[k]
-                if hi_b[j, 0] < x:
-                    continue
-                open_b[kept] = j
-                kept += 1
-                if (lo_a[i, 1] > hi_b[j, 1] or hi_a[i, 1] < lo_b[j, 1]
-                        or lo_a[i, 2] > hi_b[j, 2] or hi_a[i, 2] < lo_b[j, 2]):
-                    continue
-                if _meet(ta[i], tb[j], e, nrm):
-                    if n == cap:
-                        ia, ib, cap = _grow(ia, ib, n)
-                    ia[n] = i
-                    ib[n] = j
-                    n += 1
-            n_open_b = kept
+            n_open_b, ia, ib, n = _enter(i, lo_a, hi_a, ta, open_b, n_open_b, lo_b, hi_b, tb,
+                                         True, ia, ib, n, e, nrm)
             open_a[n_open_a] = i
             n_open_a += 1
         else:
             j = order_b[sb]
             sb += 1
-            x = lo_b[j, 0]
-            kept = 0
-            for k in range(n_open_a):
-                i = open_a[k]
-                if hi_a[i, 0] < x:
-                    continue
-                open_a[kept] = i
-                kept += 1
-                if (lo_a[i, 1] > hi_b[j, 1] or hi_a[i, 1] < lo_b[j, 1]
-                        or lo_a[i, 2] > hi_b[j, 2] or hi_a[i, 2] < lo_b[j, 2]):
-                    continue
-                if _meet(ta[i], tb[j], e, nrm):
-                    if n == cap:
-                        ia, ib, cap = _grow(ia, ib, n)
-                    ia[n] = i
-                    ib[n] = j
-                    n += 1
-            n_open_a = kept
+            n_open_a, ib, ia, n = _enter(j, lo_b, hi_b, tb, open_a, n_open_a, lo_a, hi_a, ta,
+                                         False, ib, ia, n, e, nrm)
             open_b[n_open_b] = j
             n_open_b += 1
     key = np.argsort(ia[:n] * nb + ib[:n], kind="mergesort")
