@@ -235,17 +235,12 @@ def triangles_meet(p: np.ndarray, q: np.ndarray) -> bool:
     """Separating-axis test of two triangles (3,3) (both normals, the 9 edge-edge cross products,
     and each normal crossed with its own edges for the coplanar case): True when no axis
     separates them, i.e. they intersect or touch."""
-    return _meet(p, q, np.empty((2, 3, 3)), np.empty((2, 3)))
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _meet(p: np.ndarray, q: np.ndarray, e: np.ndarray, n: np.ndarray) -> bool:
-    """`triangles_meet` with scratch e (2,3,3) and n (2,3) (no allocation per pair)."""
-    for k in range(3):
-        for a in range(3):
-            e[0, k, a] = p[(k + 1) % 3, a] - p[k, a]
-            e[1, k, a] = q[(k + 1) % 3, a] - q[k, a]
-    for s in range(2):
+    e = np.empty((2, 3, 3))
+    n = np.empty((2, 3))
+    for s, t in ((0, p), (1, q)):
+        for k in range(3):
+            for a in range(3):
+                e[s, k, a] = t[(k + 1) % 3, a] - t[k, a]
         n[s, 0] = e[s, 0, 1] * e[s, 1, 2] - e[s, 0, 2] * e[s, 1, 1]
         n[s, 1] = e[s, 0, 2] * e[s, 1, 0] - e[s, 0, 0] * e[s, 1, 2]
         n[s, 2] = e[s, 0, 0] * e[s, 1, 1] - e[s, 0, 1] * e[s, 1, 0]
@@ -270,43 +265,10 @@ def _meet(p: np.ndarray, q: np.ndarray, e: np.ndarray, n: np.ndarray) -> bool:
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _enter(i: int, lo: np.ndarray, hi: np.ndarray, tri: np.ndarray, opened: np.ndarray,
-           n_open: int, lo_o: np.ndarray, hi_o: np.ndarray, tri_o: np.ndarray, first: bool,
-           mine: np.ndarray, other: np.ndarray, n: int, e: np.ndarray, nrm: np.ndarray):
-    """Box i of one side enters the sweep: the other side's open boxes that ended before its
-    low x are dropped, the rest that meet its box are tested (`_meet`, with the first side's
-    triangle first), and the meeting pairs appended to (mine, other). Returns (open count,
-    mine, other, pair count); both arrays grow together when full."""
-    kept = 0
-    for k in range(n_open):
-        j = opened[k]
-        if hi_o[j, 0] < lo[i, 0]:
-            continue
-        opened[kept] = j
-        kept += 1
-        if (lo[i, 1] > hi_o[j, 1] or hi[i, 1] < lo_o[j, 1]
-                or lo[i, 2] > hi_o[j, 2] or hi[i, 2] < lo_o[j, 2]):
-            continue
-        if _meet(tri[i], tri_o[j], e, nrm) if first else _meet(tri_o[j], tri[i], e, nrm):
-            if n == mine.shape[0]:
-                grown = np.empty(2 * n, dtype=np.int64)
-                grown[:n] = mine[:n]
-                mine = grown
-                grown = np.empty(2 * n, dtype=np.int64)
-                grown[:n] = other[:n]
-                other = grown
-            mine[n] = i
-            other[n] = j
-            n += 1
-    return kept, mine, other, n
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
 def crossing_pairs(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarray):
     """All pairs (i, j) of triangles fa[i] (corners in va) and fb[j] (in vb) that intersect or
-    touch: their boxes overlap (a sweep and prune along x over both sides' boxes sorted by
-    low x), then `triangles_meet`. Returns (ia, ib), sorted by i then j (the pairs do not
-    depend on the sweep's order)."""
+    touch: their boxes overlap (a sweep along x over fa sorted by its boxes' low x), then
+    `triangles_meet`. Returns (ia, ib), sorted by i then j."""
     na, nb = fa.shape[0], fb.shape[0]
     ta = np.empty((na, 3, 3))
     tb = np.empty((nb, 3, 3))
@@ -330,33 +292,29 @@ def crossing_pairs(va: np.ndarray, fa: np.ndarray, vb: np.ndarray, fb: np.ndarra
         for a in range(3):
             lo_b[j, a] = min(tb[j, 0, a], tb[j, 1, a], tb[j, 2, a])
             hi_b[j, a] = max(tb[j, 0, a], tb[j, 1, a], tb[j, 2, a])
-    # sweep and prune along x: boxes enter in order of their low x (fa's first on a tie); an
-    # entering box is tested against the other side's boxes still open (high x ≥ its low x)
-    order_a = np.argsort(lo_a[:, 0], kind="mergesort")
-    order_b = np.argsort(lo_b[:, 0], kind="mergesort")
-    open_a = np.empty(na, dtype=np.int64)
-    open_b = np.empty(nb, dtype=np.int64)
-    n_open_a = n_open_b = 0
-    e = np.empty((2, 3, 3))
-    nrm = np.empty((2, 3))
-    ia = np.empty(256, dtype=np.int64)
-    ib = np.empty(256, dtype=np.int64)
+    order = np.argsort(lo_a[:, 0], kind="mergesort")
+    cap = 256
+    ia = np.empty(cap, dtype=np.int64)
+    ib = np.empty(cap, dtype=np.int64)
     n = 0
-    sa = sb = 0
-    while sa < na or sb < nb:
-        if sb >= nb or (sa < na and lo_a[order_a[sa], 0] <= lo_b[order_b[sb], 0]):
-            i = order_a[sa]
-            sa += 1
-            n_open_b, ia, ib, n = _enter(i, lo_a, hi_a, ta, open_b, n_open_b, lo_b, hi_b, tb,
-                                         True, ia, ib, n, e, nrm)
-            open_a[n_open_a] = i
-            n_open_a += 1
-        else:
-            j = order_b[sb]
-            sb += 1
-            n_open_a, ib, ia, n = _enter(j, lo_b, hi_b, tb, open_a, n_open_a, lo_a, hi_a, ta,
-                                         False, ib, ia, n, e, nrm)
-            open_b[n_open_b] = j
-            n_open_b += 1
+    for j in range(nb):
+        for s in range(na):
+            i = order[s]
+            if lo_a[i, 0] > hi_b[j, 0]:
+                break
+            if (hi_a[i, 0] < lo_b[j, 0] or lo_a[i, 1] > hi_b[j, 1] or hi_a[i, 1] < lo_b[j, 1]
+                    or lo_a[i, 2] > hi_b[j, 2] or hi_a[i, 2] < lo_b[j, 2]):
+                continue
+            if triangles_meet(ta[i], tb[j]):
+                if n == cap:
+                    cap *= 2
+                    ia2 = np.empty(cap, dtype=np.int64)
+                    ib2 = np.empty(cap, dtype=np.int64)
+                    ia2[:n] = ia[:n]
+                    ib2[:n] = ib[:n]
+                    ia, ib = ia2, ib2
+                ia[n] = i
+                ib[n] = j
+                n += 1
     key = np.argsort(ia[:n] * nb + ib[:n], kind="mergesort")
     return ia[:n][key], ib[:n][key]
