@@ -22,7 +22,11 @@ operation (products and sums in NumPy's order, NumPy's pairwise sum for a mean),
 keep their bits; `tests/test_depth_exact.py` compares the two. The one exception is the
 centroid plane test (`_separated`), a sound filter whose dot products NumPy hands to BLAS: it
 can only differ on a pair whose two point sets touch within rounding, where no triangle pair
-crosses anyway. Non-solid components (skins) stay in Python (`depth._skin_depth`)."""
+crosses anyway. Non-solid components (skins) stay in Python (`depth._skin_depth`).
+
+numba's cache (`cache=True`) is keyed by this file: the kernels it uses from `closest.py` are
+compiled into these, and an edit there alone leaves this file's cached code stale. After editing
+`closest.py`, touch this file (or clear `__pycache__`)."""
 
 from __future__ import annotations
 
