@@ -138,8 +138,8 @@ class MannequinBody(BodyModel):
             rest, bind = (torch.as_tensor(a, dtype=pose.dtype, device=pose.device)
                           for a in self._shaped(_betas_key(betas)))
             _, _, weights = self._tensors(pose.dtype, pose.device)
-            if pose.dtype != torch.float64:  # the compiled pass sums in float64
-                return skin(transforms, rest, bind, weights).cpu().numpy()
+            if pose.dtype != torch.float64 or pose.device.type != "cpu":
+                return skin(transforms, rest, bind, weights).cpu().numpy()  # `vertices`' path
             if self._sparse is None:
                 self._sparse = sparse_weights(weights.cpu().numpy())
             return skin_array(transforms, rest, bind, weights, self._sparse)
