@@ -64,4 +64,3 @@ def skin(transforms: torch.Tensor, rest_vertices: torch.Tensor, bind_positions: 
         v += m[..., 3]
         out.append(v)
     return torch.cat(out, dim=0)
-
