@@ -8,7 +8,8 @@ import trimesh
 
 from embody.body import MannequinBody
 from embody.collision import mitigate
-from embody.collision.depth import DepthMesh, depth_metrics, frame_depth, motion_depths
+from embody.collision.depth import (DepthMesh, depth_metrics, frame_depth,
+                                   frame_depth_reference, motion_depths)
 from embody.collision.optimize import blend_weights
 from embody.config.collision import CollisionConfig
 from embody.motion import JOINT_NAMES, Motion
@@ -33,6 +34,7 @@ def test_sphere_in_box_depth_is_the_dip(dip):
     mesh, v = sphere_and_box(dip)
     assert all(c.solid for c in mesh.components)
     assert frame_depth(mesh, v) == pytest.approx(dip, abs=1e-9)
+    assert frame_depth(mesh, v) == frame_depth_reference(mesh, v)
 
 
 def test_clear_touching_and_unchecked_score_zero():
@@ -142,10 +144,10 @@ def test_depth_polish_clears_the_frames_the_judge_flags_and_nothing_else(body):
 
 def test_batched_depths_equal_the_per_frame_reference(body):
     """`frame_depths` prunes component pairs whose boxes are apart and tests a separating
-    axis before the crossing test; the depths equal `frame_depth` over every checked pair,
-    on built and random poses."""
+    axis before the crossing test; the depths equal the NumPy reference `frame_depth_reference`
+    over every checked pair, on built and random poses."""
     import torch
-    from embody.collision.depth import depth_mesh, frame_depths
+    from embody.collision.depth import depth_mesh, frame_depth_reference, frame_depths
     rng = np.random.default_rng(0)
     pose = np.concatenate([planted(3, slice(1, 2)).pose,
                            rng.normal(scale=0.6, size=(4, 55, 3))])
@@ -154,7 +156,7 @@ def test_batched_depths_equal_the_per_frame_reference(body):
     with torch.no_grad():
         v = body.vertices(torch.as_tensor(pose), torch.zeros(10, dtype=torch.float64)).numpy()
     ours = frame_depths(mesh, v)
-    ref = np.array([frame_depth(mesh, x) for x in v])
+    ref = np.array([frame_depth_reference(mesh, x) for x in v])
     np.testing.assert_array_equal(ours, ref)
     assert ours[1] > 0.01 and (ours > 0).sum() >= 2
 

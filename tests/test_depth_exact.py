@@ -205,3 +205,80 @@ def test_triangles_meet_counts_touching_and_crossing_not_near_misses():
     assert not closest.triangles_meet(p, np.array([[0.2, 0.2, 1e-6], [0.3, 0.2, 1], [0.2, 0.3, 1]]))
     assert closest.triangles_meet(p, np.array([[0.2, 0.2, 0], [0.3, 0.2, 0], [0.2, 0.3, 0]]))  # coplanar
     assert not closest.triangles_meet(p, np.array([[0.6, 0.6, 0], [0.9, 0.6, 0], [0.6, 0.9, 0]]))
+
+
+def _planted_poses() -> np.ndarray:
+    """Rest, a forearm planted in the chest, crossed forearms, and random arm swings."""
+    from embody.motion import JOINT_NAMES
+    J = JOINT_NAMES.index
+    rng = np.random.default_rng(7)
+    pose = np.zeros((10, 55, 3))
+    pose[1, J("left_shoulder")] = [0.0, -0.8, -0.3]
+    pose[1, J("left_elbow"), 1] = -2.2
+    for side, sign in (("left", -1.0), ("right", 1.0)):            # forearms crossed
+        pose[2, J(f"{side}_shoulder")] = [0.0, sign * 0.9, sign * 0.9]
+        pose[2, J(f"{side}_elbow"), 1] = sign * 1.9
+    pose[3:, 16:22] = rng.normal(scale=0.9, size=(7, 6, 3))          # arms swing inward
+    pose[3:, 3:15] = rng.normal(scale=0.2, size=(7, 12, 3))          # spine, neck, collars
+    return pose
+
+
+def test_compiled_depths_are_the_numpy_reference_bit_for_bit():
+    """`frame_depths` (compiled broad phase, normals, grid and flood) returns the NumPy
+    reference's depths with the same bits, on planted and random poses of the mannequin."""
+    body = MannequinBody()
+    mesh = depth.depth_mesh(body)
+    with torch.no_grad():
+        v = body.vertices(torch.as_tensor(_planted_poses()), torch.zeros(10, dtype=torch.float64))
+    v = v.numpy()
+    ours = depth.frame_depths(mesh, v)
+    ref = depth.frame_depths_reference(mesh, v)
+    assert ours.tobytes() == ref.tobytes()
+    assert ours[0] == 0.0 and ours[1] > 0.01 and (ours > 0).sum() >= 4
+
+
+def test_compiled_depths_cover_skins_and_unchecked_groups():
+    """A non-solid component (an open skin spanning several groups, the patch path in NumPy)
+    next to solids, and a checked matrix with unchecked pairs: same bits as the reference."""
+    rng = np.random.default_rng(8)
+    s = trimesh.creation.icosphere(subdivisions=2, radius=0.1)
+    parts, groups, faces, n = [], [], [], 0
+    for k, off in enumerate(([0, 0, 0], [0.12, 0, 0], [0.05, 0.1, 0])):
+        parts.append(np.asarray(s.vertices) + off)
+        groups.append(np.full(len(s.vertices), k))
+        faces.append(np.asarray(s.faces) + n)
+        n += len(s.vertices)
+    # an open, folded sheet over four groups (not watertight: a skin)
+    sheet = trimesh.creation.box(extents=[0.3, 0.02, 0.3])
+    sv = np.asarray(sheet.vertices) + [0.05, 0.02, 0.0]
+    sf = np.asarray(sheet.faces)[2:] + n
+    parts.append(sv)
+    groups.append(np.arange(len(sv)) % 4 + 3)
+    faces.append(sf)
+    v = np.concatenate(parts)
+    checked = rng.random((7, 7)) < 0.7
+    checked = checked | checked.T
+    np.fill_diagonal(checked, False)
+    checked[0, 1] = checked[1, 0] = True
+    mesh = DepthMesh.build(np.concatenate(faces), np.concatenate(groups), checked)
+    assert not all(c.solid for c in mesh.components)
+    frames = np.stack([v + rng.normal(scale=0.01, size=v.shape) * (k > 0) for k in range(4)])
+    ours = depth.frame_depths(mesh, frames)
+    ref = depth.frame_depths_reference(mesh, frames)
+    assert ours.tobytes() == ref.tobytes() and (ref > 0).all()
+
+
+def test_vertices_array_is_vertices_bit_for_bit():
+    """The judge's skin (`MannequinBody.vertices_array`: sparse fused multiply-add chains where
+    they give this machine's BLAS bits, else torch's product) equals `vertices`, zero poses
+    (exact and negative zeros in the bones) included."""
+    body = MannequinBody()
+    rng = np.random.default_rng(9)
+    pose = rng.normal(scale=0.5, size=(70, 55, 3))
+    pose[:5] = 0.0
+    pose[5:10, 25:] = -0.0
+    betas = torch.as_tensor(rng.normal(size=10))
+    x = torch.as_tensor(pose)
+    with torch.no_grad():
+        ref = body.vertices(x, betas).numpy()
+    assert body.vertices_array(x, betas).tobytes() == ref.tobytes()

@@ -65,6 +65,8 @@ class MannequinBody(BodyModel):
         self._shapes: OrderedDict[bytes, tuple[np.ndarray, np.ndarray]] = OrderedDict()
         self._hulls: OrderedDict[bytes, list[ConvexPiece]] = OrderedDict()
         self._constants: dict[tuple[torch.dtype, torch.device], tuple[torch.Tensor, ...]] = {}
+        #: The skin weights' nonzeros for `vertices_array` (`sparse_skin.sparse_weights`).
+        self._sparse: tuple[np.ndarray, np.ndarray] | None = None
 
     # -- shape --------------------------------------------------------------------------------
     def _shaped(self, key: bytes) -> tuple[np.ndarray, np.ndarray]:
@@ -127,6 +129,20 @@ class MannequinBody(BodyModel):
                       for a in self._shaped(_betas_key(betas)))
         _, _, weights = self._tensors(pose.dtype, pose.device)
         return skin(transforms, rest, bind, weights)
+
+    def vertices_array(self, pose: torch.Tensor, betas: torch.Tensor) -> np.ndarray:
+        """`vertices` bit for bit as NumPy (`sparse_skin.skin_array`), without autograd."""
+        from embody.body.sparse_skin import skin_array, sparse_weights  # numba: on first use
+        with torch.no_grad():
+            transforms = self.joint_transforms(pose, betas)
+            rest, bind = (torch.as_tensor(a, dtype=pose.dtype, device=pose.device)
+                          for a in self._shaped(_betas_key(betas)))
+            _, _, weights = self._tensors(pose.dtype, pose.device)
+            if pose.dtype != torch.float64 or pose.device.type != "cpu":
+                return skin(transforms, rest, bind, weights).cpu().numpy()  # `vertices`' path
+            if self._sparse is None:
+                self._sparse = sparse_weights(weights.cpu().numpy())
+            return skin_array(transforms, rest, bind, weights, self._sparse)
 
     # -- collision ----------------------------------------------------------------------------
     def collision_geometry(self, betas: np.ndarray) -> list[ConvexPiece]:

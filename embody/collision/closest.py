@@ -138,68 +138,81 @@ def grid_nearest(p: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: n
                  lo: np.ndarray, dims: np.ndarray, cell: float, cell_start: np.ndarray,
                  cell_tri: np.ndarray, dist: np.ndarray, point: np.ndarray, feat: np.ndarray,
                  which: np.ndarray) -> None:
-    """Per point p[i] its closest triangle, exactly: the least distance, the lowest triangle
-    index among equal distances (the k-d tree scan's tie-break), a NaN distance as +inf.
-    Rings of grid cells are searched outward from the point's cell; a triangle is skipped
-    only when a lower bound on its distance (centroid distance less its radius, or its
-    plane's distance less its flatness slack) exceeds the best found, and the search stops
-    once every unvisited cell's triangles lie farther (ring r+1 is ≥ r·cell away)."""
+    """Per point p[i] its closest triangle, exactly (`nearest_one`), into dist[i], point[i],
+    feat[i] and which[i]."""
     q = np.empty(3)
     pc = np.empty(3, dtype=np.int64)
     for i in range(p.shape[0]):
-        pi = p[i]
-        for a in range(3):
-            pc[a] = int(np.floor((pi[a] - lo[a]) / cell))
-        # rings needed to cover the whole grid from here
-        r_max = 0
-        for a in range(3):
-            r_max = max(r_max, abs(pc[a]), abs(dims[a] - 1 - pc[a]))
-        best = np.inf
-        best_t = -1
-        best_f = 6
-        b0 = b1 = b2 = 0.0
-        for r in range(r_max + 1):
-            if r >= 1 and (r - 1) * cell - reach > best + 1e-9:
-                break
-            x0, x1 = max(pc[0] - r, 0), min(pc[0] + r, dims[0] - 1)
-            y0, y1 = max(pc[1] - r, 0), min(pc[1] + r, dims[1] - 1)
-            z0, z1 = max(pc[2] - r, 0), min(pc[2] + r, dims[2] - 1)
-            for x in range(x0, x1 + 1):
-                ex = abs(x - pc[0]) == r
-                for y in range(y0, y1 + 1):
-                    exy = ex or abs(y - pc[1]) == r
-                    if exy:
-                        zs, zstep = z0, 1
-                    else:  # only the two faces z = pc ± r of this column are on the ring
-                        zs, zstep = pc[2] - r, 2 * r
-                    z = zs
-                    while z <= z1:
-                        if z >= z0:
-                            c = (x * dims[1] + y) * dims[2] + z
-                            for s in range(cell_start[c], cell_start[c + 1]):
-                                t = cell_tri[s]
-                                cd = _norm3(centroid[t, 0] - pi[0], centroid[t, 1] - pi[1],
-                                            centroid[t, 2] - pi[2])
-                                if cd - radius[t] > best + 1e-12:
-                                    continue
-                                off = abs(_dot(plane[t, 0], plane[t, 1], plane[t, 2],
-                                               pi[0], pi[1], pi[2]) - offset[t])
-                                if off - slack[t] > best + 1e-9:
-                                    continue
-                                f = closest_point(pi, tri[t, 0], tri[t, 1], tri[t, 2], q)
-                                d = _norm3(q[0] - pi[0], q[1] - pi[1], q[2] - pi[2])
-                                if d != d:
-                                    d = np.inf
-                                if best_t < 0 or d < best or (d == best and t < best_t):
-                                    best, best_t, best_f = d, t, f
-                                    b0, b1, b2 = q[0], q[1], q[2]
-                        if zstep == 0:
-                            break
-                        z += zstep
-        dist[i] = best
-        point[i, 0], point[i, 1], point[i, 2] = b0, b1, b2
-        feat[i] = best_f
-        which[i] = best_t
+        d, f, t = nearest_one(p[i], tri, centroid, radius, reach, plane, offset, slack, lo,
+                              dims, cell, cell_start, cell_tri, point[i], q, pc)
+        dist[i] = d
+        feat[i] = f
+        which[i] = t
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def nearest_one(pi: np.ndarray, tri: np.ndarray, centroid: np.ndarray, radius: np.ndarray,
+                reach: float, plane: np.ndarray, offset: np.ndarray, slack: np.ndarray,
+                lo: np.ndarray, dims: np.ndarray, cell: float, cell_start: np.ndarray,
+                cell_tri: np.ndarray, point: np.ndarray, q: np.ndarray, pc: np.ndarray):
+    """The closest triangle to the point pi (3,), exactly: the least distance, the lowest
+    triangle index among equal distances (the k-d tree scan's tie-break), a NaN distance as
+    +inf. Returns (distance, feature, triangle) and writes the closest point into `point`
+    (3,); `q` (3,) and `pc` (3,) int64 are scratch. Rings of grid cells are searched
+    outward from the point's cell; a triangle is skipped only when a lower bound on its
+    distance (centroid distance less its radius, or its plane's distance less its flatness
+    slack) exceeds the best found, and the search stops once every unvisited cell's
+    triangles lie farther (ring r+1 is ≥ r·cell away)."""
+    for a in range(3):
+        pc[a] = int(np.floor((pi[a] - lo[a]) / cell))
+    # rings needed to cover the whole grid from here
+    r_max = 0
+    for a in range(3):
+        r_max = max(r_max, abs(pc[a]), abs(dims[a] - 1 - pc[a]))
+    best = np.inf
+    best_t = -1
+    best_f = 6
+    b0 = b1 = b2 = 0.0
+    for r in range(r_max + 1):
+        if r >= 1 and (r - 1) * cell - reach > best + 1e-9:
+            break
+        x0, x1 = max(pc[0] - r, 0), min(pc[0] + r, dims[0] - 1)
+        y0, y1 = max(pc[1] - r, 0), min(pc[1] + r, dims[1] - 1)
+        z0, z1 = max(pc[2] - r, 0), min(pc[2] + r, dims[2] - 1)
+        for x in range(x0, x1 + 1):
+            ex = abs(x - pc[0]) == r
+            for y in range(y0, y1 + 1):
+                exy = ex or abs(y - pc[1]) == r
+                if exy:
+                    zs, zstep = z0, 1
+                else:  # only the two faces z = pc ± r of this column are on the ring
+                    zs, zstep = pc[2] - r, 2 * r
+                z = zs
+                while z <= z1:
+                    if z >= z0:
+                        c = (x * dims[1] + y) * dims[2] + z
+                        for s in range(cell_start[c], cell_start[c + 1]):
+                            t = cell_tri[s]
+                            cd = _norm3(centroid[t, 0] - pi[0], centroid[t, 1] - pi[1],
+                                        centroid[t, 2] - pi[2])
+                            if cd - radius[t] > best + 1e-12:
+                                continue
+                            off = abs(_dot(plane[t, 0], plane[t, 1], plane[t, 2],
+                                           pi[0], pi[1], pi[2]) - offset[t])
+                            if off - slack[t] > best + 1e-9:
+                                continue
+                            f = closest_point(pi, tri[t, 0], tri[t, 1], tri[t, 2], q)
+                            d = _norm3(q[0] - pi[0], q[1] - pi[1], q[2] - pi[2])
+                            if d != d:
+                                d = np.inf
+                            if best_t < 0 or d < best or (d == best and t < best_t):
+                                best, best_t, best_f = d, t, f
+                                b0, b1, b2 = q[0], q[1], q[2]
+                    if zstep == 0:
+                        break
+                    z += zstep
+    point[0], point[1], point[2] = b0, b1, b2
+    return best, best_f, best_t
 
 
 @njit(cache=True, nogil=True, error_model="numpy")

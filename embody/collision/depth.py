@@ -48,6 +48,7 @@ import numpy as np
 import torch
 
 from embody.body.base import BodyModel
+from embody.collision import frame_kernels
 from embody.collision.closest import build_grid, crossing_pairs, grid_nearest
 from embody.collision.exclusions import checked_pairs, part_groups
 
@@ -316,11 +317,13 @@ def _component_order(mesh: DepthMesh) -> tuple[np.ndarray, np.ndarray]:
     return cache[0], cache[1]
 
 
-def frame_depth(mesh: DepthMesh, v: np.ndarray,
-                pairs: list[tuple[int, int]] | None = None,
-                box: np.ndarray | None = None) -> float:
-    """Max penetration depth (m) of one posed mesh (V,3). `pairs` limits the component pairs
-    tested (default: every checked pair); `box` (C,2,3) the components' boxes if known."""
+def frame_depth_reference(mesh: DepthMesh, v: np.ndarray,
+                          pairs: list[tuple[int, int]] | None = None,
+                          box: np.ndarray | None = None) -> float:
+    """Max penetration depth (m) of one posed mesh (V,3), all in NumPy: the reference the
+    compiled `frame_depths` keeps the bits of (tests, benchmarks). `pairs` limits the
+    component pairs tested (default: every checked pair); `box` (C,2,3) the components'
+    boxes if known."""
     pairs = _checked_comp_pairs(mesh) if pairs is None else pairs
     comps = mesh.components
     box = _component_boxes(mesh, v) if box is None else box
@@ -382,38 +385,130 @@ def frame_depth(mesh: DepthMesh, v: np.ndarray,
             best = max(best, _flood(mesh, v, a, seeds, surf, trust_border=True,
                                     allowed=allowed.any(1)))
     for i, c in enumerate(comps):  # skins: group against group inside one component
-        if c.solid:
-            continue
-        vc = v[c.vertices]
-        vgroup = mesh.vertex_group[c.vertices]
-        for g in np.unique(c.face_group):
-            faces_g = np.flatnonzero(c.face_group == g)
-            allowed = mesh.checked[vgroup, g]
-            f_other = np.flatnonzero(mesh.checked[c.face_group, g])
-            if not allowed.any() or len(f_other) == 0:
-                continue
-            xg, xo = _crossing(vc, c.faces[faces_g], vc, c.faces[f_other])
-            if len(xg) == 0:
-                continue
-            xo = np.unique(xo)
-            surf = _Surface(vc, c, faces_g, normals(i))
-            best = max(best, _flood(mesh, v, c, np.unique(c.faces[f_other[xo]]), surf,
-                                    trust_border=False, allowed=allowed))
+        if not c.solid:
+            best = max(best, _skin_depth(mesh, v, i, normals(i)))
     return best
 
 
-def frame_depths(mesh: DepthMesh, vertices: np.ndarray) -> np.ndarray:
-    """Max penetration depth (m) per frame of posed meshes (T,V,3). The component boxes and
-    their overlaps are computed for all frames at once; each frame then visits only its
-    checked pairs whose boxes overlap (a pair whose boxes are apart cannot cross)."""
+def _skin_depth(mesh: DepthMesh, v: np.ndarray, i: int, normals: tuple) -> float:
+    """Deepest vertex of the non-solid component i of the posed mesh v (V,3) inside a patch of
+    its own (one group's faces) that its group is checked against (module docstring)."""
+    c = mesh.components[i]
+    best = 0.0
+    vc = v[c.vertices]
+    vgroup = mesh.vertex_group[c.vertices]
+    for g in np.unique(c.face_group):
+        faces_g = np.flatnonzero(c.face_group == g)
+        allowed = mesh.checked[vgroup, g]
+        f_other = np.flatnonzero(mesh.checked[c.face_group, g])
+        if not allowed.any() or len(f_other) == 0:
+            continue
+        xg, xo = _crossing(vc, c.faces[faces_g], vc, c.faces[f_other])
+        if len(xg) == 0:
+            continue
+        xo = np.unique(xo)
+        surf = _Surface(vc, c, faces_g, normals)
+        best = max(best, _flood(mesh, v, c, np.unique(c.faces[f_other[xo]]), surf,
+                                trust_border=False, allowed=allowed))
+    return best
+
+
+def frame_depths_reference(mesh: DepthMesh, vertices: np.ndarray) -> np.ndarray:
+    """Max penetration depth (m) per frame of posed meshes (T,V,3), all in NumPy (the
+    reference of `frame_depths`). The component boxes and their overlaps are computed for all
+    frames at once; each frame then visits only its checked pairs whose boxes overlap (a pair
+    whose boxes are apart cannot cross)."""
     vertices = np.asarray(vertices, dtype=np.float64)
     pairs = np.array(_checked_comp_pairs(mesh), dtype=np.int64).reshape(-1, 2)
     boxes = _component_boxes(mesh, vertices)                               # (T,C,2,3)
     lo = np.maximum(boxes[:, pairs[:, 0], 0], boxes[:, pairs[:, 1], 0])
     hi = np.minimum(boxes[:, pairs[:, 0], 1], boxes[:, pairs[:, 1], 1])
     overlap = (lo <= hi).all(-1)                                           # (T,P)
-    return np.array([frame_depth(mesh, v, [tuple(p) for p in pairs[o].tolist()], b)
+    return np.array([frame_depth_reference(mesh, v, [tuple(p) for p in pairs[o].tolist()], b)
                      for v, o, b in zip(vertices, overlap, boxes)])
+
+
+@dataclass(frozen=True)
+class _Flat:
+    """A DepthMesh as flat arrays for `frame_kernels` (built once per mesh): component c's
+    vertices are verts[vptr[c]:vptr[c+1]], its faces faces[fptr[c]:fptr[c+1]] (local vertex
+    ids; gfaces the global ones), its edges efaces[eptr[c]:eptr[c+1]] (local face ids), its
+    one-ring CSR nptr[vptr[c]+c : vptr[c+1]+c+1] into nidx (local vertex ids)."""
+
+    vptr: np.ndarray
+    verts: np.ndarray
+    vgroup: np.ndarray
+    fptr: np.ndarray
+    faces: np.ndarray
+    gfaces: np.ndarray
+    fgroup: np.ndarray
+    eof: np.ndarray
+    eptr: np.ndarray
+    efaces: np.ndarray
+    nptr: np.ndarray
+    nidx: np.ndarray
+    solid: np.ndarray
+    checked: np.ndarray
+    allowed: np.ndarray     # (C,G): group g is checked against some face group of component c
+    pairs: np.ndarray       # (P,2) component pairs holding a checked pair of groups
+    skins: tuple[int, ...]  # the non-solid components
+
+    @classmethod
+    def of(cls, mesh: DepthMesh) -> "_Flat":
+        cache = mesh.__dict__.setdefault("_flat", [])
+        if not cache:
+            comps = mesh.components
+            size = lambda xs: np.r_[0, np.cumsum([len(x) for x in xs])].astype(np.int64)
+            nbase = size([c.nbr_idx for c in comps])
+            checked = np.ascontiguousarray(mesh.checked, dtype=np.bool_)
+            allowed = np.zeros((len(comps), len(checked)), dtype=np.bool_)
+            for k, c in enumerate(comps):
+                allowed[k] = checked[:, np.unique(c.face_group)].any(1)
+            cat = lambda xs, dtype=np.int64: np.ascontiguousarray(np.concatenate(xs), dtype=dtype)
+            cache.append(cls(
+                vptr=size([c.vertices for c in comps]),
+                verts=cat([c.vertices for c in comps]),
+                vgroup=cat([mesh.vertex_group[c.vertices] for c in comps]),
+                fptr=size([c.faces for c in comps]),
+                faces=cat([c.faces for c in comps]),
+                gfaces=cat([c.vertices[c.faces] for c in comps]),
+                fgroup=cat([c.face_group for c in comps]),
+                eof=cat([c.edge_of_face for c in comps]),
+                eptr=size([c.edge_faces for c in comps]),
+                efaces=cat([c.edge_faces for c in comps]),
+                nptr=cat([c.nbr_ptr + nbase[k] for k, c in enumerate(comps)]),
+                nidx=cat([c.nbr_idx for c in comps]),
+                solid=np.array([c.solid for c in comps], dtype=np.bool_),
+                checked=checked, allowed=allowed,
+                pairs=np.array(_checked_comp_pairs(mesh), dtype=np.int64).reshape(-1, 2),
+                skins=tuple(k for k, c in enumerate(comps) if not c.solid)))
+        return cache[0]
+
+
+def frame_depths(mesh: DepthMesh, vertices: np.ndarray) -> np.ndarray:
+    """Max penetration depth (m) per frame of posed meshes (T,V,3): `frame_depths_reference`'s
+    depths, bit for bit, with the solids' per-frame work compiled (`frame_kernels`: three
+    compiled calls and one `np.arccos` per batch); skins (non-solid components) in NumPy."""
+    vertices = np.ascontiguousarray(vertices, dtype=np.float64)
+    f = _Flat.of(mesh)
+    jf, ja, js, sptr, seeds, sf, sc = frame_kernels.broad_phase(
+        vertices, f.vptr, f.verts, f.fptr, f.faces, f.gfaces, f.fgroup, f.solid, f.checked,
+        f.pairs)
+    cos, cptr = frame_kernels.corner_cosines(vertices, f.fptr, f.gfaces, sf, sc)
+    best = frame_kernels.floods(
+        vertices, f.vptr, f.verts, f.vgroup, f.fptr, f.faces, f.gfaces, f.fgroup, f.eof,
+        f.eptr, f.efaces, f.nptr, f.nidx, f.checked, f.allowed, sf, sc, np.arccos(cos), cptr,
+        jf, ja, js, sptr, seeds)
+    for i in f.skins:
+        c = mesh.components[i]
+        for t, v in enumerate(vertices):
+            best[t] = max(best[t], _skin_depth(mesh, v, i, _normals(v[c.vertices], c)))
+    return best
+
+
+def frame_depth(mesh: DepthMesh, v: np.ndarray) -> float:
+    """Max penetration depth (m) of one posed mesh (V,3) (`frame_depths` of one frame)."""
+    return float(frame_depths(mesh, np.asarray(v, dtype=np.float64)[None])[0])
 
 
 def motion_depths(body: BodyModel, pose: np.ndarray, betas: np.ndarray,
@@ -445,7 +540,7 @@ def motion_depths(body: BodyModel, pose: np.ndarray, betas: np.ndarray,
             for s in range(0, len(todo), _BATCH):
                 x = torch.as_tensor(pose[todo[s:s + _BATCH]], dtype=torch.float64,
                                     device=device)
-                parts.append(frame_depths(mesh, body.vertices(x, b).cpu().numpy()))
+                parts.append(frame_depths(mesh, body.vertices_array(x, b)))
         out[todo] = np.concatenate(parts)
         with _memo_lock:
             for i in todo.tolist():
