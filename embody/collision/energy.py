@@ -35,6 +35,7 @@ from embody.body.base import BodyModel
 from embody.clusters import median_cuts
 from embody.collision.broad import broad_phase
 from embody.collision.exclusions import checked_pairs, part_groups
+from embody.collision.narrow import select
 from embody.collision.volumes import part_volumes, rest_frames
 
 #: Planes that never win the max: padding for pieces with fewer faces.
@@ -525,6 +526,15 @@ def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: flo
     p = c.points
     if p.t.numel() == 0:
         return None
+    if transforms.dtype == torch.float32 and not transforms.is_cuda:
+        return _penetrations_compiled(model, d, transforms, tolerance, reach, p)
+    return _penetrations_torch(model, d, transforms, tolerance, reach, p)
+
+
+def _penetrations_torch(model: CollisionModel, d: dict[str, torch.Tensor],
+                        transforms: torch.Tensor, tolerance: float, reach: float,
+                        p: PointRows) -> Penetrations | None:
+    """`penetrations`' selection as tensor operations (GPU, float64; the CPU's reference)."""
     with torch.no_grad():
         q = rows_in_part(d, transforms, p)
         r = torch.nonzero(_box_distance(q, d["piece_box"].index_select(0, p.k)) <= reach).squeeze(1)
@@ -538,6 +548,31 @@ def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: flo
         rk = r[keep]
         return Penetrations(p.t[rk], p.h[rk], p.n[rk], p.b[rk], d["planes"][p.k[rk], plane[keep]],
                             f[keep])
+
+
+def _penetrations_compiled(model: CollisionModel, d: dict[str, torch.Tensor],
+                           transforms: torch.Tensor, tolerance: float, reach: float,
+                           p: PointRows) -> Penetrations | None:
+    """`penetrations`' selection as one compiled pass (`narrow.select`), float32 on the CPU:
+    the same rows, planes and values as the tensor version (see `narrow`)."""
+    with torch.no_grad():
+        tr = transforms.detach()
+        g = tr[:, d["part_joints"]]
+        blend = _blend(d, tr)
+        rows, arg, f = select(
+            blend.reshape(*blend.shape[:2], 12).contiguous().numpy(),
+            g[..., :3, :3].contiguous().numpy(), g[..., :3, 3].contiguous().numpy(),
+            model.chunk_joints, d["chunk_weights"].numpy(), d["chunk_points"].numpy(),
+            d["piece_box"].numpy(), d["planes"].numpy(), _broad_arrays(model)["n_planes"],
+            p.t.numpy(), p.h.numpy(), p.n.numpy(), p.b.numpy(), p.k.numpy(), p.first.numpy(),
+            p.part_first.numpy(), p.part_inverse.numpy(), p.part_point.numpy(),
+            np.float32(reach), np.float32(tolerance), d["part_radius"].shape[0])
+    if len(rows) == 0:
+        return None
+    r = torch.from_numpy(rows)
+    k = p.k[r]
+    return Penetrations(p.t[r], p.h[r], p.n[r], p.b[r], d["planes"][k, torch.from_numpy(arg)],
+                        torch.from_numpy(f))
 
 
 def deepest_per_point(d: dict[str, torch.Tensor], t: torch.Tensor, h: torch.Tensor, n: torch.Tensor,

@@ -1,0 +1,128 @@
+"""Compiled (numba) narrow-phase selection of the collision energy (`energy.penetrations` on the
+CPU, float32).
+
+Why: after the broad phase was compiled, the optimiser's per-step selection (skin every
+candidate point, take it to its part's frame, box filter, the deepest piece's active plane) was
+the largest part of a step left (~35 %), as ~40 small tensor ops. Here it is one pass.
+
+It reproduces the torch selection's float32 arithmetic operation for operation, so the same
+points, planes and depths come out bit for bit and the optimiser's path is unchanged: the
+skinning product and the plane products are MKL's (a fused multiply-add chain over the joints,
+and over x, y, z then + d for 4 or more rows a piece, plain products for fewer), the rest is
+torch's elementwise order. An FMA of float32 values is emulated in float64 (the product is
+exact there; the double rounding differs from a true FMA once in ~2^29 results).
+`tests/test_collision_energy.py` compares the selections; on another CPU or MKL build the torch
+path may round differently, then the two agree to float32 rounding instead of bit for bit.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+_ZERO = np.float32(0.0)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _fma(a: np.float32, b: np.float32, c: np.float32) -> np.float32:
+    return np.float32(np.float64(a) * np.float64(b) + np.float64(c))
+
+
+@njit(cache=True, nogil=True)
+def select(blend: np.ndarray, rot: np.ndarray, trans: np.ndarray, chunk_joints: np.ndarray,
+           chunk_weights: np.ndarray, chunk_points: np.ndarray, piece_box: np.ndarray,
+           planes: np.ndarray, n_planes: np.ndarray, t: np.ndarray, h: np.ndarray,
+           n: np.ndarray, b: np.ndarray, k: np.ndarray, first: np.ndarray,
+           part_first: np.ndarray, part_inverse: np.ndarray, part_point: np.ndarray,
+           reach: np.float32, tolerance: np.float32, n_parts: int
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(rows, plane index, f) of the penetrating candidate rows: per (frame, chunk, point,
+    part b) the row of the deepest piece (least f, ties to the lowest row), in sorted key
+    order, f = max over the piece's planes (< −`tolerance`), of the rows within `reach` of
+    the piece's box. Arguments as `energy.PointRows` and `energy.CollisionModel` (float32
+    model arrays), `blend` (T,J,12), `rot` (T,C,3,3), `trans` (T,C,3)."""
+    n_u = chunk_joints.shape[1]
+    n_h, n_s = chunk_points.shape[0], chunk_points.shape[1]
+    # each distinct point skinned once: Σ_u w_u A_u (an FMA chain over u), then the affine
+    world = np.empty((len(first), 3), dtype=np.float32)
+    m = np.empty(12, dtype=np.float32)
+    for i in range(len(first)):
+        r = first[i]
+        tt, hh, nn = t[r], h[r], n[r]
+        w = chunk_weights[hh, nn]
+        a = blend[tt, chunk_joints[hh, 0]]
+        for j in range(12):
+            m[j] = w[0] * a[j]
+        for u in range(1, n_u):
+            a = blend[tt, chunk_joints[hh, u]]
+            for j in range(12):
+                m[j] = _fma(w[u], a[j], m[j])
+        p = chunk_points[hh, nn]
+        for j in range(3):
+            world[i, j] = ((m[4 * j] * p[0] + m[4 * j + 1] * p[1]) + m[4 * j + 2] * p[2]) \
+                + m[4 * j + 3]
+    # each distinct (point, part b) in b's joint frame: Rᵀ(p − t_b)
+    local = np.empty((len(part_first), 3), dtype=np.float32)
+    for i in range(len(part_first)):
+        r = part_first[i]
+        rr, tb = rot[t[r], b[r]], trans[t[r], b[r]]
+        p = world[part_point[i]]
+        x0, x1, x2 = p[0] - tb[0], p[1] - tb[1], p[2] - tb[2]
+        for j in range(3):
+            local[i, j] = (x0 * rr[0, j] + x1 * rr[1, j]) + x2 * rr[2, j]
+    # the box filter, then per piece the count of rows (MKL's product depends on it)
+    n_rows = len(t)
+    near = np.empty(n_rows, dtype=np.int64)
+    count = np.zeros(piece_box.shape[0], dtype=np.int64)
+    nn_ = 0
+    for r in range(n_rows):
+        q = local[part_inverse[r]]
+        bx = piece_box[k[r]]
+        g0 = max(bx[0, 0] - q[0], _ZERO) + max(q[0] - bx[1, 0], _ZERO)
+        g1 = max(bx[0, 1] - q[1], _ZERO) + max(q[1] - bx[1, 1], _ZERO)
+        g2 = max(bx[0, 2] - q[2], _ZERO) + max(q[2] - bx[1, 2], _ZERO)
+        if np.sqrt(_fma(g2, g2, _fma(g1, g1, g0 * g0))) <= reach:
+            near[nn_] = r
+            nn_ += 1
+            count[k[r]] += 1
+    inside = np.empty(nn_, dtype=np.int64)
+    arg = np.empty(nn_, dtype=np.int64)
+    fv = np.empty(nn_, dtype=np.float32)
+    key = np.empty(nn_, dtype=np.int64)
+    n_in = 0
+    for i in range(nn_):
+        r = near[i]
+        q = local[part_inverse[r]]
+        pl = planes[k[r]]
+        small = count[k[r]] < 4
+        best = np.float32(-np.inf)
+        best_j = 0
+        for j in range(n_planes[k[r]]):
+            if small:
+                v = (q[0] * pl[j, 0] + q[1] * pl[j, 1]) + q[2] * pl[j, 2]
+            else:
+                v = _fma(q[2], pl[j, 2], _fma(q[1], pl[j, 1], q[0] * pl[j, 0]))
+            v = v + pl[j, 3]
+            if v > best or j == 0:
+                best, best_j = v, j
+        if best < -tolerance:
+            inside[n_in], arg[n_in], fv[n_in] = r, best_j, best
+            key[n_in] = ((t[r] * n_h + h[r]) * n_s + n[r]) * n_parts + b[r]
+            n_in += 1
+    # the deepest piece per (frame, chunk, point, part), in key order
+    order = np.argsort(key[:n_in], kind="mergesort")
+    keep = np.empty(n_in, dtype=np.int64)
+    n_keep = 0
+    i = 0
+    while i < n_in:
+        j = i
+        pick = order[i]
+        while j < n_in and key[order[j]] == key[order[i]]:
+            if fv[order[j]] < fv[pick]:
+                pick = order[j]
+            j += 1
+        keep[n_keep] = pick
+        n_keep += 1
+        i = j
+    keep = keep[:n_keep]
+    return inside[keep], arg[keep], fv[keep]
