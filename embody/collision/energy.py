@@ -35,7 +35,7 @@ from embody.body.base import BodyModel
 from embody.clusters import median_cuts
 from embody.collision.broad import broad_phase
 from embody.collision.exclusions import checked_pairs, part_groups
-from embody.collision.narrow import select
+from embody.collision.narrow import PointDepths, select
 from embody.collision.volumes import part_volumes, rest_frames
 
 #: Planes that never win the max: padding for pieces with fewer faces.
@@ -639,8 +639,13 @@ def point_depths(model: CollisionModel, transforms: torch.Tensor,
     """Signed depth (Q,) of the selected points behind their active plane (positive inside),
     differentiable in `transforms`. `frame_offset` (Q,) shifts the frame index (a batch of
     perturbed copies of the motion stacked along frames)."""
-    d = model.tensors(transforms.dtype, transforms.device)
     t = sel.t if frame_offset is None else sel.t + frame_offset
+    if not transforms.is_cuda:  # compiled, with a hand-written gradient (`narrow.PointDepths`)
+        arrays = (model.rest_inverse, model.part_joints, model.chunk_joints, model.chunk_weights,
+                  model.chunk_points, t.numpy(), sel.h.numpy(), sel.n.numpy(), sel.b.numpy(),
+                  sel.plane.detach().double().numpy())
+        return PointDepths.apply(transforms, arrays)
+    d = model.tensors(transforms.dtype, transforms.device)
     g = transforms[:, d["part_joints"]]
     rot, trans = g[..., :3, :3], g[..., :3, 3]
     blend = _blend(d, transforms)
