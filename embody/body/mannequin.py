@@ -117,8 +117,7 @@ class MannequinBody(BodyModel):
             root = root + transl.to(dtype=pose.dtype, device=pose.device)
         offsets = offsets_from_joints(rest, self.parents)
         if compiled:
-            return compiled_fk(local_rot, offsets.detach(), root.detach(), self.parents,
-                               self._levels)
+            return compiled_fk(local_rot, offsets, root, self.parents, self._levels)
         return forward_kinematics(local_rot, offsets, root, self.parents, self._levels)
 
     def joint_transforms_compiled(self, pose: torch.Tensor, betas: torch.Tensor) -> torch.Tensor:
