@@ -51,13 +51,19 @@ def select(blend: np.ndarray, rot: np.ndarray, trans: np.ndarray, chunk_joints: 
         r = first[i]
         tt, hh, nn = t[r], h[r], n[r]
         w = chunk_weights[hh, nn]
-        a = blend[tt, chunk_joints[hh, 0]]
-        for j in range(12):
-            m[j] = w[0] * a[j]
-        for u in range(1, n_u):
+        # zero weights skipped: fma(0, a, m) is m (up to the sign of a zero result)
+        started = False
+        for u in range(n_u):
+            if w[u] == 0:
+                continue
             a = blend[tt, chunk_joints[hh, u]]
-            for j in range(12):
-                m[j] = _fma(w[u], a[j], m[j])
+            if started:
+                for j in range(12):
+                    m[j] = _fma(w[u], a[j], m[j])
+            else:
+                started = True
+                for j in range(12):
+                    m[j] = w[u] * a[j]
         p = chunk_points[hh, nn]
         for j in range(3):
             world[i, j] = ((m[4 * j] * p[0] + m[4 * j + 1] * p[1]) + m[4 * j + 2] * p[2]) \
@@ -91,22 +97,33 @@ def select(blend: np.ndarray, rot: np.ndarray, trans: np.ndarray, chunk_joints: 
     fv = np.empty(nn_, dtype=np.float32)
     key = np.empty(nn_, dtype=np.int64)
     n_in = 0
+    limit = -tolerance
     for i in range(nn_):
         r = near[i]
         q = local[part_inverse[r]]
         pl = planes[k[r]]
-        small = count[k[r]] < 4
         best = np.float32(-np.inf)
         best_j = 0
-        for j in range(n_planes[k[r]]):
-            if small:
-                v = (q[0] * pl[j, 0] + q[1] * pl[j, 1]) + q[2] * pl[j, 2]
-            else:
-                v = _fma(q[2], pl[j, 2], _fma(q[1], pl[j, 1], q[0] * pl[j, 0]))
-            v = v + pl[j, 3]
-            if v > best or j == 0:
-                best, best_j = v, j
-        if best < -tolerance:
+        # a plane at or above −tolerance settles it: the row is not inside (the max only grows)
+        if count[k[r]] < 4:
+            for j in range(n_planes[k[r]]):
+                v = ((q[0] * pl[j, 0] + q[1] * pl[j, 1]) + q[2] * pl[j, 2]) + pl[j, 3]
+                if v > best or j == 0:
+                    best, best_j = v, j
+                    if not best < limit:
+                        break
+        else:
+            q0, q1, q2 = np.float64(q[0]), np.float64(q[1]), np.float64(q[2])
+            for j in range(n_planes[k[r]]):
+                v = np.float32(q0 * np.float64(pl[j, 0]))
+                v = np.float32(q1 * np.float64(pl[j, 1]) + np.float64(v))
+                v = np.float32(q2 * np.float64(pl[j, 2]) + np.float64(v))
+                v = v + pl[j, 3]
+                if v > best or j == 0:
+                    best, best_j = v, j
+                    if not best < limit:
+                        break
+        if best < limit:
             inside[n_in], arg[n_in], fv[n_in] = r, best_j, best
             key[n_in] = ((t[r] * n_h + h[r]) * n_s + n[r]) * n_parts + b[r]
             n_in += 1
