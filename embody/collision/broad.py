@@ -171,3 +171,65 @@ def broad_phase(blend: np.ndarray, rot: np.ndarray, trans: np.ndarray,
                             pts[npt, 3], pts[npt, 4] = b, k
                             npt += 1
     return rows[:nr], pts[:npt]
+
+
+@njit(cache=True, nogil=True)
+def index_rows(t: np.ndarray, h: np.ndarray, n: np.ndarray, b: np.ndarray, size: int,
+               n_parts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                      np.ndarray, np.ndarray, np.ndarray]:
+    """`energy.PointRows.of`'s index arrays (first, inverse, part_first, part_inverse,
+    part_point, chunk_first, slot: what `torch.unique` numbering in sorted key order gives)
+    for rows grouped by (frame, chunk) in increasing order, as the broad phase emits them:
+    each group's keys are numbered on their own, in one pass."""
+    n_rows = len(t)
+    first = np.empty(n_rows, dtype=np.int64)
+    inverse = np.empty(n_rows, dtype=np.int64)
+    part_first = np.empty(n_rows, dtype=np.int64)
+    part_inverse = np.empty(n_rows, dtype=np.int64)
+    part_point = np.empty(n_rows, dtype=np.int64)
+    chunk_first = np.empty(n_rows, dtype=np.int64)
+    slot = np.empty(n_rows, dtype=np.int64)
+    point_row = np.full(size, -1, dtype=np.int64)       # a group's first row of each point n
+    point_id = np.empty(size, dtype=np.int64)
+    pair_row = np.full(size * n_parts, -1, dtype=np.int64)  # ... of each (n, b)
+    pair_id = np.empty(size * n_parts, dtype=np.int64)
+    keys = np.empty(n_rows, dtype=np.int64)
+    n_pts = n_pairs = n_groups = 0
+    s = 0
+    while s < n_rows:
+        e = s
+        while e < n_rows and t[e] == t[s] and h[e] == h[s]:
+            e += 1
+        n_keys = 0
+        for r in range(s, e):
+            if point_row[n[r]] < 0:
+                point_row[n[r]] = r
+            kb = n[r] * n_parts + b[r]
+            if pair_row[kb] < 0:
+                pair_row[kb] = r
+                keys[n_keys] = kb
+                n_keys += 1
+        g_first = n_pts
+        for m in range(size):  # points in increasing n
+            if point_row[m] >= 0:
+                point_id[m] = n_pts
+                first[n_pts] = point_row[m]
+                slot[n_pts] = n_groups * size + m
+                n_pts += 1
+        chunk_first[n_groups] = first[g_first]
+        n_groups += 1
+        pairs = np.sort(keys[:n_keys])
+        for kb in pairs:  # (point, part) pairs in increasing (n, b)
+            pair_id[kb] = n_pairs
+            part_first[n_pairs] = pair_row[kb]
+            part_point[n_pairs] = point_id[kb // n_parts]
+            n_pairs += 1
+        for r in range(s, e):
+            inverse[r] = point_id[n[r]]
+            part_inverse[r] = pair_id[n[r] * n_parts + b[r]]
+        for r in range(s, e):  # reset the group's tables
+            point_row[n[r]] = -1
+            pair_row[n[r] * n_parts + b[r]] = -1
+        s = e
+    return (first[:n_pts], inverse, part_first[:n_pairs], part_inverse, part_point[:n_pairs],
+            chunk_first[:n_groups], slot[:n_pts])

@@ -33,7 +33,7 @@ import torch
 
 from embody.body.base import BodyModel
 from embody.clusters import median_cuts
-from embody.collision.broad import broad_phase
+from embody.collision.broad import broad_phase, index_rows
 from embody.collision.exclusions import checked_pairs, part_groups
 from embody.collision.narrow import PointDepths, select
 from embody.collision.volumes import part_volumes, rest_frames
@@ -397,9 +397,11 @@ def contacts(model: CollisionModel, transforms: torch.Tensor, margin: float = 0.
     rows = torch.from_numpy(rows).to(transforms.device)
     pts = torch.from_numpy(pts).to(transforms.device)
     t, h, ca, b, k = rows.unbind(1)
-    pt, ph, pn, pb, pk = pts.unbind(1)
-    return Contacts(t, h, ca, b, k, PointRows.of(pt, ph, pn, pb, pk, *d["chunk_mask"].shape,
-                                                  d["part_radius"].shape[0]))
+    pt, ph, pn, pb, pk = (c.contiguous() for c in pts.unbind(1))
+    index = index_rows(pt.numpy(), ph.numpy(), pn.numpy(), pb.numpy(), d["chunk_mask"].shape[1],
+                       d["part_radius"].shape[0])
+    return Contacts(t, h, ca, b, k, PointRows(pt, ph, pn, pb, pk,
+                                              *(torch.from_numpy(a) for a in index)))
 
 
 def _broad_arrays(model: CollisionModel) -> dict[str, np.ndarray]:
