@@ -107,10 +107,12 @@ def test_point_depths_and_gradient_match_autograd(body, model):
 
 
 def test_compiled_fk_matches_the_torch_fk(body):
-    """Values (float32 to rounding, float64 to 1e-12), gradients against autograd, gradcheck;
-    the offsets and the root are constants, so gradients for them are refused."""
+    """Values (float32 to rounding, float64 to 1e-12), gradients against autograd, gradcheck
+    (also at zero and tiny angles: Rodrigues' series branch); the offsets and the root are
+    constants, so gradients for them are refused."""
     rng = torch.Generator().manual_seed(1)
     pose = 0.4 * torch.randn(6, 55, 3, generator=rng)
+    pose[0, :20], pose[1, :20] = 0.0, 1e-4 * torch.randn(20, 3, generator=rng)
     betas = 0.5 * torch.randn(10, generator=rng)
     for dtype, atol in ((torch.float32, 1e-5), (torch.float64, 1e-12)):
         p = pose.to(dtype).requires_grad_()

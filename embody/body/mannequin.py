@@ -111,14 +111,15 @@ class MannequinBody(BodyModel):
         betas = betas.to(dtype=pose.dtype, device=pose.device)
         rest = self.rest_joints(betas.reshape(-1, NUM_BETAS) if betas.ndim > 1 else betas)
         padded = torch.cat((pose, torch.zeros_like(pose[:, :1])), dim=1)
-        local_rot = axis_angle_to_matrix(padded[:, torch.as_tensor(SMPLX_SOURCE, device=pose.device)])
+        axis_angle = padded[:, torch.as_tensor(SMPLX_SOURCE, device=pose.device)]
         root = rest[..., 0, :].expand(pose.shape[0], 3)
         if transl is not None:
             root = root + transl.to(dtype=pose.dtype, device=pose.device)
         offsets = offsets_from_joints(rest, self.parents)
         if compiled:
-            return compiled_fk(local_rot, offsets, root, self.parents, self._levels)
-        return forward_kinematics(local_rot, offsets, root, self.parents, self._levels)
+            return compiled_fk(axis_angle, offsets, root, self.parents, self._levels)
+        return forward_kinematics(axis_angle_to_matrix(axis_angle), offsets, root, self.parents,
+                                  self._levels)
 
     def joint_transforms_compiled(self, pose: torch.Tensor, betas: torch.Tensor) -> torch.Tensor:
         if pose.is_cuda or betas.requires_grad:
