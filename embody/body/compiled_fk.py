@@ -175,7 +175,7 @@ def compiled_fk(axis_angle: torch.Tensor, offsets: torch.Tensor, root: torch.Ten
     """`kinematics.forward_kinematics` of `rotations.axis_angle_to_matrix(axis_angle)` (T,J,3)
     on the CPU, compiled, differentiable in `axis_angle` only (offsets and root must not
     require gradients)."""
-    if offsets.requires_grad or root.requires_grad or axis_angle.is_cuda:
+    if offsets.requires_grad or root.requires_grad or axis_angle.device.type != "cpu":
         raise ValueError("compiled_fk: CPU only, differentiable in axis_angle only")
     order = np.concatenate([np.flatnonzero(np.asarray(parents) < 0), *levels]).astype(np.int64)
     t = axis_angle.shape[0]

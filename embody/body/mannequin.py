@@ -122,7 +122,7 @@ class MannequinBody(BodyModel):
                                   self._levels)
 
     def joint_transforms_compiled(self, pose: torch.Tensor, betas: torch.Tensor) -> torch.Tensor:
-        if pose.is_cuda or betas.requires_grad:
+        if pose.device.type != "cpu" or betas.requires_grad:
             return self.joint_transforms(pose, betas)
         return self.joint_transforms(pose, betas, compiled=True)
 

@@ -19,6 +19,8 @@ A broad phase (per-frame spheres bounding each chunk's skinned points, part sphe
 boxes, point boxes) picks (frame, point chunk, piece) rows without gradients; the narrow phase
 evaluates the planes of points inside a box and differentiates only the penetrating ones,
 skinning just those points again with autograd, so the cost follows the pairs that are close.
+On the CPU the broad phase, the float32 selection and the depths' forward and backward run
+compiled (`broad`, `narrow`; the tensor code stays for other devices and as their reference).
 SMPL-X pose correctives (posedirs) are left out: the skin is plain LBS of the shaped rest mesh.
 """
 
@@ -377,10 +379,10 @@ def contacts(model: CollisionModel, transforms: torch.Tensor, margin: float = 0.
     Level 1 tests bounding spheres of the chunks' skinned points (`_chunk_spheres`) against
     part spheres, level 2 against piece boxes in the piece's joint frame, level 3 the chunk's
     skinned points against those boxes; the exact plane test is left to `frame_energies`.
-    On the CPU the compiled loop `broad.broad_phase` runs the same tests (~10x cheaper than
-    the tensor version, `_contacts_torch`, which a GPU keeps).
+    On the CPU the compiled loop `broad.broad_phase` runs the same tests (~4x cheaper than
+    the tensor version, `_contacts_torch`, which other devices keep).
     """
-    if transforms.is_cuda:
+    if transforms.device.type != "cpu":
         return _contacts_torch(model, transforms, margin)
     d = model.tensors(transforms.dtype, transforms.device)
     with torch.no_grad():
@@ -528,7 +530,7 @@ def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: flo
     p = c.points
     if p.t.numel() == 0:
         return None
-    if transforms.dtype == torch.float32 and not transforms.is_cuda:
+    if transforms.dtype == torch.float32 and transforms.device.type == "cpu":
         return _penetrations_compiled(model, d, transforms, tolerance, reach, p)
     return _penetrations_torch(model, d, transforms, tolerance, reach, p)
 
@@ -536,7 +538,8 @@ def penetrations(model: CollisionModel, transforms: torch.Tensor, tolerance: flo
 def _penetrations_torch(model: CollisionModel, d: dict[str, torch.Tensor],
                         transforms: torch.Tensor, tolerance: float, reach: float,
                         p: PointRows) -> Penetrations | None:
-    """`penetrations`' selection as tensor operations (GPU, float64; the CPU's reference)."""
+    """`penetrations`' selection as tensor operations (GPU, float64; the float32 CPU path's
+    reference)."""
     with torch.no_grad():
         q = rows_in_part(d, transforms, p)
         r = torch.nonzero(_box_distance(q, d["piece_box"].index_select(0, p.k)) <= reach).squeeze(1)
@@ -642,7 +645,7 @@ def point_depths(model: CollisionModel, transforms: torch.Tensor,
     differentiable in `transforms`. `frame_offset` (Q,) shifts the frame index (a batch of
     perturbed copies of the motion stacked along frames)."""
     t = sel.t if frame_offset is None else sel.t + frame_offset
-    if not transforms.is_cuda:  # compiled, with a hand-written gradient (`narrow.PointDepths`)
+    if transforms.device.type == "cpu":  # compiled, hand-written gradient (`narrow.PointDepths`)
         arrays = (model.rest_inverse, model.part_joints, model.chunk_joints, model.chunk_weights,
                   model.chunk_points, t.numpy(), sel.h.numpy(), sel.n.numpy(), sel.b.numpy(),
                   sel.plane.detach().double().numpy())

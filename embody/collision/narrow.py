@@ -1,18 +1,21 @@
-"""Compiled (numba) narrow-phase selection of the collision energy (`energy.penetrations` on the
-CPU, float32).
+"""Compiled (numba) narrow phase of the collision energy on the CPU: the selection
+(`select`, `energy.penetrations` for float32) and the point depths with their gradient
+(`PointDepths`, `energy.point_depths`).
 
 Why: after the broad phase was compiled, the optimiser's per-step selection (skin every
 candidate point, take it to its part's frame, box filter, the deepest piece's active plane) was
-the largest part of a step left (~35 %), as ~40 small tensor ops. Here it is one pass.
+the largest part of a step left (~35 %), as ~40 small tensor ops, and the depths' autograd
+graph (per-point gathers, a batched skinning product) most of its backward.
 
-It reproduces the torch selection's float32 arithmetic operation for operation, so the same
-points, planes and depths come out bit for bit and the optimiser's path is unchanged: the
-skinning product and the plane products are MKL's (a fused multiply-add chain over the joints,
-and over x, y, z then + d for 4 or more rows a piece, plain products for fewer), the rest is
-torch's elementwise order. An FMA of float32 values is emulated in float64 (the product is
-exact there; the double rounding differs from a true FMA once in ~2^29 results).
-`tests/test_collision_energy.py` compares the selections; on another CPU or MKL build the torch
-path may round differently, then the two agree to float32 rounding instead of bit for bit.
+`select` reproduces the torch selection's float32 arithmetic operation for operation, so the
+same points, planes and plane values come out bit for bit: the skinning product and the plane
+products are MKL's (a fused multiply-add chain over the joints, and over x, y, z then + d for 4
+or more rows a piece, plain products for fewer), the rest is torch's elementwise order. An FMA
+of float32 values is emulated in float64 (the product is exact there; the double rounding
+differs from a true FMA once in ~2^29 results). `tests/test_collision_compiled.py` compares
+the selections; on another CPU or MKL build the torch path may round differently, then the two
+agree to float32 rounding instead of bit for bit. `PointDepths` works in float64: equal to the
+autograd graph's depths and gradients to rounding (same test file, with gradcheck).
 """
 
 from __future__ import annotations
