@@ -309,7 +309,10 @@ SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=
 # v7: the pull-back's search is regula falsi from the known ends, not bisection (s7-colfast).
 # v8: the optimiser stops one refresh after every frame is clear (`early_stop_stall` 1; s9-adamfast).
 # v9: lambda_growth 1.3; exact energy gathers (s10-adam).
-COLLIDE = Step("collide", "9", ("body", "collision"), _collide, _collision_result, (SOURCE,))
+# v10: the optimiser's broad phase, narrow-phase selection, point depths and FK compiled (numba),
+#      the last two with hand-written gradients: equal to float32 rounding, so other Adam paths
+#      (s13-adamstep).
+COLLIDE = Step("collide", "10", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
 # v3: hand-hand and hand-chest clearance at hand scale (targets.hand_gap, retarget/hand_clearance.py).

@@ -66,6 +66,12 @@ class BodyModel(ABC):
                          transl: torch.Tensor | None = None) -> torch.Tensor:
         """World transforms (T,J,4,4) of every joint."""
 
+    def joint_transforms_compiled(self, pose: torch.Tensor, betas: torch.Tensor) -> torch.Tensor:
+        """`joint_transforms` for an optimiser's inner loop, differentiable in `pose` only:
+        bodies with a compiled FK (`compiled_fk`) use it on the CPU, equal to rounding;
+        by default it is `joint_transforms`."""
+        return self.joint_transforms(pose, betas)
+
     @abstractmethod
     def joints(self, pose: torch.Tensor, betas: torch.Tensor,
                transl: torch.Tensor | None = None) -> torch.Tensor:

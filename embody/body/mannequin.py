@@ -17,6 +17,7 @@ from mannequin import _io as mannequin_io
 
 from embody.body.base import BodyModel, ConvexPiece
 from embody.body.convex import part_hulls
+from embody.body.compiled_fk import compiled_fk
 from embody.body.kinematics import forward_kinematics, offsets_from_joints, skin, tree_levels
 from embody.body.parts import dominant_parts
 from embody.body.rotations import axis_angle_to_matrix
@@ -103,18 +104,29 @@ class MannequinBody(BodyModel):
 
     # -- pose ---------------------------------------------------------------------------------
     def joint_transforms(self, pose: torch.Tensor, betas: torch.Tensor,
-                         transl: torch.Tensor | None = None) -> torch.Tensor:
+                         transl: torch.Tensor | None = None, *, compiled: bool = False
+                         ) -> torch.Tensor:
+        """World transforms (T,J,4,4); `compiled`: FK by `compiled_fk` (CPU, differentiable in
+        `pose` only)."""
         if pose.ndim != 3 or pose.shape[1:] != (NUM_JOINTS, 3):
             raise ValueError(f"pose must be (T, {NUM_JOINTS}, 3), got {tuple(pose.shape)}")
         betas = betas.to(dtype=pose.dtype, device=pose.device)
         rest = self.rest_joints(betas.reshape(-1, NUM_BETAS) if betas.ndim > 1 else betas)
         padded = torch.cat((pose, torch.zeros_like(pose[:, :1])), dim=1)
-        local_rot = axis_angle_to_matrix(padded[:, torch.as_tensor(SMPLX_SOURCE, device=pose.device)])
+        axis_angle = padded[:, torch.as_tensor(SMPLX_SOURCE, device=pose.device)]
         root = rest[..., 0, :].expand(pose.shape[0], 3)
         if transl is not None:
             root = root + transl.to(dtype=pose.dtype, device=pose.device)
         offsets = offsets_from_joints(rest, self.parents)
-        return forward_kinematics(local_rot, offsets, root, self.parents, self._levels)
+        if compiled:
+            return compiled_fk(axis_angle, offsets, root, self.parents, self._levels)
+        return forward_kinematics(axis_angle_to_matrix(axis_angle), offsets, root, self.parents,
+                                  self._levels)
+
+    def joint_transforms_compiled(self, pose: torch.Tensor, betas: torch.Tensor) -> torch.Tensor:
+        if pose.device.type != "cpu" or betas.requires_grad:
+            return self.joint_transforms(pose, betas)
+        return self.joint_transforms(pose, betas, compiled=True)
 
     def joints(self, pose: torch.Tensor, betas: torch.Tensor,
                transl: torch.Tensor | None = None) -> torch.Tensor:

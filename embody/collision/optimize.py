@@ -472,7 +472,7 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
     for step in range(1, cfg.steps + 1):
         delta = torch.zeros_like(x0).index_copy(1, jidx, u) * w
         x = x0 + delta
-        transforms = body.joint_transforms(x, betas)
+        transforms = body.joint_transforms_compiled(x, betas)
         check = (step - 1) % cfg.refresh_every == 0
         if check:
             near = _live_contacts(model, transforms.detach(), cfg.refresh_margin + cfg.clearance,
