@@ -162,6 +162,8 @@ class _Problem:
         if bound is not None:  # the rows' sum of squares above which the cost exceeds the bound
             linear = float(post + smooth + vel)
             limit = 2.0 * bound - linear + 1e-9 * (2.0 * abs(bound) + abs(linear))  # slack ≫ rounding
+            if limit < 0.0:  # the linear terms alone: no FK needed
+                return np.inf, None
         r, jac = self.residuals.lazy(self.q_full(qi), collision=collision, exact=exact, limit=limit)
         if r is None:
             return np.inf, None
