@@ -33,6 +33,7 @@ import numpy as np
 from embody.clusters import median_cuts
 from embody.metrics.fidelity import hand_length, hand_ratio  # noqa: F401  (re-exported: one definition)
 from embody.retarget.jacobians import normal_jacobian
+from embody.retarget.proxy_hulls import max_planes, plane_table
 from embody.robot import Robot
 from embody.robot.fk import rotate
 from embody.robot.contacts import subtree_ids
@@ -51,6 +52,10 @@ class HandClearanceTerm:
     """Hinge rows √(w·scale)·relu(gap_c(t) − d_h(q)), one per hull h of a channel c (d_h: the
     closest proxy point of the hand facing it), for frames with gap_c > 0. Channels: hands
     (left points vs right hulls and back), each hand vs the chest hulls."""
+
+    #: the points' largest plane distance over their hulls: None = the compiled pass
+    #: (`proxy_hulls.max_planes`); the tests set `proxy_hulls.max_planes_numpy`, its NumPy form
+    planes: Callable[..., tuple[np.ndarray, np.ndarray]] | None = None
 
     def __init__(self, robot: Robot, gap: np.ndarray, w: float) -> None:
         self.gap = np.asarray(gap, dtype=np.float64).reshape(len(gap), -1)
@@ -110,6 +115,8 @@ class HandClearanceTerm:
         tables.pair_bounds = [np.stack([pad(tables.bound_planes[h]) for h in hulls]) for _, _, hulls in tables.pairs]
         tables.pair_bounds_t = [np.ascontiguousarray(np.swapaxes(b[..., :3], -1, -2)) for b in tables.pair_bounds]
         tables.exact_planes = [[_unpadded(px.hull_planes[h]) for h in hulls] for _, _, hulls in tables.pairs]
+        #: the same per pair as one zero-padded table and its counts (`proxy_hulls.max_planes`)
+        tables.plane_tables = [plane_table(planes) for planes in tables.exact_planes]
         tables.row0 = np.cumsum([0] + [len(h) for _, _, h in tables.pairs])[:-1]
         #: per hand (keyed by its point array): its points in clusters on one body, each one's ball
         tables.hands = {id(p): _hand_table(px, p) for _, p, _ in tables.pairs}
@@ -171,15 +178,8 @@ class HandClearanceTerm:
             rh = r_h[cf, ch]
             xw = x[frames[cf], cp]
             xl = np.einsum("nba,nb->na", rh, xw - p_h[cf, ch])  # hull-body frame
-            value, normal_l = np.empty(len(cf)), np.empty((len(cf), 3))
-            order = np.argsort(ch, kind="stable")
-            present, starts = np.unique(ch[order], return_index=True)
-            for h, idx in zip(present, np.split(order, starts[1:])):
-                planes = self.exact_planes[k][h]
-                sd = xl[idx] @ planes[:, :3].T + planes[:, 3]
-                face = sd.argmax(-1)
-                value[idx] = sd[np.arange(len(idx)), face]
-                normal_l[idx] = planes[face, :3]
+            value, normal_l = (self.planes(xl, ch, self.exact_planes[k]) if self.planes is not None
+                               else max_planes(xl, ch, *self.plane_tables[k]))
             value -= px.radii[pts][cp]
             order = np.lexsort((cp, value, ch, cf))  # per (frame, hull): the least value, first point
             key = cf[order] * len(hulls) + ch[order]
