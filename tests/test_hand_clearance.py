@@ -131,10 +131,11 @@ def test_a_hand_passing_the_face_does_not_brush_the_robot_face(setup, monkeypatc
     assert np.all(d > -0.002)
 
 
-def test_compiled_plane_pass_matches_the_numpy_reference(setup, monkeypatch):
-    """The rows' narrow phase (each candidate point's largest plane distance over its hull,
-    `proxy_hulls.max_planes`, compiled) gives the NumPy form's rows and Jacobian: the same
-    arithmetic per plane, so equal to round-off (its matmul may fuse multiply-adds)."""
+def test_compiled_rows_match_the_numpy_reference(setup, monkeypatch):
+    """The compiled rows (`_closest`: each (frame, hull)'s closest hand point, culled as the
+    NumPy form culls; and the NumPy form's own compiled plane pass, `proxy_hulls.max_planes`)
+    give the NumPy form's rows and Jacobian: the same arithmetic, so equal to round-off (NumPy's
+    matmuls may fuse multiply-adds)."""
     from embody.retarget import proxy_hulls
 
     _, robot, _, _ = setup
@@ -159,8 +160,11 @@ def test_compiled_plane_pass_matches_the_numpy_reference(setup, monkeypatch):
     pose = Pose(rot, pos, fk.index, fk.moves(list(ik)))
     z, o = fk.joint_frames(rot, pos, list(ik))
     r, jac = term.rows(pose, 1.0)
+    monkeypatch.setattr(HandClearanceTerm, "compiled", False)
+    r_np, jac_np = term.rows(pose, 1.0)  # NumPy cull, compiled plane pass
     monkeypatch.setattr(HandClearanceTerm, "planes", staticmethod(proxy_hulls.max_planes_numpy))
-    r_ref, jac_ref = term.rows(pose, 1.0)
+    r_ref, jac_ref = term.rows(pose, 1.0)  # all NumPy
     assert (r_ref > 0).sum() > 10
-    np.testing.assert_allclose(r, r_ref, rtol=0, atol=1e-12)
-    np.testing.assert_allclose(jac(z, o), jac_ref(z, o), rtol=0, atol=1e-12)
+    for rows, jacobian in ((r, jac), (r_np, jac_np)):
+        np.testing.assert_allclose(rows, r_ref, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(jacobian(z, o), jac_ref(z, o), rtol=0, atol=1e-12)
