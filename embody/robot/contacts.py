@@ -126,11 +126,15 @@ def _frame_pairs(robot: Robot, q: np.ndarray) -> list[np.ndarray]:
     model, counted = collision_model(robot)
     data = mujoco.MjData(model)
     out = []
+    none = np.zeros((0, 2), dtype=np.int32)
     data.qpos[:] = model.qpos0
     for qt in np.atleast_2d(q):
         data.qpos[robot.qpos_adr] = qt
         mujoco.mj_kinematics(model, data)
         mujoco.mj_collision(model, data)
+        if not data.ncon:  # most poses: nothing to filter
+            out.append(none)
+            continue
         geom = data.contact.geom[: data.ncon]
         hit = (data.contact.dist[: data.ncon] < 0) & counted[geom[:, 0], geom[:, 1]]
         out.append(geom[hit])
