@@ -29,6 +29,7 @@ class ExactContacts:
         # only the counted pairs the IK joints can move, each geom with `margin`
         self.model, self.relevant = collision_model(robot, margin, movable_only=True)
         self.data = mujoco.MjData(self.model)
+        self.data.qpos[:] = self.model.qpos0
         jid = [self.model.joint(n).id for n in np.asarray(robot.joint_names)[robot.ik_mask]]
         self.cols = self.model.jnt_dofadr[jid]
         #: frames MuJoCo checks (None: all); the solver narrows it to frames near a contact
@@ -106,21 +107,22 @@ class ExactContacts:
         """Append (frame, distance, scaled residual factor and separation rate, geom pair, tag)
         for each relevant contact of MuJoCo at one full joint vector q, filed under frame t."""
         m, d = self.model, self.data
-        d.qpos[:] = m.qpos0
-        d.qpos[self.robot.qpos_adr] = q
+        d.qpos[self.robot.qpos_adr] = q  # the other coordinates stay at qpos0 (set once, in __init__)
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
         n = d.ncon
         if not n:
             return
-        geom = d.contact.geom[:n]
-        hit = np.flatnonzero((d.contact.dist[:n] < self.margin) & self.relevant[geom[:, 0], geom[:, 1]])
+        con = d.contact  # its arrays once (each access builds a view)
+        geom, dist = con.geom[:n], con.dist[:n]
+        hit = np.flatnonzero((dist < self.margin) & self.relevant[geom[:, 0], geom[:, 1]])
         if not len(hit):
             return
         mujoco.mj_comPos(m, d)
+        pos, frame, body = con.pos, con.frame, m.geom_bodyid
         for i in hit:
-            c = d.contact[i]
-            mujoco.mj_jac(m, d, self.jac1, None, c.pos, m.geom_bodyid[c.geom[0]])
-            mujoco.mj_jac(m, d, self.jac2, None, c.pos, m.geom_bodyid[c.geom[1]])
-            rate = c.frame[:3] @ (self.jac2 - self.jac1)[:, self.cols]
-            found.append((t, float(c.dist), scale, rate, (int(c.geom[0]), int(c.geom[1])), tag))
+            g1, g2 = int(geom[i, 0]), int(geom[i, 1])
+            mujoco.mj_jac(m, d, self.jac1, None, pos[i], body[g1])
+            mujoco.mj_jac(m, d, self.jac2, None, pos[i], body[g2])
+            rate = frame[i, :3] @ (self.jac2 - self.jac1)[:, self.cols]
+            found.append((t, float(dist[i]), scale, rate, (g1, g2), tag))
