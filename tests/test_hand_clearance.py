@@ -129,3 +129,42 @@ def test_a_hand_passing_the_face_does_not_brush_the_robot_face(setup, monkeypatc
     assert np.mean(d[apart] > eps_r) > 0.9
     assert np.sum(d_off[apart] < eps_r) > np.sum(d[apart] < eps_r)
     assert np.all(d > -0.002)
+
+
+def test_compiled_rows_match_the_numpy_reference(setup, monkeypatch):
+    """The compiled rows (`_closest`: each (frame, hull)'s closest hand point, culled as the
+    NumPy form culls; and the NumPy form's own compiled plane pass, `proxy_hulls.max_planes`)
+    give the NumPy form's rows and Jacobian: the same arithmetic, so equal to round-off (NumPy's
+    matmuls may fuse multiply-adds)."""
+    from embody.retarget import proxy_hulls
+
+    _, robot, _, _ = setup
+    rng = np.random.default_rng(2)
+    t = 40
+    q = np.tile(robot.tpose, (t, 1))
+    ik = np.flatnonzero(robot.ik_mask)
+    q[:, ik] += rng.normal(0.0, 0.6, (t, len(ik)))
+    q = np.clip(q, robot.lower, robot.upper)
+    term = HandClearanceTerm(robot, rng.uniform(0.0, 0.4, (t, 5)) * (rng.random((t, 5)) < 0.8), 4.0)
+    # the kernel alone, on random points against every hull of the first pair
+    planes = term.exact_planes[0]
+    xl = rng.normal(0.0, 0.05, (500, 3))
+    hull = rng.integers(0, len(planes), 500)
+    value, normal = proxy_hulls.max_planes(xl, hull, *term.plane_tables[0])
+    ref_value, ref_normal = proxy_hulls.max_planes_numpy(xl, hull, planes)
+    np.testing.assert_allclose(value, ref_value, rtol=0, atol=1e-15)
+    np.testing.assert_array_equal(normal, ref_normal)
+    # the term's rows and Jacobian, compiled against the reference
+    fk = robot.fk(term.bodies)
+    rot, pos = fk.forward(q)
+    pose = Pose(rot, pos, fk.index, fk.moves(list(ik)))
+    z, o = fk.joint_frames(rot, pos, list(ik))
+    r, jac = term.rows(pose, 1.0)
+    monkeypatch.setattr(HandClearanceTerm, "compiled", False)
+    r_np, jac_np = term.rows(pose, 1.0)  # NumPy cull, compiled plane pass
+    monkeypatch.setattr(HandClearanceTerm, "planes", staticmethod(proxy_hulls.max_planes_numpy))
+    r_ref, jac_ref = term.rows(pose, 1.0)  # all NumPy
+    assert (r_ref > 0).sum() > 10
+    for rows, jacobian in ((r, jac), (r_np, jac_np)):
+        np.testing.assert_allclose(rows, r_ref, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(jacobian(z, o), jac_ref(z, o), rtol=0, atol=1e-12)

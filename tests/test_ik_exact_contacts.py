@@ -245,3 +245,46 @@ def test_contact_phase_gives_up_when_the_deepest_contact_stalls(robot):
     assert len({p for p, _ in stalled}) == 1  # one round
     assert len(stalled) == 1 + 4  # the start, then 4 evaluations without a better deepest contact
     assert len(budget) > 2 * len(stalled)
+
+
+def test_rows_stop_early_only_past_the_limit(robot):
+    """`ExactContacts.rows(limit=)`: None only when the rows' sum of squares is above the limit
+    (the LM trial it serves is rejected either way); under it, the same rows bit for bit."""
+    targets = _hands_plant(robot)
+    q = solve(robot, targets, IKConfig(w_collision=0.0, contact_repair=False)).q
+    exact = ExactContacts(robot, margin=0.002, weight=4.0)
+    r, jac = exact.rows(q)
+    total = float((r**2).sum())
+    assert total > 0
+    r2, jac2 = exact.rows(q, limit=total * (1 + 1e-9))
+    assert np.array_equal(r, r2) and np.array_equal(jac, jac2)
+    assert exact.rows(q, limit=total * 0.5) is None
+
+
+def test_trials_skipped_on_a_bound_keep_the_cost(robot):
+    """`_Problem.evaluate(bound=)`: a trial comes back as inf only when its cost is above the
+    bound; otherwise its cost is the unbounded evaluation's, bit for bit (so the solver accepts
+    and rejects the same steps)."""
+    from embody.retarget.ik import _Problem
+
+    targets = _hands_plant(robot)
+    problem = _Problem(robot, targets, IKConfig())
+    rng = np.random.default_rng(4)
+    q0 = solve(robot, targets, IKConfig(contact_repair=False)).q[:, problem.ik]
+    checked = skipped = 0
+    for scale in (0.0, 0.01, 0.1, 0.5):
+        qi = np.clip(q0 + rng.normal(0.0, scale, q0.shape), robot.lower[problem.ik], robot.upper[problem.ik])
+        for exact in (False, True):
+            if exact:
+                problem.residuals.exact = ExactContacts(robot, 0.002, 1000.0)
+                problem.residuals.exact.frames = np.ones(len(qi), bool)
+            cost, _ = problem.evaluate(qi, 1.0, exact)
+            for bound in (cost * 0.5, cost * (1 - 1e-6), cost * (1 + 1e-6), cost * 2):
+                c, normal = problem.evaluate(qi, 1.0, exact, bound=bound)
+                if c == np.inf:
+                    assert cost > bound and normal is None
+                    skipped += 1
+                else:
+                    assert c == cost
+                    checked += 1
+    assert checked >= 8 and skipped >= 4

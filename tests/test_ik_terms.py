@@ -70,6 +70,11 @@ def test_block_banded_solve_with_a_jerk_band_matches_dense():
             dense[(i + k) * n:(i + k + 1) * n, i * n:(i + 1) * n] = block
     x = block_banded_solve(diag, offs, rhs)
     assert np.allclose(dense @ x.reshape(-1), rhs.reshape(-1), atol=1e-10)
+    # the band factored in place (LAPACK pbsv, Fortran order) is scipy's solveh_banded, bit for bit
+    from scipy.linalg import solveh_banded
+
+    band = np.array([[dense[j + d, j] if j + d < t * n else 0.0 for j in range(t * n)] for d in range(3 * n + 1)])
+    assert np.array_equal(x.reshape(-1), solveh_banded(band, rhs.reshape(-1), lower=True))
 
 
 def test_jerk_term_lowers_jerk_of_a_noisy_target(robot):

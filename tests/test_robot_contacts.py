@@ -53,3 +53,23 @@ def test_movable_only_keeps_pairs_the_ik_moves(robot):
     legs = [robot.model.body(n).id for n in ("left_knee_link", "right_knee_link")]
     assert not movable[np.ix_(geoms(legs[0]), geoms(legs[1]))].any()  # legs are pinned
     assert not movable[np.ix_(geoms(pelvis), geoms(legs[0]))].any()
+
+
+def test_collision_bitmasks_pass_exactly_the_counted_pairs(robot):
+    """`pair_bits`: MuJoCo's contype/conaffinity filter of the narrowed models lets through the
+    counted pairs and no other (G1's legs among themselves, counted by no IK-movable pair, no
+    longer reach the exact-contact model's narrow phase), and a relation that is not one
+    between bodies gets no bits."""
+    from embody.robot.contacts import pair_bits
+
+    for movable_only in (False, True):
+        model, counted = collision_model(robot, 0.002, movable_only=movable_only)
+        ct, ca = model.geom_contype.astype(np.int64), model.geom_conaffinity.astype(np.int64)
+        passes = ((ct[:, None] & ca[None]) | (ca[:, None] & ct[None])) != 0
+        passes &= model.geom_bodyid[:, None] != model.geom_bodyid[None]  # MuJoCo skips one body's geoms
+        assert np.array_equal(passes, counted)
+    body = np.array([0, 0, 1, 2])
+    pairs = np.zeros((4, 4), bool)
+    pairs[0, 2] = pairs[2, 0] = True  # body 0's geom 0 pairs with body 1, its geom 1 with body 2
+    pairs[1, 3] = pairs[3, 1] = True
+    assert pair_bits(body, pairs) is None

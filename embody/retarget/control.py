@@ -290,10 +290,12 @@ def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float |
         delta = np.zeros_like(q)
         local = q.copy()
         for t in bad:
-            fixed = _within_velocity(sep, local, t, lo[t], hi[t], vmax / fps) \
-                if enforce_velocity else None
+            fixed, tried = _within_velocity(sep, local, t, lo[t], hi[t], vmax / fps) \
+                if enforce_velocity else (None, None)
             if fixed is not None:  # cleared where it stands: no hat, the neighbours kept
                 local[t] = fixed
+            elif tried is not None and all(np.array_equal(u, v) for u, v in zip(tried[:3], (q[t], lo[t], hi[t]))):
+                delta[t] = tried[3] - q[t]  # the neighbours left the box as it was: that push again
             else:
                 delta[t] = sep.frame(q[t], lo[t], hi[t]) - q[t]
         # a wide enough hat that its ramps take at most half of each joint's velocity budget
@@ -310,21 +312,24 @@ def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float |
 
 
 def _within_velocity(sep: _Separator, q: np.ndarray, t: int, lo: np.ndarray, hi: np.ndarray,
-                     step: np.ndarray) -> np.ndarray | None:
+                     step: np.ndarray) -> tuple[np.ndarray | None, tuple | None]:
     """Sample t of q pushed clear inside the box its neighbours' velocity limits leave it
     (`step`: the largest change per sample), or None when that box has no clear pose. Why: on
     a run where a joint already moves at its velocity limit (synth seq 15's wrists at 50 Hz),
     any hat changes the run's slope and the velocity clamp undoes it pass after pass; a
-    correction that stays inside the neighbours' reach needs no hat at all."""
+    correction that stays inside the neighbours' reach needs no hat at all. Also the push it
+    tried (start, box low, box high, result; None when the box was empty): where the box is
+    the caller's own and the start q[t], the caller's push is that one (not computed twice)."""
     a, b = lo.copy(), hi.copy()
     for n in (t - 1, t + 1):
         if 0 <= n < len(q):
             a = np.maximum(a, q[n] - step * (1.0 - 1e-6))
             b = np.minimum(b, q[n] + step * (1.0 - 1e-6))
     if (a > b).any():
-        return None
-    x = sep.frame(np.clip(q[t], a, b), a, b)
-    return None if sep.contacts(x, jacobians=False) else x
+        return None, None
+    start = np.clip(q[t], a, b)
+    x = sep.frame(start, a, b)
+    return (None if sep.contacts(x, jacobians=False) else x), (start, a, b, x)
 
 
 def control_trajectory(robot: Robot, q: np.ndarray, fps: float, rate: float,

@@ -156,18 +156,14 @@ class Residuals:
         r, jac = self.lazy(q, collision)
         return r, (jac() if jacobian else None)
 
-    def lazy(self, q: np.ndarray, collision: float = 1.0,
-             exact: bool = False) -> tuple[np.ndarray, Callable[[], np.ndarray]]:
+    def lazy(self, q: np.ndarray, collision: float = 1.0, exact: bool = False,
+             limit: float | None = None) -> tuple[np.ndarray | None, Callable[[], np.ndarray] | None]:
         """r(q) now, J(q) on demand: a rejected step never pays for its Jacobian. `exact`: the
         polish phase's collision rows, MuJoCo's own contacts (`exact_contacts.py`), replace the
-        proxies'."""
-        smp = self.sample_points if exact and self.exact is not None and self.proxies is not None else None
-        if smp is not None and len(smp[0]) and collision:
-            t_s, a_s = smp
-            qs = (1.0 - a_s)[:, None] * q[t_s] + a_s[:, None] * q[t_s + 1]
-            rot_s, pos_s = self.fk.forward_once(qs)  # the frames' FK below keeps its cache
-        else:
-            smp = None
+        proxies'. `limit`: (None, None) as soon as the rows computed so far have a sum of squares
+        above it, before the costlier blocks (the proxies, the other terms, MuJoCo last): the LM
+        solver's trial that cannot beat its current cost skips them (each block is a sum of
+        squares, so the rows left out only add to it)."""
         rot, pos = self.fk.forward(q)
         r_link = rot[:, self.link_body]
         p_link = pos[:, self.link_body] + np.einsum("tlab,lb->tla", r_link, self.link_offset)
@@ -175,18 +171,47 @@ class Residuals:
         r_rot = r_link[:, self.rot_cols]
         e_rot = rotation_log(r_rot @ np.swapaxes(self.target_rot, -1, -2)) * self.w_rot[..., None]
         res = [e_pos.reshape(len(q), -1), e_rot.reshape(len(q), -1)]
-        col = self._collision(rot, pos, float(collision)) if self.proxies is not None and collision else None
-        if exact and self.exact is not None and col is not None:
-            col = self._exact_rows(q, col, None if smp is None else
-                                   self._sample_rows(len(q), smp, rot_s, pos_s, float(collision)))
         self.n_task_rows = sum(x.shape[1] for x in res)  # rows before the collision rows
-        if col is not None:
-            res.append(col[0])
+        total = 0.0
+
+        def over(*blocks: np.ndarray) -> bool:
+            nonlocal total
+            if limit is None:
+                return False
+            total += sum(float((b**2).sum()) for b in blocks)
+            return total > limit
+
+        if over(*res):
+            return None, None
+        col = self._collision(rot, pos, float(collision)) if self.proxies is not None and collision else None
+        exact = exact and self.exact is not None and col is not None
+        if col is not None and limit is not None:  # the proxies' rows that stay (not on MuJoCo's frames)
+            kept = col[0] if not exact else (np.zeros(0) if self.exact.frames is None else
+                                             np.where(self.exact.frames[:, None], 0.0, col[0]))
+            if over(kept):
+                return None, None
         extra = []
         if self.terms:
             pose = Pose(rot, pos, self.fk.index, self.mask)
             extra = [out for out in (term.rows(pose, float(collision)) for term in self.terms) if out is not None]
-            res += [r for r, _ in extra]
+            if over(*(r for r, _ in extra)):
+                return None, None
+        if exact:  # MuJoCo's rows (and the proxies' at the samples between frames) last: the costliest
+            smp = self.sample_points
+            samples = None
+            if smp is not None and len(smp[0]):
+                t_s, a_s = smp
+                qs = (1.0 - a_s)[:, None] * q[t_s] + a_s[:, None] * q[t_s + 1]
+                rot_s, pos_s = self.fk.forward_once(qs)  # the frames' FK keeps its cache
+                samples = self._sample_rows(len(q), smp, rot_s, pos_s, float(collision))
+                if samples is not None and over(samples[0]):
+                    return None, None
+            col = self._exact_rows(q, col, samples, None if limit is None else limit - total)
+            if col is None:
+                return None, None
+        if col is not None:
+            res.append(col[0])
+        res += [r for r, _ in extra]
         return np.concatenate(res, 1), lambda: self._jacobian(q, rot, pos, p_link, r_rot, col, extra)
 
     def _sample_rows(self, t: int, smp: tuple[np.ndarray, np.ndarray], rot: np.ndarray, pos: np.ndarray,
@@ -227,11 +252,16 @@ class Residuals:
         return out_r, jacobian
 
     def _exact_rows(self, q: np.ndarray, col: tuple[np.ndarray, Callable],
-                    samples: tuple[np.ndarray, Callable] | None = None) -> tuple[np.ndarray, Callable]:
+                    samples: tuple[np.ndarray, Callable] | None = None,
+                    limit: float | None = None) -> tuple[np.ndarray, Callable] | None:
         """The polish phase's collision rows: MuJoCo's contacts on the frames `exact.frames` picks,
-        the proxies' rows on the others (and at `samples`, `_sample_rows`, when given)."""
+        the proxies' rows on the others (and at `samples`, `_sample_rows`, when given). None when
+        MuJoCo's rows alone pass `limit` (`ExactContacts.rows`)."""
         frames = self.exact.frames if self.exact.frames is not None else np.ones(len(q), dtype=bool)
-        r_ex, j_ex = self.exact.rows(q)
+        out = self.exact.rows(q, limit)
+        if out is None:
+            return None
+        r_ex, j_ex = out
         if samples is not None:
             j_ex_now = j_ex
             r_ex, j_ex = np.concatenate([r_ex, samples[0]], 1), None

@@ -29,6 +29,7 @@ class ExactContacts:
         # only the counted pairs the IK joints can move, each geom with `margin`
         self.model, self.relevant = collision_model(robot, margin, movable_only=True)
         self.data = mujoco.MjData(self.model)
+        self.data.qpos[:] = self.model.qpos0
         jid = [self.model.joint(n).id for n in np.asarray(robot.joint_names)[robot.ik_mask]]
         self.cols = self.model.jnt_dofadr[jid]
         #: frames MuJoCo checks (None: all); the solver narrows it to frames near a contact
@@ -41,11 +42,17 @@ class ExactContacts:
         self.jac1 = np.zeros((3, self.model.nv))
         self.jac2 = np.zeros((3, self.model.nv))
 
-    def rows(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Residuals (T,K) and their Jacobian (T,K,n_ik) at full joint vectors q (T,n)."""
+    def rows(self, q: np.ndarray, limit: float | None = None) -> tuple[np.ndarray, np.ndarray] | None:
+        """Residuals (T,K) and their Jacobian (T,K,n_ik) at full joint vectors q (T,n). `limit`:
+        None as soon as the rows found so far have a sum of squares above it (the LM solver's
+        trial that cannot win: MuJoCo is not asked about the frames and samples left)."""
         found: list[tuple] = []
+        low: dict[tuple, float] = {}  # per row so far: its square, a lower bound of the final one
         for t in range(len(q)) if self.frames is None else np.flatnonzero(self.frames):
+            n = len(found)
             self._contacts(q[t], t, 1.0, 0, found)
+            if limit is not None and len(found) > n and self._over(found[n:], low, limit):
+                return None
         if self.between is not None:
             # a contact at a sample between frames t, t+1 (the control-rate resample's
             # (1 − α)·q_t + α·q_t+1): its residual r with Jacobian (1 − α)·J and α·J to the two
@@ -55,7 +62,10 @@ class ExactContacts:
             for k, (t, a) in enumerate(zip(*self.between)):
                 rows: list[tuple] = []
                 self._contacts((1.0 - a) * q[t] + a * q[t + 1], t, np.sqrt(1.0 - a), 1 + 2 * k, rows)
-                found += rows + [(t + 1, r[1], np.sqrt(a), *r[3:5], 2 + 2 * k) for r in rows]  # MuJoCo asked once
+                rows += [(t + 1, r[1], np.sqrt(a), *r[3:5], 2 + 2 * k) for r in rows]  # MuJoCo asked once
+                found += rows
+                if limit is not None and rows and self._over(rows, low, limit):
+                    return None
         self.deepest = min((f[1] for f in found), default=np.inf)
         # one row per geom pair and frame: MuJoCo reports up to several points of one mesh pair
         # at the same depth; the pair's row is its deepest distance with the mean separation rate
@@ -84,25 +94,35 @@ class ExactContacts:
             slot[t] += 1
         return r, jac
 
+    def _over(self, new: list[tuple], low: dict[tuple, float], limit: float) -> bool:
+        """Whether the rows of the contacts found so far (`low`, updated with `new`) already have a
+        sum of squares above `limit`: a pair's row is its deepest point's, so each point's row
+        value bounds it from below."""
+        for t, dist, scale, _, (g1, g2), tag in new:
+            key = (t, min(g1, g2), max(g1, g2), tag)
+            low[key] = max(low.get(key, 0.0), (scale * self.w * max(self.margin - dist, 0.0)) ** 2)
+        return sum(low.values()) > limit
+
     def _contacts(self, q: np.ndarray, t: int, scale: float, tag: int, found: list[tuple]) -> None:
         """Append (frame, distance, scaled residual factor and separation rate, geom pair, tag)
         for each relevant contact of MuJoCo at one full joint vector q, filed under frame t."""
         m, d = self.model, self.data
-        d.qpos[:] = m.qpos0
-        d.qpos[self.robot.qpos_adr] = q
+        d.qpos[self.robot.qpos_adr] = q  # the other coordinates stay at qpos0 (set once, in __init__)
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
         n = d.ncon
         if not n:
             return
-        geom = d.contact.geom[:n]
-        hit = np.flatnonzero((d.contact.dist[:n] < self.margin) & self.relevant[geom[:, 0], geom[:, 1]])
+        con = d.contact  # its arrays once (each access builds a view)
+        geom, dist = con.geom[:n], con.dist[:n]
+        hit = np.flatnonzero((dist < self.margin) & self.relevant[geom[:, 0], geom[:, 1]])
         if not len(hit):
             return
         mujoco.mj_comPos(m, d)
+        pos, frame, body = con.pos, con.frame, m.geom_bodyid
         for i in hit:
-            c = d.contact[i]
-            mujoco.mj_jac(m, d, self.jac1, None, c.pos, m.geom_bodyid[c.geom[0]])
-            mujoco.mj_jac(m, d, self.jac2, None, c.pos, m.geom_bodyid[c.geom[1]])
-            rate = c.frame[:3] @ (self.jac2 - self.jac1)[:, self.cols]
-            found.append((t, float(c.dist), scale, rate, (int(c.geom[0]), int(c.geom[1])), tag))
+            g1, g2 = int(geom[i, 0]), int(geom[i, 1])
+            mujoco.mj_jac(m, d, self.jac1, None, pos[i], body[g1])
+            mujoco.mj_jac(m, d, self.jac2, None, pos[i], body[g2])
+            rate = frame[i, :3] @ (self.jac2 - self.jac1)[:, self.cols]
+            found.append((t, float(dist[i]), scale, rate, (g1, g2), tag))

@@ -29,10 +29,12 @@ from collections.abc import Callable
 from types import SimpleNamespace
 
 import numpy as np
+from numba import njit
 
 from embody.clusters import median_cuts
 from embody.metrics.fidelity import hand_length, hand_ratio  # noqa: F401  (re-exported: one definition)
 from embody.retarget.jacobians import normal_jacobian
+from embody.retarget.proxy_hulls import max_planes, plane_table
 from embody.robot import Robot
 from embody.robot.fk import rotate
 from embody.robot.contacts import subtree_ids
@@ -51,6 +53,13 @@ class HandClearanceTerm:
     """Hinge rows √(w·scale)·relu(gap_c(t) − d_h(q)), one per hull h of a channel c (d_h: the
     closest proxy point of the hand facing it), for frames with gap_c > 0. Channels: hands
     (left points vs right hulls and back), each hand vs the chest hulls."""
+
+    #: each (frame, hull)'s closest hand point in one compiled pass (`_closest`); False: the
+    #: NumPy form below it (the reference the tests hold the kernel to)
+    compiled: bool = True
+    #: in the NumPy form, the points' largest plane distance over their hulls: None = the
+    #: compiled pass (`proxy_hulls.max_planes`); the tests set `proxy_hulls.max_planes_numpy`
+    planes: Callable[..., tuple[np.ndarray, np.ndarray]] | None = None
 
     def __init__(self, robot: Robot, gap: np.ndarray, w: float) -> None:
         self.gap = np.asarray(gap, dtype=np.float64).reshape(len(gap), -1)
@@ -110,6 +119,8 @@ class HandClearanceTerm:
         tables.pair_bounds = [np.stack([pad(tables.bound_planes[h]) for h in hulls]) for _, _, hulls in tables.pairs]
         tables.pair_bounds_t = [np.ascontiguousarray(np.swapaxes(b[..., :3], -1, -2)) for b in tables.pair_bounds]
         tables.exact_planes = [[_unpadded(px.hull_planes[h]) for h in hulls] for _, _, hulls in tables.pairs]
+        #: the same per pair as one zero-padded table and its counts (`proxy_hulls.max_planes`)
+        tables.plane_tables = [plane_table(planes) for planes in tables.exact_planes]
         tables.row0 = np.cumsum([0] + [len(h) for _, _, h in tables.pairs])[:-1]
         #: per hand (keyed by its point array): its points in clusters on one body, each one's ball
         tables.hands = {id(p): _hand_table(px, p) for _, p, _ in tables.pairs}
@@ -154,6 +165,21 @@ class HandClearanceTerm:
             tab, gap, row0 = self.hands[id(pts)], self.gap[frames, c], self.row0[k]
             hcol = np.array([pose.index[px.bodies[px.hull_body[h]]] for h in hulls])
             r_h, p_h = pose.rot[frames[:, None], hcol], pose.pos[frames[:, None], hcol]  # (F,H,..)
+            if self.compiled:
+                value, point, normal_l = _closest(
+                    frames, gap, x, centre, tab["radius"], tab["table"], px.radii[pts],
+                    np.ascontiguousarray(pose.rot), np.ascontiguousarray(pose.pos), hcol,
+                    self.pair_bounds[k], *self.plane_tables[k])
+                r[frames, row0:row0 + len(hulls)] = sw * np.maximum(gap[:, None] - value, 0.0)
+                fa, ha = np.nonzero(value < gap[:, None])
+                if len(fa):
+                    act_f.append(frames[fa])
+                    act_row.append(row0 + ha)
+                    act_x.append(x[frames[fa], point[fa, ha]])
+                    act_n.append(np.einsum("fab,fb->fa", r_h[fa, ha], normal_l[fa, ha]))
+                    act_pb.append(pcol[point[fa, ha]])
+                    act_hb.append(hcol[ha])
+                continue
             bound = self.pair_bounds[k]  # (H,K,4)
             n_wt = r_h @ self.pair_bounds_t[k]  # (F,H,3,K): the normals in the world
             d_w = bound[..., 3] - (p_h[:, :, None] @ n_wt)[:, :, 0]  # (F,H,K)
@@ -171,15 +197,8 @@ class HandClearanceTerm:
             rh = r_h[cf, ch]
             xw = x[frames[cf], cp]
             xl = np.einsum("nba,nb->na", rh, xw - p_h[cf, ch])  # hull-body frame
-            value, normal_l = np.empty(len(cf)), np.empty((len(cf), 3))
-            order = np.argsort(ch, kind="stable")
-            present, starts = np.unique(ch[order], return_index=True)
-            for h, idx in zip(present, np.split(order, starts[1:])):
-                planes = self.exact_planes[k][h]
-                sd = xl[idx] @ planes[:, :3].T + planes[:, 3]
-                face = sd.argmax(-1)
-                value[idx] = sd[np.arange(len(idx)), face]
-                normal_l[idx] = planes[face, :3]
+            value, normal_l = (self.planes(xl, ch, self.exact_planes[k]) if self.planes is not None
+                               else max_planes(xl, ch, *self.plane_tables[k]))
             value -= px.radii[pts][cp]
             order = np.lexsort((cp, value, ch, cf))  # per (frame, hull): the least value, first point
             key = cf[order] * len(hulls) + ch[order]
@@ -210,6 +229,67 @@ class HandClearanceTerm:
 
 #: planes per hull in the exact cull's lower bound
 _BOUND_PLANES = 14
+
+
+@njit(cache=True, nogil=True)
+def _closest(frames, gap, x, centre, c_radius, table, p_radius, rot, pos, hcol, bounds,
+             planes, plane_count):  # pragma: no cover (compiled)
+    """Per frame f of `frames` (gap (F,) > 0) and hull h of a pair: the least max-plane value
+    (polytope distance − point radius) over the hand's points below the gap (inf: none), that
+    point (the first of equal values) and its plane's normal (hull frame). The NumPy form's cull
+    in the same order: a cluster's ball against the hull's bound planes, then each point's own
+    bound, then the point's full plane set. x (T,P,3) world points, centre (T,nc,3) the
+    clusters' ball centres (radius c_radius), table (nc,m) their points (−1: padding), rot/pos
+    the FK pass, hcol (H,) the hulls' FK bodies, bounds (H,K,4), planes (H,F,4) / plane_count."""
+    n_f, n_h, n_k = len(frames), len(hcol), bounds.shape[1]
+    value = np.full((n_f, n_h), np.inf)
+    point = np.zeros((n_f, n_h), np.int64)
+    normal = np.zeros((n_f, n_h, 3))
+    nw = np.empty((n_k, 3))
+    dw = np.empty(n_k)
+    for i in range(n_f):
+        t, g = frames[i], gap[i]
+        for h in range(n_h):
+            b = hcol[h]
+            for k in range(n_k):  # the bound planes in the world: n_w = R n, d_w = d − p·n_w
+                for a in range(3):
+                    nw[k, a] = rot[t, b, a, 0] * bounds[h, k, 0] + rot[t, b, a, 1] * bounds[h, k, 1] \
+                        + rot[t, b, a, 2] * bounds[h, k, 2]
+                dw[k] = bounds[h, k, 3] - (pos[t, b, 0] * nw[k, 0] + pos[t, b, 1] * nw[k, 1] + pos[t, b, 2] * nw[k, 2])
+            best, best_p, face = np.inf, -1, 0
+            for c in range(len(table)):
+                lb = -np.inf
+                for k in range(n_k):
+                    lb = max(lb, centre[t, c, 0] * nw[k, 0] + centre[t, c, 1] * nw[k, 1] + centre[t, c, 2] * nw[k, 2] + dw[k])
+                if not lb - c_radius[c] < g:
+                    continue
+                for m in range(table.shape[1]):
+                    p = table[c, m]
+                    if p < 0:
+                        continue
+                    lbp = -np.inf
+                    for k in range(n_k):
+                        lbp = max(lbp, x[t, p, 0] * nw[k, 0] + x[t, p, 1] * nw[k, 1] + x[t, p, 2] * nw[k, 2] + dw[k])
+                    if not lbp - p_radius[p] < g:
+                        continue
+                    v0, v1, v2 = x[t, p, 0] - pos[t, b, 0], x[t, p, 1] - pos[t, b, 1], x[t, p, 2] - pos[t, b, 2]
+                    l0 = rot[t, b, 0, 0] * v0 + rot[t, b, 1, 0] * v1 + rot[t, b, 2, 0] * v2  # Rᵀ(x − p)
+                    l1 = rot[t, b, 0, 1] * v0 + rot[t, b, 1, 1] * v1 + rot[t, b, 2, 1] * v2
+                    l2 = rot[t, b, 0, 2] * v0 + rot[t, b, 1, 2] * v1 + rot[t, b, 2, 2] * v2
+                    top, f_top = -np.inf, 0
+                    for f in range(plane_count[h]):
+                        sd = (l0 * planes[h, f, 0] + l1 * planes[h, f, 1] + l2 * planes[h, f, 2]) + planes[h, f, 3]
+                        if f == 0 or sd > top:
+                            top, f_top = sd, f
+                    v = top - p_radius[p]
+                    if v < g and (v < best or (v == best and p < best_p)):
+                        best, best_p, face = v, p, f_top
+            if best_p >= 0:
+                value[i, h] = best
+                point[i, h] = best_p
+                for a in range(3):
+                    normal[i, h, a] = planes[h, face, a]
+    return value, point, normal
 
 
 def _unpadded(planes: np.ndarray) -> np.ndarray:

@@ -146,18 +146,28 @@ class _Problem:
                 g[k:] += self.dtd[k, : len(qi) - k, None] * qi[:-k]
         return g
 
-    def evaluate(self, qi: np.ndarray, collision: float,
-                 exact: bool = False) -> tuple[float, Callable[[], tuple]]:
+    def evaluate(self, qi: np.ndarray, collision: float, exact: bool = False,
+                 bound: float | None = None) -> tuple[float, Callable[[], tuple] | None]:
         """Cost now; on demand, the Gauss-Newton blocks (per-frame JᵀJ (T,n,n), velocity-hinge
         diagonal (T,n) and off-diagonal (T-1,n)) and the gradient (T,n), linear terms included.
-        `exact`: MuJoCo's contacts instead of the proxies (the polish phase)."""
-        r, jac = self.residuals.lazy(self.q_full(qi), collision=collision, exact=exact)
+        `exact`: MuJoCo's contacts instead of the proxies (the polish phase). `bound`: a trial
+        whose cost is certainly above it comes back as (inf, None) as soon as that is known,
+        without the rest of its rows (`Residuals.lazy(limit=)`): the solver rejects it either way."""
         dq = qi - self.rest
         sg = self._smooth_grad(qi)
         d = np.diff(qi, axis=0)
         over = np.maximum(np.abs(d) - self.step_limit, 0.0)  # velocity hinge: only past the limit
-        cost = 0.5 * float((r**2).sum() + (self.w_post * dq**2).sum() + (qi * sg).sum()
-                           + self.cfg.w_velocity * (over**2).sum())
+        post, smooth, vel = (self.w_post * dq**2).sum(), (qi * sg).sum(), self.cfg.w_velocity * (over**2).sum()
+        limit = None
+        if bound is not None:  # the rows' sum of squares above which the cost exceeds the bound
+            linear = float(post + smooth + vel)
+            limit = 2.0 * bound - linear + 1e-9 * (2.0 * abs(bound) + abs(linear))  # slack ≫ rounding
+            if limit < 0.0:  # the linear terms alone: no FK needed
+                return np.inf, None
+        r, jac = self.residuals.lazy(self.q_full(qi), collision=collision, exact=exact, limit=limit)
+        if r is None:
+            return np.inf, None
+        cost = 0.5 * float((r**2).sum() + post + smooth + vel)
 
         def normal() -> tuple[tuple[np.ndarray, ...], np.ndarray]:
             j = jac()
@@ -256,7 +266,7 @@ class _Problem:
             for _ in range(budget):
                 step = self.step(h, g, lam)
                 cand = np.clip(qi + step, lower, upper)
-                c_new, normal = self.evaluate(cand, collision, exact)
+                c_new, normal = self.evaluate(cand, collision, exact, bound=cost)
                 predicted = 0.5 * float((step * (lam * self.damping(h) * step - g)).sum())
                 if c_new < cost:
                     rho = (cost - c_new) / max(predicted, 1e-300)

@@ -231,3 +231,45 @@ def hull_contacts_numpy(tab: HullTables, rot: np.ndarray, pos: np.ndarray, margi
     sel = sel[np.lexsort((qc[sel], tc[sel]))]  # by frame, then pair: a stable row layout
     r_h = r_h[sel]
     return tc[sel], qc[sel], value[sel], rotate(r_h, xl[sel]) + p_h[sel], rotate(r_h, normal_l[sel])
+
+
+def max_planes(xl: np.ndarray, hull: np.ndarray, table: np.ndarray, count: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per point: the largest plane distance n·x + d over its hull's planes (the polytope's signed
+    distance) and that plane's normal (the first of equal maxima, as `argmax`). Points xl (N,3) in
+    their hull's frame, hull (N,) rows of a `plane_table` (H,F,4) read up to `count` (H,). The
+    narrow phase of `hull_contacts`, for callers with their own broad phase
+    (`hand_clearance.HandClearanceTerm.rows`); `max_planes_numpy` is its NumPy form."""
+    return _max_planes(np.ascontiguousarray(xl, dtype=np.float64), np.ascontiguousarray(hull, dtype=np.int64),
+                       table, count)
+
+
+@njit(cache=True, nogil=True)
+def _max_planes(xl, hull, planes, plane_count):  # pragma: no cover (compiled)
+    n = len(xl)
+    value = np.empty(n)
+    normal = np.empty((n, 3))
+    for i in range(n):
+        h = hull[i]
+        best, face = -np.inf, 0
+        for f in range(plane_count[h]):
+            sd = (xl[i, 0] * planes[h, f, 0] + xl[i, 1] * planes[h, f, 1] + xl[i, 2] * planes[h, f, 2]) + planes[h, f, 3]
+            if f == 0 or sd > best:
+                best, face = sd, f
+        value[i] = best
+        for a in range(3):
+            normal[i, a] = planes[h, face, a]
+    return value, normal
+
+
+def max_planes_numpy(xl: np.ndarray, hull: np.ndarray, planes: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """`max_planes` in NumPy, hull by hull (the reference; `planes`: per hull its (F_h,4) set)."""
+    value, normal = np.empty(len(xl)), np.empty((len(xl), 3))
+    order = np.argsort(hull, kind="stable")
+    present, starts = np.unique(hull[order], return_index=True)
+    for h, idx in zip(present, np.split(order, starts[1:])):
+        sd = xl[idx] @ planes[h][:, :3].T + planes[h][:, 3]
+        face = sd.argmax(-1)
+        value[idx] = sd[np.arange(len(idx)), face]
+        normal[idx] = planes[h][face, :3]
+    return value, normal
+
