@@ -8,40 +8,21 @@ import numpy as np
 import pytest
 import torch
 
-from embody.body import MannequinBody
-from embody.collision import collision_model
 from embody.collision.energy import (_blend, _contacts_torch, _penetrations_compiled,
                                      _penetrations_torch, _skin, _to_part, contacts,
                                      penetrations, point_depths)
-from embody.motion import JOINT_NAMES
-
-J = JOINT_NAMES.index
+from collision_cases import body, model  # noqa: F401 (fixtures)
+from collision_cases import crossing_poses as clash_poses
 
 
 def crossing_poses() -> np.ndarray:
-    """Arms into the hips, hands through the chest, hands clasped, fingers curled, plus
-    random arm and finger poses (seeded)."""
-    pose = np.zeros((7, 55, 3))
-    pose[1, J("left_shoulder"), 2], pose[1, J("right_shoulder"), 2] = -1.6, 1.6
-    for t, bend in ((2, 2.4), (3, 2.0)):
-        pose[t, J("left_shoulder")] = (0.0, -1.0, -0.3)
-        pose[t, J("right_shoulder")] = (0.0, 1.0, 0.3)
-        pose[t, J("left_elbow"), 1], pose[t, J("right_elbow"), 1] = -bend, bend
-    pose[4] = pose[3]
-    pose[4, 25:40, 2], pose[4, 40:55, 2] = -1.2, 1.2
+    """The energy tests' crossing poses (arms into the hips, hands through the chest, hands
+    clasped, fingers curled) plus random arm and finger poses (seeded)."""
+    base = clash_poses()
     rng = np.random.default_rng(0)
-    pose[5:, 13:] = pose[2:4, 13:] + rng.normal(0.0, 0.3, (2, 42, 3))
-    return pose
-
-
-@pytest.fixture(scope="module")
-def body() -> MannequinBody:
-    return MannequinBody()
-
-
-@pytest.fixture(scope="module")
-def model(body):
-    return collision_model(body, vertex_stride=4)
+    extra = base[2:4].copy()
+    extra[:, 13:] += rng.normal(0.0, 0.3, (2, 42, 3))
+    return np.concatenate([base, extra])
 
 
 def _transforms(body, dtype=torch.float32) -> torch.Tensor:

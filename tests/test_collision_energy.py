@@ -7,12 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from embody.body import MannequinBody
 from embody.collision import collision_model, frame_energies, part_volumes
 from embody.collision.energy import _blend, _chunk_spheres, skinned_points
 from embody.collision.exclusions import checked_pairs, group_name, part_groups
 from embody.errors import ConfigError
 from embody.motion import JOINT_NAMES
+from collision_cases import body, crossing_poses, model  # noqa: F401 (fixtures)
 
 J = JOINT_NAMES.index
 
@@ -46,29 +46,6 @@ def reference_energies(body, pose: np.ndarray, stride: int, tolerance: float = 0
                             for pc in vols.pieces if pc.part == b], axis=0)
                 out[t] += (np.maximum(0.0, -f - tolerance) ** 2).sum()
     return out
-
-
-def crossing_poses() -> np.ndarray:
-    """Arms down into the hips, hands through the chest, hands clasped, fingers curled."""
-    pose = np.zeros((5, 55, 3))
-    pose[1, J("left_shoulder"), 2], pose[1, J("right_shoulder"), 2] = -1.6, 1.6
-    for t, bend in ((2, 2.4), (3, 2.0)):
-        pose[t, J("left_shoulder")] = (0.0, -1.0, -0.3)
-        pose[t, J("right_shoulder")] = (0.0, 1.0, 0.3)
-        pose[t, J("left_elbow"), 1], pose[t, J("right_elbow"), 1] = -bend, bend
-    pose[4] = pose[3]
-    pose[4, 25:40, 2], pose[4, 40:55, 2] = -1.2, 1.2
-    return pose
-
-
-@pytest.fixture(scope="module")
-def body() -> MannequinBody:
-    return MannequinBody()
-
-
-@pytest.fixture(scope="module")
-def model(body):
-    return collision_model(body, vertex_stride=4)
 
 
 def energies(body, model, pose, tolerance=0.0) -> np.ndarray:

@@ -75,16 +75,22 @@ def test_parting_hands_keep_their_gap_at_hand_scale(setup):
     assert np.mean(d[touching] < eps_r) > 0.9  # and the touches stay touches
 
 
+def _random_q(robot, rng: np.random.Generator, t: int) -> np.ndarray:
+    """t random configurations: the T-pose with N(0, 0.6) on the IK joints, within limits."""
+    q = np.tile(robot.tpose, (t, 1))
+    ik = np.flatnonzero(robot.ik_mask)
+    q[:, ik] += rng.normal(0.0, 0.6, (t, len(ik)))
+    return np.clip(q, robot.lower, robot.upper)
+
+
 def test_culled_rows_equal_the_brute_force_rows(setup):
     """The exact cull (a few planes' lower bound against the gap) changes no residual: every row
     equals min over all hand points of the full max-plane value, at the asked gap."""
     _, robot, _, _ = setup
     rng = np.random.default_rng(1)
     t = 60
-    q = np.tile(robot.tpose, (t, 1))
+    q = _random_q(robot, rng, t)
     ik = np.flatnonzero(robot.ik_mask)
-    q[:, ik] += rng.normal(0.0, 0.6, (t, len(ik)))
-    q = np.clip(q, robot.lower, robot.upper)
     gap = rng.uniform(0.0, 0.4, (t, 3)) * (rng.random((t, 3)) < 0.8)
     term = HandClearanceTerm(robot, gap, 4.0)
     fk = robot.fk(term.bodies)
@@ -141,10 +147,8 @@ def test_compiled_rows_match_the_numpy_reference(setup, monkeypatch):
     _, robot, _, _ = setup
     rng = np.random.default_rng(2)
     t = 40
-    q = np.tile(robot.tpose, (t, 1))
+    q = _random_q(robot, rng, t)
     ik = np.flatnonzero(robot.ik_mask)
-    q[:, ik] += rng.normal(0.0, 0.6, (t, len(ik)))
-    q = np.clip(q, robot.lower, robot.upper)
     term = HandClearanceTerm(robot, rng.uniform(0.0, 0.4, (t, 5)) * (rng.random((t, 5)) < 0.8), 4.0)
     # the kernel alone, on random points against every hull of the first pair
     planes = term.exact_planes[0]
