@@ -261,6 +261,33 @@ def test_rows_stop_early_only_past_the_limit(robot):
     assert exact.rows(q, limit=total * 0.5) is None
 
 
+def test_trial_rows_deepest_pose_first_same_rows(robot):
+    """A trial (`rows(limit=)`) asks MuJoCo about the poses that were deepest at the last call
+    first, so a trial that cannot win stops after them; the rows do not depend on that order
+    (frames and samples between them, bit for bit the plain call's)."""
+    targets = _hands_plant(robot)
+    q = solve(robot, targets, IKConfig(w_collision=0.0, contact_repair=False)).q
+    exact = ExactContacts(robot, margin=0.002, weight=4.0)
+    exact.between = (np.array([0, 1, 2]), np.array([0.4, 0.2, 0.8]))
+    r, jac = exact.rows(q)
+    total = float((r**2).sum())
+    weight = exact._weight[1].copy()
+    assert weight.shape == (4 + 3,) and weight.max() > 0
+    calls = []
+    original = exact._contacts
+    exact._contacts = lambda x, t, scale, tag, found: (calls.append((t, tag)), original(x, t, scale, tag, found))
+    r2, jac2 = exact.rows(q, limit=total * (1 + 1e-9))  # reordered, every pose asked: the same rows
+    assert np.array_equal(r, r2) and np.array_equal(jac, jac2)
+    deepest = int(np.argmax(weight))
+    assert calls[0] == ((deepest, 0) if deepest < 4 else (int(exact.between[0][deepest - 4]), 1 + 2 * (deepest - 4)))
+    calls.clear()
+    assert exact.rows(q, limit=0.0) is None
+    assert len(calls) == 1  # the deepest pose alone passes a zero limit
+    exact.between = None  # other poses: the plain order again
+    r3, _ = exact.rows(q, limit=1e9)
+    assert np.array_equal(r3, exact.rows(q)[0])
+
+
 def test_trials_skipped_on_a_bound_keep_the_cost(robot):
     """`_Problem.evaluate(bound=)`: a trial comes back as inf only when its cost is above the
     bound; otherwise its cost is the unbounded evaluation's, bit for bit (so the solver accepts
