@@ -49,7 +49,11 @@ class ExactContacts:
     def rows(self, q: np.ndarray, limit: float | None = None) -> tuple[np.ndarray, np.ndarray] | None:
         """Residuals (T,K) and their Jacobian (T,K,n_ik) at full joint vectors q (T,n). `limit`:
         None as soon as the rows found so far have a sum of squares above it (the LM solver's
-        trial that cannot win: MuJoCo is not asked about the frames and samples left)."""
+        trial that cannot win: MuJoCo is not asked about the frames and samples left). A call
+        with a limit asks about the poses whose contacts were deepest at the last call on the
+        same poses first (`_order`): rejected LM trials of the contact phase then stop after a
+        few poses (benchmark seqs 0/1: 349 → 118 poses, ~80 % of them in contact, ~210 µs each);
+        the rows are the same bits in any order."""
         found: list[tuple] = []
         low: dict[tuple, float] = {}  # per row so far: its square, a lower bound of the final one
         frames = np.arange(len(q)) if self.frames is None else np.flatnonzero(self.frames)
