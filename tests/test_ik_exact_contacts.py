@@ -210,6 +210,39 @@ def test_sample_proxy_rows_give_the_samples_gradient(robot):
     np.testing.assert_allclose((cost(qp) - cost(qm)) / 2.0, float((g * d).sum()), rtol=1e-3)
 
 
+def test_sample_proxy_rows_packed_per_frame(robot):
+    """`Residuals._sample_rows` keeps only the active (sample, proxy row) entries, packed per frame:
+    each frame's rows are its samples' active rows scaled by √(1 − α) or √α, and the Gauss-Newton
+    blocks JᵀJ and Jᵀr equal those of the full (sample × proxy row) layout."""
+    from embody.retarget.costs import Residuals
+    from tests.test_retarget_ik import _targets_from_q
+
+    q, _ = _swap(robot)
+    q = q[4:8]
+    cfg = IKConfig()
+    res = Residuals(robot, _targets_from_q(robot, q), cfg)
+    smp = (np.array([0, 1, 1, 2]), np.array([0.6, 0.4, 0.6, 0.4]))
+    qs = (1.0 - smp[1])[:, None] * q[smp[0]] + smp[1][:, None] * q[smp[0] + 1]
+    rot, pos = res.fk.forward_once(qs)
+    r, jac = res._sample_rows(len(q), smp, rot, pos, 1.0)
+    j = jac()
+    raw, raw_jac = res._collision(rot, pos, 1.0)
+    shift = res.w_col * (cfg.collision_margin - cfg.contact_sample_margin)
+    active = raw > shift
+    js = raw_jac(*res.fk.joint_frames(rot, pos, list(res.ik))) * active[..., None]
+    hinge = np.where(active, raw - shift, 0.0)
+    jtj = np.zeros((len(q), j.shape[2], j.shape[2]))
+    jtr = np.zeros((len(q), j.shape[2]))
+    for k, (t, a) in enumerate(zip(*smp)):  # the full layout: every proxy row of every sample
+        for f, w in ((t, 1.0 - a), (t + 1, a)):
+            jtj[f] += w * js[k].T @ js[k]
+            jtr[f] += w * js[k].T @ hinge[k]
+    assert (r > 0).sum() == 2 * active.sum()  # each active entry once on each of its two frames
+    assert r.shape[1] == np.bincount(np.r_[smp[0], smp[0] + 1], weights=np.r_[active.sum(1), active.sum(1)]).max()
+    np.testing.assert_allclose(np.swapaxes(j, 1, 2) @ j, jtj, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose((np.swapaxes(j, 1, 2) @ r[..., None])[..., 0], jtr, rtol=1e-12, atol=1e-9)
+
+
 def test_contact_phase_gives_up_when_the_deepest_contact_stalls(robot):
     """A contact the phase cannot move (here: MuJoCo's rows weigh nothing, so nothing pushes the
     hands apart) ends the round `contact_stall` LM evaluations after the deepest contact last
