@@ -294,6 +294,34 @@ def test_rows_stop_early_only_past_the_limit(robot):
     assert exact.rows(q, limit=total * 0.5) is None
 
 
+def test_exact_rows_keep_the_proxy_block_only_as_wide_as_the_proxy_frames(robot):
+    """`Residuals._exact_rows`: the proxies' block is zero on MuJoCo's frames, so it is cut to the
+    widest of the other frames' packed rows; what is cut is zero in the rows and the Jacobian, and
+    the rest is the full layout's, bit for bit."""
+    from embody.retarget.costs import Residuals
+    from tests.test_retarget_ik import _targets_from_q
+
+    overlap = solve(robot, _hands_plant(robot), IKConfig(w_collision=0.0, contact_repair=False)).q
+    q = np.concatenate([overlap[:2], np.tile(robot.rest, (2, 1))])  # hands inside each other, then rest
+    res = Residuals(robot, _targets_from_q(robot, q), IKConfig())
+    res.exact = ExactContacts(robot, 0.002, 1000.0)
+    res.exact.frames = np.array([True, True, False, False])
+    rot, pos = res.fk.forward(q)
+    col = res._collision(rot, pos, 1.0)
+    r, jacobian = res._exact_rows(q, col)
+    z, o = res.fk.joint_frames(rot, pos, list(res.ik))
+    j = jacobian(z, o)
+    r_ex, j_ex = res.exact.rows(q)
+    n_px = r.shape[1] - r_ex.shape[1]
+    full_r = np.where(res.exact.frames[:, None], 0.0, col[0])
+    full_j = col[1](z, o)
+    full_j[res.exact.frames] = 0.0
+    assert 0 < n_px < col[0].shape[1]  # the overlapping hands' frames had more proxy rows
+    assert not full_r[:, n_px:].any() and not full_j[:, n_px:].any()
+    assert np.array_equal(r[:, :n_px], full_r[:, :n_px]) and np.array_equal(j[:, :n_px], full_j[:, :n_px])
+    assert np.array_equal(r[:, n_px:], r_ex) and np.array_equal(j[:, n_px:], j_ex)
+
+
 def test_trial_rows_deepest_pose_first_same_rows(robot):
     """A trial (`rows(limit=)`) asks MuJoCo about the poses that were deepest at the last call
     first, so a trial that cannot win stops after them; the rows do not depend on that order

@@ -267,14 +267,22 @@ class Residuals:
             j_ex_now = j_ex
             r_ex, j_ex = np.concatenate([r_ex, samples[0]], 1), None
         r_px = np.where(frames[:, None], 0.0, col[0])
+        # the proxies' block only as wide as the frames it stays on need: its rows are packed per
+        # frame (slot k = the frame's k-th pair; an unused slot or a pair out of the margin is zero
+        # with a zero Jacobian), and its widest frames are usually MuJoCo's, where it is zeroed
+        used = np.flatnonzero(r_px.any(0))
+        n_px = int(used[-1]) + 1 if len(used) else 0
+        r_px = r_px[:, :n_px]
 
         def jacobian(z: np.ndarray, o: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
             """(T, P+E, J), written into `out` (zeros, that shape) when given: the proxies' block
             (zero on the exact frames), then MuJoCo's."""
-            n_px = col[0].shape[1]
             if out is None:
-                out = np.zeros((len(q), n_px + j_ex.shape[1], z.shape[1]))
-            col[1](z, o, out[:, :n_px])
+                out = np.zeros((len(q), n_px + r_ex.shape[1], z.shape[1]))
+            if n_px == col[0].shape[1]:
+                col[1](z, o, out[:, :n_px])
+            else:
+                out[:, :n_px] = col[1](z, o)[:, :n_px]
             out[:, :n_px][frames] = 0.0
             if samples is None:
                 out[:, n_px:] = j_ex
