@@ -67,7 +67,7 @@ class ExactContacts:
         between = self.between if self.between is not None else (np.zeros(0, np.int64), np.zeros(0))
         n_pose = len(frames) + len(between[0])
         self._weight_key = frames.tobytes() + between[0].tobytes() + np.asarray(between[1]).tobytes()
-        order = range(n_pose)
+        order: range | np.ndarray = range(n_pose)
         if limit is not None:  # a trial: the poses that weighed most last time first, so a trial
             # that cannot win passes `limit` after a few poses (the result does not depend on the
             # order: each pose files its rows under its own frame and tag)
