@@ -341,7 +341,10 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 #      (`metrics.embodiments._SubsetSkin`; within 1e-7 m of the float32 blend's).
 # v15: the sphere/hull proxy rows compiled (`retarget.proxy_hulls`): the same rows to round-off
 #      (~1e-16), solutions within ~5e-13 rad, not bit for bit (s12-nbproxy).
-RETARGET = Step("retarget", "15", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v16: the contact phase's proxy rows at the samples packed per frame (`Residuals._sample_rows`)
+#      and its proxy block cut to the proxy frames' width (`Residuals._exact_rows`): the same
+#      Gauss-Newton blocks to round-off, solutions within ~6e-13 rad (s13-ikevals).
+RETARGET = Step("retarget", "16", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -358,7 +361,8 @@ RETARGET = Step("retarget", "15", ("body", "robot", "ik"), _retarget, _ik_soluti
 # v15: the stalled-contact stop (retarget v13) in every round's solve.
 # v16: retarget v14's targets.
 # v17: the compiled sphere/hull proxy rows (retarget v15) in every round's solve.
-REFINE = Step("refine", "17", ("body", "robot", "ik", "render", "critic"), _refine,
+# v18: the contact phase's narrower proxy blocks (retarget v16) in every round's solve.
+REFINE = Step("refine", "18", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.

@@ -210,6 +210,39 @@ def test_sample_proxy_rows_give_the_samples_gradient(robot):
     np.testing.assert_allclose((cost(qp) - cost(qm)) / 2.0, float((g * d).sum()), rtol=1e-3)
 
 
+def test_sample_proxy_rows_packed_per_frame(robot):
+    """`Residuals._sample_rows` keeps only the active (sample, proxy row) entries, packed per frame:
+    each frame's rows are its samples' active rows scaled by √(1 − α) or √α, and the Gauss-Newton
+    blocks JᵀJ and Jᵀr equal those of the full (sample × proxy row) layout."""
+    from embody.retarget.costs import Residuals
+    from tests.test_retarget_ik import _targets_from_q
+
+    q, _ = _swap(robot)
+    q = q[4:8]
+    cfg = IKConfig()
+    res = Residuals(robot, _targets_from_q(robot, q), cfg)
+    smp = (np.array([0, 1, 1, 2]), np.array([0.6, 0.4, 0.6, 0.4]))
+    qs = (1.0 - smp[1])[:, None] * q[smp[0]] + smp[1][:, None] * q[smp[0] + 1]
+    rot, pos = res.fk.forward_once(qs)
+    r, jac = res._sample_rows(len(q), smp, rot, pos, 1.0)
+    j = jac()
+    raw, raw_jac = res._collision(rot, pos, 1.0)
+    shift = res.w_col * (cfg.collision_margin - cfg.contact_sample_margin)
+    active = raw > shift
+    js = raw_jac(*res.fk.joint_frames(rot, pos, list(res.ik))) * active[..., None]
+    hinge = np.where(active, raw - shift, 0.0)
+    jtj = np.zeros((len(q), j.shape[2], j.shape[2]))
+    jtr = np.zeros((len(q), j.shape[2]))
+    for k, (t, a) in enumerate(zip(*smp)):  # the full layout: every proxy row of every sample
+        for f, w in ((t, 1.0 - a), (t + 1, a)):
+            jtj[f] += w * js[k].T @ js[k]
+            jtr[f] += w * js[k].T @ hinge[k]
+    assert (r > 0).sum() == 2 * active.sum()  # each active entry once on each of its two frames
+    assert r.shape[1] == np.bincount(np.r_[smp[0], smp[0] + 1], weights=np.r_[active.sum(1), active.sum(1)]).max()
+    np.testing.assert_allclose(np.swapaxes(j, 1, 2) @ j, jtj, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose((np.swapaxes(j, 1, 2) @ r[..., None])[..., 0], jtr, rtol=1e-12, atol=1e-9)
+
+
 def test_contact_phase_gives_up_when_the_deepest_contact_stalls(robot):
     """A contact the phase cannot move (here: MuJoCo's rows weigh nothing, so nothing pushes the
     hands apart) ends the round `contact_stall` LM evaluations after the deepest contact last
@@ -259,6 +292,61 @@ def test_rows_stop_early_only_past_the_limit(robot):
     r2, jac2 = exact.rows(q, limit=total * (1 + 1e-9))
     assert np.array_equal(r, r2) and np.array_equal(jac, jac2)
     assert exact.rows(q, limit=total * 0.5) is None
+
+
+def test_exact_rows_keep_the_proxy_block_only_as_wide_as_the_proxy_frames(robot):
+    """`Residuals._exact_rows`: the proxies' block is zero on MuJoCo's frames, so it is cut to the
+    widest of the other frames' packed rows; what is cut is zero in the rows and the Jacobian, and
+    the rest is the full layout's, bit for bit."""
+    from embody.retarget.costs import Residuals
+    from tests.test_retarget_ik import _targets_from_q
+
+    overlap = solve(robot, _hands_plant(robot), IKConfig(w_collision=0.0, contact_repair=False)).q
+    q = np.concatenate([overlap[:2], np.tile(robot.rest, (2, 1))])  # hands inside each other, then rest
+    res = Residuals(robot, _targets_from_q(robot, q), IKConfig())
+    res.exact = ExactContacts(robot, 0.002, 1000.0)
+    res.exact.frames = np.array([True, True, False, False])
+    rot, pos = res.fk.forward(q)
+    col = res._collision(rot, pos, 1.0)
+    r, jacobian = res._exact_rows(q, col)
+    z, o = res.fk.joint_frames(rot, pos, list(res.ik))
+    j = jacobian(z, o)
+    r_ex, j_ex = res.exact.rows(q)
+    n_px = r.shape[1] - r_ex.shape[1]
+    full_r = np.where(res.exact.frames[:, None], 0.0, col[0])
+    full_j = col[1](z, o)
+    full_j[res.exact.frames] = 0.0
+    assert 0 < n_px < col[0].shape[1]  # the overlapping hands' frames had more proxy rows
+    assert not full_r[:, n_px:].any() and not full_j[:, n_px:].any()
+    assert np.array_equal(r[:, :n_px], full_r[:, :n_px]) and np.array_equal(j[:, :n_px], full_j[:, :n_px])
+    assert np.array_equal(r[:, n_px:], r_ex) and np.array_equal(j[:, n_px:], j_ex)
+
+
+def test_trial_rows_deepest_pose_first_same_rows(robot):
+    """A trial (`rows(limit=)`) asks MuJoCo about the poses that were deepest at the last call
+    first, so a trial that cannot win stops after them; the rows do not depend on that order
+    (frames and samples between them, bit for bit the plain call's)."""
+    targets = _hands_plant(robot)
+    q = solve(robot, targets, IKConfig(w_collision=0.0, contact_repair=False)).q
+    exact = ExactContacts(robot, margin=0.002, weight=4.0)
+    exact.between = (np.array([0, 1, 2]), np.array([0.4, 0.2, 0.8]))
+    r, jac = exact.rows(q)
+    total = float((r**2).sum())
+    weight = exact._weight[1].copy()
+    assert weight.shape == (4 + 3,) and weight.max() > 0
+    calls = []
+    original = exact._contacts
+    exact._contacts = lambda x, t, scale, tag, found: (calls.append((t, tag)), original(x, t, scale, tag, found))
+    r2, jac2 = exact.rows(q, limit=total * (1 + 1e-9))  # reordered, every pose asked: the same rows
+    assert np.array_equal(r, r2) and np.array_equal(jac, jac2)
+    deepest = int(np.argmax(weight))
+    assert calls[0] == ((deepest, 0) if deepest < 4 else (int(exact.between[0][deepest - 4]), 1 + 2 * (deepest - 4)))
+    calls.clear()
+    assert exact.rows(q, limit=0.0) is None
+    assert len(calls) == 1  # the deepest pose alone passes a zero limit
+    exact.between = None  # other poses: the plain order again
+    r3, _ = exact.rows(q, limit=1e9)
+    assert np.array_equal(r3, exact.rows(q)[0])
 
 
 def test_trials_skipped_on_a_bound_keep_the_cost(robot):

@@ -226,27 +226,28 @@ class Residuals:
         # is the proxies' row shifted down by w·(margin − m), with the same Jacobian where active
         shift = self.w_col * collision**0.5 * max(self.cfg.collision_margin - self.cfg.contact_sample_margin, 0.0)
         active = r > shift
-        r = np.where(active, r - shift, 0.0)
-        p = r.shape[1]
-        if not p or not r.any():
+        if not r.shape[1] or not active.any():
             return None
+        # only the active (sample, row) entries, packed per frame like the proxies' own rows
+        # (slot k = the frame's k-th entry): the samples' proxy block was (S·p) rows wide, ~96 %
+        # of them zero, and the contact phase's JᵀJ paid for all of them
+        act_s, act_c = np.nonzero(active)
         s_t, a = smp
-        owner = np.concatenate([s_t, s_t + 1])
-        scale = np.concatenate([np.sqrt(1.0 - a), np.sqrt(a)])
-        src = np.tile(np.arange(len(s_t)), 2)
+        owner = np.concatenate([s_t[act_s], s_t[act_s] + 1])
+        scale = np.concatenate([np.sqrt(1.0 - a[act_s]), np.sqrt(a[act_s])])
+        src_s, src_c = np.tile(act_s, 2), np.tile(act_c, 2)
         order = np.argsort(owner, kind="stable")
         count = np.bincount(owner, minlength=t)
         slot = np.empty(len(owner), dtype=np.int64)
         slot[order] = np.arange(len(owner)) - (np.cumsum(count) - count)[owner[order]]
-        cols = slot[:, None] * p + np.arange(p)  # each sample's p rows, in its slot of each frame
-        out_r = np.zeros((t, int(count.max()) * p))
-        out_r[owner[:, None], cols] = scale[:, None] * r[src]
+        out_r = np.zeros((t, int(count.max())))
+        out_r[owner, slot] = scale * (r[src_s, src_c] - shift)
 
         def jacobian() -> np.ndarray:
             z, o = self.fk.joint_frames(rot, pos, list(self.ik))
-            js = jac(z, o) * active[..., None]
+            js = jac(z, o)
             out = np.zeros((t, out_r.shape[1], js.shape[2]))
-            out[owner[:, None], cols] = scale[:, None, None] * js[src]
+            out[owner, slot] = scale[:, None] * js[src_s, src_c]
             return out
 
         return out_r, jacobian
@@ -266,14 +267,22 @@ class Residuals:
             j_ex_now = j_ex
             r_ex, j_ex = np.concatenate([r_ex, samples[0]], 1), None
         r_px = np.where(frames[:, None], 0.0, col[0])
+        # the proxies' block only as wide as the frames it stays on need: its rows are packed per
+        # frame (slot k = the frame's k-th pair; an unused slot or a pair out of the margin is zero
+        # with a zero Jacobian), and its widest frames are usually MuJoCo's, where it is zeroed
+        used = np.flatnonzero(r_px.any(0))
+        n_px = int(used[-1]) + 1 if len(used) else 0
+        r_px = r_px[:, :n_px]
 
         def jacobian(z: np.ndarray, o: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
             """(T, P+E, J), written into `out` (zeros, that shape) when given: the proxies' block
             (zero on the exact frames), then MuJoCo's."""
-            n_px = col[0].shape[1]
             if out is None:
-                out = np.zeros((len(q), n_px + j_ex.shape[1], z.shape[1]))
-            col[1](z, o, out[:, :n_px])
+                out = np.zeros((len(q), n_px + r_ex.shape[1], z.shape[1]))
+            if n_px == col[0].shape[1]:
+                col[1](z, o, out[:, :n_px])
+            else:
+                out[:, :n_px] = col[1](z, o)[:, :n_px]
             out[:, :n_px][frames] = 0.0
             if samples is None:
                 out[:, n_px:] = j_ex
