@@ -34,7 +34,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -43,10 +43,11 @@ import torch
 from embody.body.base import BodyModel
 from embody.collision.capsules import arm_capsules, capsule_energies
 from embody.collision.depth import depth_metrics, motion_depths
-from embody.collision.energy import (CollisionModel, Contacts, collision_model, contacts,
+from embody.collision.energy import (CollisionModel, collision_model,
                                      frame_energies, frame_energies_and_exact)
 from embody.collision.masks import mask_joints
 from embody.collision.metrics import sequence_metrics
+from embody.collision.refresh import Refresh
 from embody.collision.solve import solve
 from embody.config.collision import CollisionConfig
 from embody.device import torch_device
@@ -423,20 +424,6 @@ class _FrameAdam:
         self.u.sub_(self.param_groups[0]["lr"] * m_hat / (v_hat.sqrt() + self.eps))
 
 
-def _live_contacts(model: CollisionModel, transforms: torch.Tensor, margin: float,
-                   frames: torch.Tensor | None) -> Contacts:
-    """`contacts` of the given frames only (all when None), indexed like `transforms`.
-
-    Why: frames with blend weight 0 between two corrected stretches are x0 and their energy
-    is multiplied by 0, yet their broad phase and narrow-phase rows cost as much as any
-    other's. The frame map is increasing, so the rows keep their order (the same energies,
-    bit for bit)."""
-    if frames is None:
-        return contacts(model, transforms, margin)
-    c = contacts(model, transforms.index_select(0, frames), margin)
-    return replace(c, t=frames[c.t], points=replace(c.points, t=frames[c.points.t]))
-
-
 def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.ndarray,
               weight: np.ndarray, cfg: CollisionConfig) -> tuple[np.ndarray, int]:
     """Adam over the masked joints of the frames near a penetration, with a per-frame λ_col
@@ -466,6 +453,8 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
                                           else torch.optim.Adam([u], lr=cfg.lr))
     lam = torch.full((t,), float(cfg.lambda_col), device=dev)
     caps = arm_capsules(body, motion.betas, cfg.allow_pairs) if cfg.capsule_weight > 0 else None
+    margin = cfg.refresh_margin + cfg.clearance
+    refresh = Refresh(model, margin, max(0.0, cfg.clearance - cfg.tolerance), live_frames)
     best_key = (float("inf"), float("inf"))
     best = torch.zeros_like(x0)
     clear_since, near, step, settling = None, None, 0, False
@@ -475,8 +464,7 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
         transforms = body.joint_transforms_compiled(x, betas)
         check = (step - 1) % cfg.refresh_every == 0
         if check:
-            near = _live_contacts(model, transforms.detach(), cfg.refresh_margin + cfg.clearance,
-                                  live_frames)
+            near = refresh(transforms)
             # the clear test (near ⊇ its rows) from the objective's own narrow phase
             e, exact = frame_energies_and_exact(model, transforms, cfg.tolerance - cfg.clearance,
                                                 cfg.tolerance, near)
