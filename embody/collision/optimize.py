@@ -475,7 +475,7 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
         else:
             e = frame_energies(model, transforms, cfg.tolerance - cfg.clearance, near) * live
         if caps is not None:  # crossed limbs: the point energy alone sits at a saddle
-            e = e + cfg.capsule_weight * capsule_energies(caps, transforms) * live
+            e = e + cfg.capsule_weight * capsule_energies(caps, transforms, compiled=True) * live
         close = (delta ** 2).sum() / t
         smooth = (_second_diff(x) ** 2).sum() / t
         obj = (lam * e).sum() / t + cfg.lambda_close * close + cfg.lambda_smooth * smooth
