@@ -141,12 +141,18 @@ def capsule_energies(caps: Capsules, transforms: torch.Tensor, margin: float = 0
 
 
 @njit(cache=True, nogil=True)
-def _closest(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray,
+def _closest(pos: np.ndarray, i1: int, j1: int, i2: int, j2: int,
              out: np.ndarray) -> tuple[float, float]:
-    """`segment_closest` in float64 (same branches): (s, t), and out = c1 − c2."""
-    d1, d2, r = q1 - p1, q2 - p2, p1 - p2
-    a, e = (d1 * d1).sum(), (d2 * d2).sum()
-    f, c, b = (d2 * r).sum(), (d1 * r).sum(), (d1 * d2).sum()
+    """`segment_closest` of segments pos[i1]pos[j1] and pos[i2]pos[j2] in float64 (same
+    branches): (s, t), and out = c1 − c2."""
+    a = e = f = c = b = 0.0
+    for k in range(3):
+        d1, d2, r = pos[j1, k] - pos[i1, k], pos[j2, k] - pos[i2, k], pos[i1, k] - pos[i2, k]
+        a += d1 * d1
+        e += d2 * d2
+        f += d2 * r
+        c += d1 * r
+        b += d1 * d2
     denom = a * e - b * b
     s = min(max((b * f - c * e) / max(denom, 1e-12), 0.0), 1.0) if denom > 1e-12 else 0.0
     t = (b * s + f) / e
@@ -155,8 +161,9 @@ def _closest(p1: np.ndarray, q1: np.ndarray, p2: np.ndarray, q2: np.ndarray,
     elif t > 1:
         s = min(max((b - c) / a, 0.0), 1.0)
     t = min(max(t, 0.0), 1.0)
-    for i in range(3):
-        out[i] = (p1[i] + d1[i] * s) - (p2[i] + d2[i] * t)
+    for k in range(3):
+        out[k] = (pos[i1, k] + (pos[j1, k] - pos[i1, k]) * s) \
+            - (pos[i2, k] + (pos[j2, k] - pos[i2, k]) * t)
     return s, t
 
 
@@ -174,8 +181,7 @@ def _capsule_pass(pos: np.ndarray, a: np.ndarray, b: np.ndarray, reach: np.ndarr
     backward = len(grad) > 0
     for t in range(n_t):
         for i in range(len(reach)):
-            s, u = _closest(pos[t, a[i, 0]], pos[t, a[i, 1]], pos[t, b[i, 0]], pos[t, b[i, 1]],
-                            diff)
+            s, u = _closest(pos[t], a[i, 0], a[i, 1], b[i, 0], b[i, 1], diff)
             d = np.sqrt(diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2] + 1e-12)
             over = reach[i] + margin - d
             if over <= 0.0:
