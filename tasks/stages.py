@@ -313,7 +313,8 @@ SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=
 #      the last two with hand-written gradients: equal to float32 rounding, so other Adam paths
 #      (s13-adamstep).
 # v11: the optimiser's refresh frame by frame (`collision.refresh`): a frame keeps its candidate
-#      rows while its points moved < half the margin; the capsule term compiled (s13-adam3).
+#      rows while its points moved < half the margin; the capsule term compiled; the objective's
+#      gradient by hand on the CPU (`collision.objective`), no autograd graph (s13-adam3).
 COLLIDE = Step("collide", "11", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
