@@ -37,7 +37,7 @@ from embody.body.base import BodyModel
 from embody.clusters import median_cuts
 from embody.collision.broad import broad_phase, index_rows
 from embody.collision.exclusions import checked_pairs, part_groups
-from embody.collision.narrow import PointDepths, select
+from embody.collision.narrow import PointDepths, select, select_inputs
 from embody.collision.volumes import part_volumes, rest_frames
 
 #: Planes that never win the max: padding for pieces with fewer faces.
@@ -572,11 +572,16 @@ def _penetrations_compiled(model: CollisionModel, d: dict[str, torch.Tensor],
     the same rows, planes and values as the tensor version (see `narrow`)."""
     with torch.no_grad():
         tr = transforms.detach()
-        g = tr[:, d["part_joints"]]
-        blend = _blend(d, tr)
+        if "rest_shift" in d:  # the same float32 bits as below, in one compiled pass
+            blend, rot, trans = select_inputs(tr.contiguous().numpy(), d["rest_shift"].numpy(),
+                                              model.part_joints)
+        else:
+            g = tr[:, d["part_joints"]]
+            blend = _blend(d, tr)
+            blend = blend.reshape(*blend.shape[:2], 12).contiguous().numpy()
+            rot, trans = g[..., :3, :3].contiguous().numpy(), g[..., :3, 3].contiguous().numpy()
         rows, arg, f = select(
-            blend.reshape(*blend.shape[:2], 12).contiguous().numpy(),
-            g[..., :3, :3].contiguous().numpy(), g[..., :3, 3].contiguous().numpy(),
+            blend, rot, trans,
             model.chunk_joints, d["chunk_weights"].numpy(), d["chunk_points"].numpy(),
             d["piece_box"].numpy(), d["planes"].numpy(), _broad_arrays(model)["n_planes"],
             p.t.numpy(), p.h.numpy(), p.n.numpy(), p.b.numpy(), p.k.numpy(), p.first.numpy(),

@@ -41,6 +41,8 @@ class Objective:
         self.model, self.x0, self.w, self.jidx, self.live = model, x0, w, jidx, live
         self.caps = caps if caps is not None and len(caps.reach) else None
         self.cw, self.lc, self.ls = capsule_weight, lambda_close, lambda_smooth
+        self.pad: np.ndarray | None = None  # the pose with the zero row the source indexes
+        self.source_t = torch.as_tensor(self.source)
         self.arrays = (model.rest_inverse, model.part_joints, model.chunk_joints,
                        model.chunk_weights, model.chunk_points)
 
@@ -49,8 +51,10 @@ class Objective:
         """δ, x and the joint transforms (T,J,4,4) (float32, as `joint_transforms_compiled`)."""
         self.delta = torch.zeros_like(self.x0).index_copy(1, self.jidx, u) * self.w
         self.x = self.x0 + self.delta
-        aa = torch.cat((self.x, torch.zeros_like(self.x[:, :1])), dim=1)[:, self.source]
-        self.aa = aa.double().contiguous().numpy()
+        if self.pad is None:
+            self.pad = np.zeros((self.x.shape[0], self.x.shape[1] + 1, 3))
+        self.pad[:, :-1] = self.x.numpy()  # float32 → float64 is exact
+        self.aa = self.pad[:, self.source]
         self.local = np.empty((*self.aa.shape[:2], 3, 3))
         _rodrigues(self.aa, self.local)
         self.world = np.empty((*self.aa.shape[:2], 4, 4))
@@ -113,7 +117,7 @@ class Objective:
         g_aa = np.empty(self.aa.shape)
         _rodrigues_backward(self.aa, g_local, g_aa)
         g_pad = torch.zeros(t, x.shape[1] + 1, 3, dtype=torch.float64).index_add_(
-            1, torch.as_tensor(self.source), torch.from_numpy(g_aa))
+            1, self.source_t, torch.from_numpy(g_aa))
         g_x = g_pad[:, :-1]
         g_s = (2.0 * self.ls / t) * s2.double()
         g_x[2:] += g_s
