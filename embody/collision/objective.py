@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from embody.body.compiled_fk import _backward, _forward, _rodrigues, _rodrigues_backward
+from embody.body.compiled_fk import _backward, _forward, _rodrigues, rodrigues_backward_at
 from embody.collision.capsules import Capsules, _capsule_pass
 from embody.collision.energy import CollisionModel, Contacts, penetrations
 from embody.collision.narrow import depths, depths_backward
@@ -43,6 +43,8 @@ class Objective:
         self.cw, self.lc, self.ls = capsule_weight, lambda_close, lambda_smooth
         self.pad: np.ndarray | None = None  # the pose with the zero row the source indexes
         self.source_t = torch.as_tensor(self.source)
+        # the FK joints whose axis-angle is a masked pose row (the only rows ∂/∂u reads)
+        self.moved = np.flatnonzero(np.isin(self.source, jidx.numpy())).astype(np.int64)
         self.arrays = (model.rest_inverse, model.part_joints, model.chunk_joints,
                        model.chunk_weights, model.chunk_points)
 
@@ -114,8 +116,8 @@ class Objective:
             g_tr[:, :, :3, 3] += g_pos
         g_local = np.empty(self.local.shape)
         _backward(self.local, self.world, self.offsets, self.parents, self.order, g_tr, g_local)
-        g_aa = np.empty(self.aa.shape)
-        _rodrigues_backward(self.aa, g_local, g_aa)
+        g_aa = np.zeros(self.aa.shape)  # only the masked joints' rows are read below
+        rodrigues_backward_at(self.aa, g_local, self.moved, g_aa)
         g_pad = torch.zeros(t, x.shape[1] + 1, 3, dtype=torch.float64).index_add_(
             1, self.source_t, torch.from_numpy(g_aa))
         g_x = g_pad[:, :-1]
