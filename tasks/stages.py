@@ -312,7 +312,10 @@ SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=
 # v10: the optimiser's broad phase, narrow-phase selection, point depths and FK compiled (numba),
 #      the last two with hand-written gradients: equal to float32 rounding, so other Adam paths
 #      (s13-adamstep).
-COLLIDE = Step("collide", "10", ("body", "collision"), _collide, _collision_result, (SOURCE,))
+# v11: the optimiser's refresh frame by frame (`collision.refresh`): a frame keeps its candidate
+#      rows while its points moved < half the margin; the capsule term compiled; the objective's
+#      gradient by hand on the CPU (`collision.objective`), no autograd graph (s13-adam3).
+COLLIDE = Step("collide", "11", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
 # v3: hand-hand and hand-chest clearance at hand scale (targets.hand_gap, retarget/hand_clearance.py).

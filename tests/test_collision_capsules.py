@@ -47,3 +47,29 @@ def test_cores_overlap_only_where_the_skin_is_deep():
     assert len(hit) >= 3  # the crossed forearms (frames 68-85)
     depth = motion_depths(body, pose[hit], src.betas)
     assert (depth > 0.02).all()  # cores are thinner than the skin: overlap means deep
+
+
+@pytest.mark.parametrize("margin", [0.0, 0.01])
+def test_compiled_capsule_energies_match_the_tensor_ones(margin):
+    """Values and gradients (float64) equal autograd's through `segment_closest`, on crossed
+    arms (overlapping cores) and random arm poses; gradcheck on the compiled one."""
+    from test_collision_compiled import crossing_poses
+    body = MannequinBody()
+    caps = arm_capsules(body, np.zeros(10))
+    pose = torch.as_tensor(crossing_poses())
+    tr = body.joint_transforms(pose, torch.zeros(10, dtype=torch.float64)).detach()
+    a = tr.clone().requires_grad_(True)
+    b = tr.clone().requires_grad_(True)
+    ea = capsule_energies(caps, a, margin)
+    eb = capsule_energies(caps, b, margin, compiled=True)
+    assert (ea > 0).sum() >= 3
+    torch.testing.assert_close(eb, ea, rtol=1e-10, atol=1e-14)
+    w = torch.linspace(0.5, 2.0, len(ea), dtype=torch.float64)
+    (ea * w).sum().backward()
+    (eb * w).sum().backward()
+    assert a.grad.abs().max() > 0
+    torch.testing.assert_close(b.grad, a.grad, rtol=1e-8, atol=1e-12)
+    frames = torch.nonzero(ea > 0).squeeze(1)[:2]
+    x = tr[frames].clone().requires_grad_(True)
+    assert torch.autograd.gradcheck(lambda t: capsule_energies(caps, t, margin, compiled=True),
+                                    (x,), eps=1e-7, atol=1e-6)

@@ -72,6 +72,14 @@ class BodyModel(ABC):
         by default it is `joint_transforms`."""
         return self.joint_transforms(pose, betas)
 
+    def compiled_fk_inputs(self, pose: torch.Tensor, betas: torch.Tensor
+                           ) -> tuple[np.ndarray, ...] | None:
+        """What `joint_transforms_compiled` hands the compiled FK for poses like `pose`
+        (T,55,3): (source (K,) pose rows of the K joints (55 = a zero row), offsets, root,
+        parents, order; float64 arrays), so that a caller can run `compiled_fk`'s kernels
+        and their backward directly; None for bodies without a compiled FK."""
+        return None
+
     @abstractmethod
     def joints(self, pose: torch.Tensor, betas: torch.Tensor,
                transl: torch.Tensor | None = None) -> torch.Tensor:

@@ -120,30 +120,44 @@ def _rodrigues(axis_angle: np.ndarray, out: np.ndarray) -> None:
             r[2, 0], r[2, 1], r[2, 2] = -a * y + b * z * x, a * x + b * z * y, c + b * z * z
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _rodrigues_backward_one(r: np.ndarray, g: np.ndarray, out: np.ndarray) -> None:
+    x, y, z = r[0], r[1], r[2]
+    s = x * x + y * y + z * z
+    a, b, da, db = _coefficients(s)
+    trace = g[0, 0] + g[1, 1] + g[2, 2]
+    gk = (g[2, 1] - g[1, 2]) * x + (g[0, 2] - g[2, 0]) * y + (g[1, 0] - g[0, 1]) * z
+    rgr = 0.0
+    for i in range(3):
+        for k in range(3):
+            rgr += r[i] * g[i, k] * r[k]
+    common = 2.0 * (-(b + db * s) * trace + da * gk + db * rgr)
+    dk = (g[2, 1] - g[1, 2], g[0, 2] - g[2, 0], g[1, 0] - g[0, 1])
+    for k in range(3):
+        sym = 0.0
+        for i in range(3):
+            sym += (g[k, i] + g[i, k]) * r[i]
+        out[k] = common * r[k] + a * dk[k] + b * sym
+
+
 @njit(cache=True, nogil=True)
 def _rodrigues_backward(axis_angle: np.ndarray, grad: np.ndarray, out: np.ndarray) -> None:
     """∂/∂r (T,J,3) from ∂/∂R (T,J,3,3): with s = r·r,
     ∂r_k = −2(b + b′s) tr G r_k + 2a′(G:K) r_k + a (G:∂K/∂r_k) + 2b′(rᵀGr) r_k + b (Gr + Gᵀr)_k."""
     for t in range(axis_angle.shape[0]):
         for j in range(axis_angle.shape[1]):
-            r = axis_angle[t, j]
-            g = grad[t, j]
-            x, y, z = r[0], r[1], r[2]
-            s = x * x + y * y + z * z
-            a, b, da, db = _coefficients(s)
-            trace = g[0, 0] + g[1, 1] + g[2, 2]
-            gk = (g[2, 1] - g[1, 2]) * x + (g[0, 2] - g[2, 0]) * y + (g[1, 0] - g[0, 1]) * z
-            rgr = 0.0
-            for i in range(3):
-                for k in range(3):
-                    rgr += r[i] * g[i, k] * r[k]
-            common = 2.0 * (-(b + db * s) * trace + da * gk + db * rgr)
-            dk = (g[2, 1] - g[1, 2], g[0, 2] - g[2, 0], g[1, 0] - g[0, 1])
-            for k in range(3):
-                sym = 0.0
-                for i in range(3):
-                    sym += (g[k, i] + g[i, k]) * r[i]
-                out[t, j, k] = common * r[k] + a * dk[k] + b * sym
+            _rodrigues_backward_one(axis_angle[t, j], grad[t, j], out[t, j])
+
+
+@njit(cache=True, nogil=True)
+def rodrigues_backward_at(axis_angle: np.ndarray, grad: np.ndarray, joints: np.ndarray,
+                          out: np.ndarray) -> None:
+    """`_rodrigues_backward` of the given joints only (`out`'s other entries untouched): a
+    caller that needs the gradient of a few joints (the collision optimiser's masked ones)
+    skips the others' work; the same arithmetic per joint."""
+    for t in range(axis_angle.shape[0]):
+        for j in joints:
+            _rodrigues_backward_one(axis_angle[t, j], grad[t, j], out[t, j])
 
 
 class _CompiledFK(torch.autograd.Function):

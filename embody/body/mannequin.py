@@ -123,6 +123,20 @@ class MannequinBody(BodyModel):
         return forward_kinematics(axis_angle_to_matrix(axis_angle), offsets, root, self.parents,
                                   self._levels)
 
+    def compiled_fk_inputs(self, pose: torch.Tensor, betas: torch.Tensor
+                           ) -> tuple[np.ndarray, ...] | None:
+        if pose.device.type != "cpu" or betas.requires_grad:
+            return None
+        with torch.no_grad():
+            betas = betas.to(dtype=pose.dtype)
+            rest = self.rest_joints(betas.reshape(-1, NUM_BETAS) if betas.ndim > 1 else betas)
+            root = rest[..., 0, :].expand(pose.shape[0], 3).contiguous()
+            offsets = offsets_from_joints(rest, self.parents)
+        order = np.concatenate([np.flatnonzero(np.asarray(self.parents) < 0),
+                                *self._levels]).astype(np.int64)
+        return (SMPLX_SOURCE, offsets.double().reshape(-1, *offsets.shape[-2:]).numpy(),
+                root.double().numpy(), np.asarray(self.parents, dtype=np.int64), order)
+
     def joint_transforms_compiled(self, pose: torch.Tensor, betas: torch.Tensor) -> torch.Tensor:
         if pose.device.type != "cpu" or betas.requires_grad:
             return self.joint_transforms(pose, betas)

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from numba import njit
 
 from embody.body.base import BodyModel
 from embody.collision.exclusions import checked_pairs, part_groups
@@ -127,9 +128,96 @@ def capsule_overlaps(caps: Capsules, transforms: torch.Tensor, margin: float = 0
     return torch.relu(torch.as_tensor(caps.reach, dtype=p.dtype, device=p.device) + margin - d)
 
 
-def capsule_energies(caps: Capsules, transforms: torch.Tensor, margin: float = 0.0) -> torch.Tensor:
-    """Per-frame Σ_pairs max(0, r_a + r_b + margin − d)² (T,) from joint transforms (T,J,4,4)."""
+def capsule_energies(caps: Capsules, transforms: torch.Tensor, margin: float = 0.0,
+                     compiled: bool = False) -> torch.Tensor:
+    """Per-frame Σ_pairs max(0, r_a + r_b + margin − d)² (T,) from joint transforms (T,J,4,4).
+    `compiled` (CPU): one compiled pass with a hand-written gradient (`CapsuleEnergies`)."""
     if len(caps.reach) == 0:
         return transforms.new_zeros(transforms.shape[0]) + 0.0 * transforms[:, 0, 0, 0]
+    if compiled and transforms.device.type == "cpu":
+        return CapsuleEnergies.apply(transforms, caps, margin)
     over = capsule_overlaps(caps, transforms, margin)
     return (over * over).sum(-1)
+
+
+@njit(cache=True, nogil=True)
+def _closest(pos: np.ndarray, i1: int, j1: int, i2: int, j2: int,
+             out: np.ndarray) -> tuple[float, float]:
+    """`segment_closest` of segments pos[i1]pos[j1] and pos[i2]pos[j2] in float64 (same
+    branches): (s, t), and out = c1 − c2."""
+    a = e = f = c = b = 0.0
+    for k in range(3):
+        d1, d2, r = pos[j1, k] - pos[i1, k], pos[j2, k] - pos[i2, k], pos[i1, k] - pos[i2, k]
+        a += d1 * d1
+        e += d2 * d2
+        f += d2 * r
+        c += d1 * r
+        b += d1 * d2
+    denom = a * e - b * b
+    s = min(max((b * f - c * e) / max(denom, 1e-12), 0.0), 1.0) if denom > 1e-12 else 0.0
+    t = (b * s + f) / e
+    if t < 0:
+        s = min(max(-c / a, 0.0), 1.0)
+    elif t > 1:
+        s = min(max((b - c) / a, 0.0), 1.0)
+    t = min(max(t, 0.0), 1.0)
+    for k in range(3):
+        out[k] = (pos[i1, k] + (pos[j1, k] - pos[i1, k]) * s) \
+            - (pos[i2, k] + (pos[j2, k] - pos[i2, k]) * t)
+    return s, t
+
+
+@njit(cache=True, nogil=True)
+def _capsule_pass(pos: np.ndarray, a: np.ndarray, b: np.ndarray, reach: np.ndarray,
+                  margin: float, grad: np.ndarray, out: np.ndarray) -> np.ndarray:
+    """Per-frame energies (T,); with `grad` (T,) non-empty, ∂(Σ grad·E)/∂pos into `out`
+    (T,J,3). The distance's gradient is the closest points' unit offset, shared between each
+    segment's ends by (1 − s, s) and (1 − t, t): s, t minimise the distance (or sit at a bound),
+    so their own derivatives do not enter (envelope theorem; what autograd through
+    `segment_closest` gives, to rounding)."""
+    n_t = pos.shape[0]
+    e = np.zeros(n_t)
+    diff = np.empty(3)
+    backward = len(grad) > 0
+    for t in range(n_t):
+        for i in range(len(reach)):
+            s, u = _closest(pos[t], a[i, 0], a[i, 1], b[i, 0], b[i, 1], diff)
+            d = np.sqrt(diff[0] * diff[0] + diff[1] * diff[1] + diff[2] * diff[2] + 1e-12)
+            over = reach[i] + margin - d
+            if over <= 0.0:
+                continue
+            e[t] += over * over
+            if backward and grad[t] != 0.0:
+                g = -2.0 * over * grad[t] / d  # ∂/∂(c1 − c2) = g·(c1 − c2)
+                for k in range(3):
+                    gk = g * diff[k]
+                    out[t, a[i, 0], k] += (1.0 - s) * gk
+                    out[t, a[i, 1], k] += s * gk
+                    out[t, b[i, 0], k] -= (1.0 - u) * gk
+                    out[t, b[i, 1], k] -= u * gk
+    return e
+
+
+class CapsuleEnergies(torch.autograd.Function):
+    """`capsule_energies` as one compiled forward and a hand-written backward (CPU, float64
+    inside). Why: its ~40 small tensor ops and their autograd nodes were ~10 % of an Adam
+    step of the collision optimiser, for a handful of capsule pairs."""
+
+    @staticmethod
+    def forward(ctx, transforms: torch.Tensor, caps: Capsules, margin: float) -> torch.Tensor:
+        pos = transforms.detach()[:, :, :3, 3].double().contiguous().numpy()
+        ctx.pos, ctx.caps, ctx.margin = pos, caps, margin
+        ctx.shape = transforms.shape
+        e = _capsule_pass(pos, caps.a, caps.b, caps.reach, margin, np.empty(0),
+                          np.empty((0, 0, 3)))
+        return torch.from_numpy(e).to(transforms.dtype)
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor):  # type: ignore[override]
+        g_pos = np.zeros(ctx.pos.shape)
+        c = ctx.caps
+        _capsule_pass(ctx.pos, c.a, c.b, c.reach, ctx.margin,
+                      grad.detach().double().contiguous().numpy(), g_pos)
+        out = torch.zeros(ctx.shape, dtype=grad.dtype)
+        out[:, :, :3, 3] = torch.from_numpy(g_pos)
+        return out, None, None

@@ -37,7 +37,7 @@ from embody.body.base import BodyModel
 from embody.clusters import median_cuts
 from embody.collision.broad import broad_phase, index_rows
 from embody.collision.exclusions import checked_pairs, part_groups
-from embody.collision.narrow import PointDepths, select
+from embody.collision.narrow import PointDepths, select, select_inputs
 from embody.collision.volumes import part_volumes, rest_frames
 
 #: Planes that never win the max: padding for pieces with fewer faces.
@@ -384,24 +384,34 @@ def contacts(model: CollisionModel, transforms: torch.Tensor, margin: float = 0.
     """
     if transforms.device.type != "cpu":
         return _contacts_torch(model, transforms, margin)
+    return contacts_of(model, *broad_rows(model, transforms, margin))
+
+
+def broad_rows(model: CollisionModel, transforms: torch.Tensor, margin: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The compiled broad phase's raw rows (R,5) (t, h, a, b, k) and point rows (Q,5)
+    (t, h, n, b, k), in frame order (CPU): `contacts` without the index arrays."""
     d = model.tensors(transforms.dtype, transforms.device)
     with torch.no_grad():
         tr = transforms.detach()
         g = tr[:, d["part_joints"]]
         a = _broad_arrays(model)
-        rows, pts = broad_phase(
+        return broad_phase(
             _blend(d, tr).double().numpy(), g[..., :3, :3].double().numpy(),
             g[..., :3, 3].double().numpy(), model.chunk_joints, model.chunk_used,
             model.chunk_center, model.chunk_radius, model.chunk_part, model.checked,
             model.part_center, model.part_radius, model.part_pieces, model.piece_box,
             model.chunk_points, model.chunk_weights, model.chunk_mask, model.planes,
             a["n_planes"], float(margin), float(margin * _POINT_SLACK), _SLACK)
-    rows = torch.from_numpy(rows).to(transforms.device)
-    pts = torch.from_numpy(pts).to(transforms.device)
-    t, h, ca, b, k = rows.unbind(1)
-    pt, ph, pn, pb, pk = (c.contiguous() for c in pts.unbind(1))
-    index = index_rows(pt.numpy(), ph.numpy(), pn.numpy(), pb.numpy(), d["chunk_mask"].shape[1],
-                       d["part_radius"].shape[0])
+
+
+def contacts_of(model: CollisionModel, rows: np.ndarray, pts: np.ndarray) -> Contacts:
+    """`Contacts` of `broad_rows`' arrays (grouped by frame and chunk, in the broad phase's
+    order), with `PointRows`' index arrays (`broad.index_rows`)."""
+    t, h, ca, b, k = torch.from_numpy(np.ascontiguousarray(rows)).unbind(1)
+    pt, ph, pn, pb, pk = (torch.from_numpy(np.ascontiguousarray(c)) for c in pts.T)
+    index = index_rows(pts[:, 0].copy(), pts[:, 1].copy(), pts[:, 2].copy(), pts[:, 3].copy(),
+                       model.chunk_mask.shape[1], model.part_radius.shape[0])
     return Contacts(t, h, ca, b, k, PointRows(pt, ph, pn, pb, pk,
                                               *(torch.from_numpy(a) for a in index)))
 
@@ -562,11 +572,16 @@ def _penetrations_compiled(model: CollisionModel, d: dict[str, torch.Tensor],
     the same rows, planes and values as the tensor version (see `narrow`)."""
     with torch.no_grad():
         tr = transforms.detach()
-        g = tr[:, d["part_joints"]]
-        blend = _blend(d, tr)
+        if "rest_shift" in d:  # the same float32 bits as below, in one compiled pass
+            blend, rot, trans = select_inputs(tr.contiguous().numpy(), d["rest_shift"].numpy(),
+                                              model.part_joints)
+        else:
+            g = tr[:, d["part_joints"]]
+            blend = _blend(d, tr)
+            blend = blend.reshape(*blend.shape[:2], 12).contiguous().numpy()
+            rot, trans = g[..., :3, :3].contiguous().numpy(), g[..., :3, 3].contiguous().numpy()
         rows, arg, f = select(
-            blend.reshape(*blend.shape[:2], 12).contiguous().numpy(),
-            g[..., :3, :3].contiguous().numpy(), g[..., :3, 3].contiguous().numpy(),
+            blend, rot, trans,
             model.chunk_joints, d["chunk_weights"].numpy(), d["chunk_points"].numpy(),
             d["piece_box"].numpy(), d["planes"].numpy(), _broad_arrays(model)["n_planes"],
             p.t.numpy(), p.h.numpy(), p.n.numpy(), p.b.numpy(), p.k.numpy(), p.first.numpy(),

@@ -150,6 +150,38 @@ def select(blend: np.ndarray, rot: np.ndarray, trans: np.ndarray, chunk_joints: 
 
 
 @njit(cache=True, nogil=True)
+def select_inputs(transforms: np.ndarray, rest_shift: np.ndarray, part_joints: np.ndarray
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`select`'s float32 inputs from float32 transforms (T,J,4,4) of a body whose inverse rest
+    transforms are translations (`rest_shift` (J,3)): the skinning transforms (T,J,12) as
+    `energy._blend` computes them (t = ((r₀s₀ + r₁s₁) + r₂s₂) + t, float32 operations in that
+    order: the same bits), and the parts' joint rotations (T,C,3,3) and origins (T,C,3).
+
+    Why: as tensor ops (a cat, gathers, three contiguous copies) this glue cost about as much
+    as a fifth of `select` itself, every step."""
+    n_t, n_j = transforms.shape[0], transforms.shape[1]
+    blend = np.empty((n_t, n_j, 12), dtype=np.float32)
+    rot = np.empty((n_t, len(part_joints), 3, 3), dtype=np.float32)
+    trans = np.empty((n_t, len(part_joints), 3), dtype=np.float32)
+    for t in range(n_t):
+        for j in range(n_j):
+            m = transforms[t, j]
+            for i in range(3):
+                blend[t, j, 4 * i] = m[i, 0]
+                blend[t, j, 4 * i + 1] = m[i, 1]
+                blend[t, j, 4 * i + 2] = m[i, 2]
+                blend[t, j, 4 * i + 3] = ((m[i, 0] * rest_shift[j, 0] + m[i, 1] * rest_shift[j, 1])
+                                          + m[i, 2] * rest_shift[j, 2]) + m[i, 3]
+        for c in range(len(part_joints)):
+            m = transforms[t, part_joints[c]]
+            for i in range(3):
+                for k in range(3):
+                    rot[t, c, i, k] = m[i, k]
+                trans[t, c, i] = m[i, 3]
+    return blend, rot, trans
+
+
+@njit(cache=True, nogil=True)
 def _blend(transforms: np.ndarray, rest_inverse: np.ndarray) -> np.ndarray:
     """Skinning transforms (T,J,3,4): each joint's world transform times its inverse rest."""
     n_t, n_j = transforms.shape[0], transforms.shape[1]

@@ -34,7 +34,7 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -43,10 +43,12 @@ import torch
 from embody.body.base import BodyModel
 from embody.collision.capsules import arm_capsules, capsule_energies
 from embody.collision.depth import depth_metrics, motion_depths
-from embody.collision.energy import (CollisionModel, Contacts, collision_model, contacts,
+from embody.collision.energy import (CollisionModel, collision_model,
                                      frame_energies, frame_energies_and_exact)
 from embody.collision.masks import mask_joints
 from embody.collision.metrics import sequence_metrics
+from embody.collision.objective import Objective
+from embody.collision.refresh import Refresh
 from embody.collision.solve import solve
 from embody.config.collision import CollisionConfig
 from embody.device import torch_device
@@ -423,20 +425,6 @@ class _FrameAdam:
         self.u.sub_(self.param_groups[0]["lr"] * m_hat / (v_hat.sqrt() + self.eps))
 
 
-def _live_contacts(model: CollisionModel, transforms: torch.Tensor, margin: float,
-                   frames: torch.Tensor | None) -> Contacts:
-    """`contacts` of the given frames only (all when None), indexed like `transforms`.
-
-    Why: frames with blend weight 0 between two corrected stretches are x0 and their energy
-    is multiplied by 0, yet their broad phase and narrow-phase rows cost as much as any
-    other's. The frame map is increasing, so the rows keep their order (the same energies,
-    bit for bit)."""
-    if frames is None:
-        return contacts(model, transforms, margin)
-    c = contacts(model, transforms.index_select(0, frames), margin)
-    return replace(c, t=frames[c.t], points=replace(c.points, t=frames[c.points.t]))
-
-
 def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.ndarray,
               weight: np.ndarray, cfg: CollisionConfig) -> tuple[np.ndarray, int]:
     """Adam over the masked joints of the frames near a penetration, with a per-frame λ_col
@@ -466,33 +454,56 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
                                           else torch.optim.Adam([u], lr=cfg.lr))
     lam = torch.full((t,), float(cfg.lambda_col), device=dev)
     caps = arm_capsules(body, motion.betas, cfg.allow_pairs) if cfg.capsule_weight > 0 else None
+    margin = cfg.refresh_margin + cfg.clearance
+    refresh = Refresh(model, margin, max(0.0, cfg.clearance - cfg.tolerance), live_frames)
+    fk = body.compiled_fk_inputs(x0, betas) if dev.type == "cpu" else None
+    manual = None if fk is None else Objective(
+        fk, model, x0, w, jidx, live.to(x0.dtype), caps, cfg.capsule_weight, cfg.lambda_close,
+        cfg.lambda_smooth)
     best_key = (float("inf"), float("inf"))
     best = torch.zeros_like(x0)
     clear_since, near, step, settling = None, None, 0, False
     for step in range(1, cfg.steps + 1):
-        delta = torch.zeros_like(x0).index_copy(1, jidx, u) * w
-        x = x0 + delta
-        transforms = body.joint_transforms_compiled(x, betas)
+        if manual is not None:  # the same objective, its gradient by hand (CPU)
+            transforms = manual.pose(u.detach())
+        else:
+            delta = torch.zeros_like(x0).index_copy(1, jidx, u) * w
+            x = x0 + delta
+            transforms = body.joint_transforms_compiled(x, betas)
         check = (step - 1) % cfg.refresh_every == 0
         if check:
-            near = _live_contacts(model, transforms.detach(), cfg.refresh_margin + cfg.clearance,
-                                  live_frames)
-            # the clear test (near ⊇ its rows) from the objective's own narrow phase
-            e, exact = frame_energies_and_exact(model, transforms, cfg.tolerance - cfg.clearance,
-                                                cfg.tolerance, near)
-            e, exact = e * live, exact * live
-            e_sum = float(exact.sum())
-            pen = exact > 0
-            lam = torch.where(pen, torch.clamp(lam * cfg.lambda_growth, max=cfg.lambda_max), lam)
+            near = refresh(transforms)
+        if manual is not None:
+            e, exact = manual.energies(near, cfg.tolerance - cfg.clearance,
+                                       cfg.tolerance if check else None)
+            if check:
+                e_sum = float(exact.sum())
+                lam = torch.where(exact > 0, torch.clamp(lam * cfg.lambda_growth,
+                                                         max=cfg.lambda_max), lam)
+            obj_v, u.grad = manual.gradient(lam)
+            delta = manual.delta
         else:
-            e = frame_energies(model, transforms, cfg.tolerance - cfg.clearance, near) * live
-        if caps is not None:  # crossed limbs: the point energy alone sits at a saddle
-            e = e + cfg.capsule_weight * capsule_energies(caps, transforms) * live
-        close = (delta ** 2).sum() / t
-        smooth = (_second_diff(x) ** 2).sum() / t
-        obj = (lam * e).sum() / t + cfg.lambda_close * close + cfg.lambda_smooth * smooth
+            if check:
+                # the clear test (near ⊇ its rows) from the objective's own narrow phase
+                e, exact = frame_energies_and_exact(model, transforms,
+                                                    cfg.tolerance - cfg.clearance,
+                                                    cfg.tolerance, near)
+                e, exact = e * live, exact * live
+                e_sum = float(exact.sum())
+                pen = exact > 0
+                lam = torch.where(pen, torch.clamp(lam * cfg.lambda_growth, max=cfg.lambda_max),
+                                  lam)
+            else:
+                e = frame_energies(model, transforms, cfg.tolerance - cfg.clearance, near) * live
+            if caps is not None:  # crossed limbs: the point energy alone sits at a saddle
+                e = e + cfg.capsule_weight * capsule_energies(caps, transforms,
+                                                              compiled=True) * live
+            close = (delta ** 2).sum() / t
+            smooth = (_second_diff(x) ** 2).sum() / t
+            obj = (lam * e).sum() / t + cfg.lambda_close * close + cfg.lambda_smooth * smooth
+            obj_v = float(obj.detach()) if check else 0.0
         if check:
-            key = (e_sum, float(obj.detach()))
+            key = (e_sum, obj_v)
             if key < best_key:
                 best_key, best = key, delta.detach().clone()
             if e_sum == 0.0:
@@ -505,8 +516,9 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
             if settling:  # steps of ~lr exceed the clearance: shrink them so it settles
                 group = opt.param_groups[0]
                 group["lr"] = max(cfg.lr * cfg.lr_floor, group["lr"] * cfg.lr_decay)
-        opt.zero_grad(set_to_none=True)
-        obj.backward()
+        if manual is None:
+            opt.zero_grad(set_to_none=True)
+            obj.backward()
         opt.step()
     out = motion.pose.copy()
     # x0 + 0.0 is x0: unmasked joints and zero-weight frames stay the input, bit for bit
