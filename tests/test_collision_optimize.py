@@ -7,7 +7,9 @@ import pytest
 
 from embody.body import MannequinBody
 from embody.collision import CollisionResult, collision_energy, mask_joints, mitigate
+from embody.collision import frame_collision_energies
 from embody.collision.masks import PRESETS, mask_vector
+from embody.collision.optimize import energies_reusing
 from embody.config.collision import CollisionConfig
 from embody.errors import ConfigError
 from embody.motion import JOINT_NAMES, Motion
@@ -45,6 +47,24 @@ def test_reduces_the_energy(body, fixed):
     assert m["energy_after"] == pytest.approx(collision_energy(fixed.motion, body), abs=1e-12)
     assert 0 < m["steps"] <= 150 and m["frames"] == 12 and m["pose_mse"] > 0
     np.testing.assert_allclose(fixed.frame_energy_before.mean(), m["energy_before"])
+
+
+def test_energies_reused_for_unchanged_frames_are_the_full_evaluation(body, fixed):
+    """`energies_reusing` (only changed frames evaluated) returns the full evaluation's bits,
+    and the result's energies after are those of its pose."""
+    motion, cfg = colliding_motion(), CollisionConfig()
+    before = frame_collision_energies(motion, body, cfg)
+    after = frame_collision_energies(fixed.motion, body, cfg)
+    assert np.array_equal(fixed.frame_energy_after.view(np.uint64), after.view(np.uint64))
+    mixed = motion.pose.copy()
+    mixed[::3] = fixed.motion.pose[::3]  # some frames changed, the rest the input's
+    full = frame_collision_energies(motion.with_pose(mixed), body, cfg)
+    assert not np.array_equal(full, before) and not np.array_equal(full, after)
+    for known_pose, known in ((motion.pose, before), (fixed.motion.pose, after)):
+        reused = energies_reusing(motion, mixed, body, cfg, known_pose, known)
+        assert np.array_equal(reused.view(np.uint64), full.view(np.uint64))
+    same = energies_reusing(motion, motion.pose, body, cfg, motion.pose, before)
+    assert np.array_equal(same, before) and same is not before
 
 
 def test_unmasked_joints_are_bit_identical(body, fixed):

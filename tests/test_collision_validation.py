@@ -135,3 +135,20 @@ def test_clear_pose_scores_zero(body):
     e = frame_energies(model, body.joint_transforms(torch.as_tensor(both),
                                                     torch.zeros(10, dtype=torch.float64)))
     assert e.tolist() == [0.0, 0.0]
+
+
+def test_volumes_asked_again_for_a_shape_are_the_first_answer(body, monkeypatch):
+    """The per-body (betas, max_overfill) → key memo answers what the full key would: the
+    same volumes for the same shape, and after the in-memory volumes are dropped the disk
+    cache is read again."""
+    from embody.collision import volumes
+
+    betas = np.zeros(10)
+    first = part_volumes(body, betas)
+    assert part_volumes(body, betas.copy()) is first and part_volumes(body) is first
+    rest = body.rest_vertices(torch.as_tensor(betas)).double().numpy()
+    assert first.key == volumes._mesh_key(body, rest, volumes.rest_frames(body, betas), 0.10)
+    assert volumes._keys[body][(betas.tobytes(), 0.10)] == first.key
+    monkeypatch.setattr(volumes, "_memory", {})
+    again = part_volumes(body, betas)
+    assert again is not first and again.key == first.key

@@ -105,6 +105,25 @@ def frame_collision_energies(motion: Motion, body: BodyModel,
     return e.numpy()
 
 
+def energies_reusing(motion: Motion, pose: np.ndarray, body: BodyModel, cfg: CollisionConfig,
+                     known_pose: np.ndarray, known: np.ndarray) -> np.ndarray:
+    """`frame_collision_energies` of `motion` with `pose`, frames equal bit for bit to
+    `known_pose` taking their energy from `known` (that pose's energies).
+
+    Why: a frame's energy depends on that frame's pose alone (no op mixes frames, and the same
+    bits come out whatever the batch), and the optimiser and the pull-back leave most frames
+    as they were: only the frames they changed are evaluated again."""
+    changed = np.flatnonzero((pose != known_pose).reshape(len(pose), -1).any(1))
+    out = np.array(known, dtype=np.float64)
+    if len(changed):
+        with torch.no_grad():
+            out[changed] = _energies(
+                body, model_for(body, motion, cfg),
+                torch.as_tensor(np.asarray(pose, dtype=np.float32)[changed], dtype=torch.float64),
+                torch.as_tensor(motion.betas, dtype=torch.float64), cfg.tolerance).numpy()
+    return out
+
+
 def collision_energy(motion: Motion, body: BodyModel, cfg: CollisionConfig | None = None) -> float:
     """L_col (Eq. 1) of a motion: the mean of its per-frame energies."""
     return float(frame_collision_energies(motion, body, cfg).mean())
@@ -175,7 +194,7 @@ def _mitigate(motion: Motion, body: BodyModel, cfg: CollisionConfig) -> Collisio
         else:
             best_pose, steps = _optimise(body, fine, motion, idx, weight, cfg)
     fixed = motion.with_pose(best_pose)
-    after = before if steps == 0 else frame_collision_energies(fixed, body, cfg)
+    after = before if steps == 0 else energies_reusing(motion, best_pose, body, cfg, x0_np, before)
     fine_after = after if same else _exact(body, fine, best_pose, motion.betas, cfg.tolerance, dev)
     if steps and fine_after.sum() > fine_before.sum():  # never worse than the input
         fixed, after = motion.with_pose(x0_np), before
@@ -202,8 +221,8 @@ def judge(body: BodyModel, motion: Motion, fixed: Motion, after: np.ndarray, idx
     polished, extra, d1 = polish(body, motion, fixed.pose, idx, depths[1], cfg)
     pulled, d2 = pull_back(body, motion, polished, d1, cfg, depths[0])
     if pulled is not fixed.pose:
+        after = energies_reusing(motion, pulled, body, cfg, fixed.pose, after)
         fixed, depths = motion.with_pose(pulled), (depths[0], d2)
-        after = frame_collision_energies(fixed, body, cfg)
     return fixed, after, {**depth_metrics(*depths), "depth_s": depth_s, "polish_steps": extra}, depth_s
 
 

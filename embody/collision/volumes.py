@@ -15,6 +15,7 @@ import hashlib
 import io
 import os
 import threading
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +37,11 @@ MIN_PART_VERTICES = 8
 COACD_THRESHOLDS = (0.1, 0.05)
 
 _memory: dict[str, "PartVolumes"] = {}
+#: Per body, each (betas bytes, max_overfill) seen: its `_mesh_key`. Why: the key hashes the
+#: shaped rest mesh and the skin weights (~6 ms), and the collide step asks for the same
+#: shape's volumes several times per sequence (every `collision_model` call).
+_keys: weakref.WeakKeyDictionary[BodyModel, dict[tuple[bytes, float], str]] = \
+    weakref.WeakKeyDictionary()
 _lock = threading.Lock()
 
 
@@ -194,10 +200,16 @@ def part_volumes(body: BodyModel, betas: np.ndarray | None = None, *,
                  max_overfill: float = 0.10) -> PartVolumes:
     """Convex pieces of every rigid part for this body and shape (memory + disk cached)."""
     betas = np.zeros(10) if betas is None else np.asarray(betas, dtype=np.float64)
+    shape = (betas.tobytes(), float(max_overfill))
+    with _lock:
+        known = _keys.get(body, {}).get(shape)
+        if known is not None and known in _memory:
+            return _memory[known]
     rest = body.rest_vertices(torch.as_tensor(betas)).double().numpy()
     frames = rest_frames(body, betas)
     key = _mesh_key(body, rest, frames, max_overfill)
     with _lock:
+        _keys.setdefault(body, {})[shape] = key
         if key in _memory:
             return _memory[key]
     path = cache_dir() / "collision" / f"volumes-{key}.npz"
