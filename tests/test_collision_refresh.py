@@ -7,23 +7,12 @@ import numpy as np
 import pytest
 import torch
 
-from embody.body import MannequinBody
-from embody.collision import collision_model
 from embody.collision.energy import _blend, contacts, penetrations
 from embody.collision.refresh import Refresh, _merge, displacement, part_reaches
+from collision_cases import body, model  # noqa: F401 (fixtures)
 from test_collision_compiled import crossing_poses
 
 MARGIN, REACH = 0.022, 0.001
-
-
-@pytest.fixture(scope="module")
-def body() -> MannequinBody:
-    return MannequinBody()
-
-
-@pytest.fixture(scope="module")
-def model(body):
-    return collision_model(body, vertex_stride=4)
 
 
 def _tr(body, pose: np.ndarray) -> torch.Tensor:
