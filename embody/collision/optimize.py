@@ -98,9 +98,16 @@ def frame_collision_energies(motion: Motion, body: BodyModel,
                              cfg: CollisionConfig | None = None) -> np.ndarray:
     """Per-frame Σ_v max(0, −f)² (T,) of a motion, float64."""
     cfg = cfg or CollisionConfig()
-    pose = torch.as_tensor(motion.pose, dtype=torch.float64)
+    return _pose_energies(motion, motion.pose, body, cfg)
+
+
+def _pose_energies(motion: Motion, pose: np.ndarray, body: BodyModel,
+                   cfg: CollisionConfig) -> np.ndarray:
+    """Per-frame energies (T',) of poses (T',55,3) of `motion`'s body and shape, each frame's
+    pose taken as the float32 a `Motion` stores, evaluated in float64."""
     with torch.no_grad():
-        e = _energies(body, model_for(body, motion, cfg), pose,
+        e = _energies(body, model_for(body, motion, cfg),
+                      torch.as_tensor(np.asarray(pose, dtype=np.float32), dtype=torch.float64),
                       torch.as_tensor(motion.betas, dtype=torch.float64), cfg.tolerance)
     return e.numpy()
 
@@ -116,11 +123,7 @@ def energies_reusing(motion: Motion, pose: np.ndarray, body: BodyModel, cfg: Col
     changed = np.flatnonzero((pose != known_pose).reshape(len(pose), -1).any(1))
     out = np.array(known, dtype=np.float64)
     if len(changed):
-        with torch.no_grad():
-            out[changed] = _energies(
-                body, model_for(body, motion, cfg),
-                torch.as_tensor(np.asarray(pose, dtype=np.float32)[changed], dtype=torch.float64),
-                torch.as_tensor(motion.betas, dtype=torch.float64), cfg.tolerance).numpy()
+        out[changed] = _pose_energies(motion, np.asarray(pose)[changed], body, cfg)
     return out
 
 
