@@ -121,7 +121,7 @@ def run_mink(robot: Robot, model: mujoco.MjModel, targets: Targets, iterations: 
     conf = mink.Configuration(model, q=robot.rest.copy())
     cfg = IKConfig()
     wrists = [mink.FrameTask(robot.spec.links[f"{s}_wrist"].body, "body", position_cost=1.0,
-                             orientation_cost=float(np.sqrt(cfg.w_wrist_rot)), lm_damping=1.0)
+                             orientation_cost=float(np.sqrt(cfg.w_wrist_rot / cfg.w_wrist_pos)), lm_damping=1.0)
               for s in ("left", "right")]
     elbows = [mink.FrameTask(robot.spec.links[f"{s}_elbow"].body, "body",
                              position_cost=float(np.sqrt(cfg.w_elbow_pos)), orientation_cost=0.0)
