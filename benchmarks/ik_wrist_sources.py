@@ -1,6 +1,6 @@
 """Where our IK's wrist error on benchmarks/ik_vs_mink.py's frames comes from: the same 4
 sequences and targets, mink's feasible frames (plain mink free of MuJoCo contacts and within the
-velocity limits; computed once, cached), and our solver under several `ik` settings, each one a
+velocity limits), and our solver under several `ik` settings, each one a
 variant that switches one source of error off (smoothness, velocity hinge and clamp, posture,
 elbow task, torso task, the iteration cap, the collision term). Per setting: all-frame and
 feasible-frame wrist error (mm), jerk, collision frames at the source rate and at 50 Hz, velocity
@@ -11,6 +11,11 @@ they say what the term costs. Ends with one `RESULT` line per setting.
     python benchmarks/ik_wrist_sources.py                         # the breakdown set below
     python benchmarks/ik_wrist_sources.py --set w_smooth=0.01 --set w_jerk=0.001 --name mine
         [--base]                                                  # also the default, first
+    python benchmarks/ik_wrist_sources.py --set w_wrist_pos=4 --sweep w_smooth=0.04,0.06
+        [--cache /tmp/ik_wrist_sources.pkl]   # targets and mink's frames kept between runs
+
+`--cache` is a pickle of this script's own making, not keyed: delete it when the collide step,
+the targets or mink's setup change.
 """
 
 from __future__ import annotations
@@ -66,13 +71,13 @@ def main() -> None:
     parser.add_argument("--name", default="custom")
     parser.add_argument("--base", action="store_true", help="with --set: the default first")
     parser.add_argument("--only", nargs="*", default=None, help="breakdown variants to run")
-    parser.add_argument("--cache", default="/tmp/ik_wrist_sources.pkl")
+    parser.add_argument("--cache", default=None, help="keep targets and mink's frames here (pickle)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     config = Config()
     robot = load_robot(config.robot)
-    cache = Path(args.cache)
-    if cache.exists():
+    cache = Path(args.cache) if args.cache else None
+    if cache is not None and cache.exists():
         all_targets, feasible = pickle.loads(cache.read_bytes())
     else:
         import sys
@@ -93,7 +98,8 @@ def main() -> None:
             ok[1:] = (np.abs(np.diff(theirs, axis=0)) * targets.fps
                       <= robot.velocity_limits * (1 + 1e-9)).all(1)
             feasible.append((frames["self_contacts"] == 0) & ok)
-        cache.write_bytes(pickle.dumps((all_targets, feasible)))
+        if cache is not None:
+            cache.write_bytes(pickle.dumps((all_targets, feasible)))
     if args.set or args.sweep:
         custom = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in args.set)}
         settings = {"default": {}} if args.base else {}
