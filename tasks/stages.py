@@ -348,7 +348,8 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 #      and its proxy block cut to the proxy frames' width (`Residuals._exact_rows`): the same
 #      Gauss-Newton blocks to round-off, solutions within ~6e-13 rad (s13-ikevals).
 # v17: the wrist task 4× heavier against the regularisers (`ik.w_wrist_pos` 1 → 4, `w_wrist_rot`
-#      0.02 → 0.08, `w_smooth` 0.02 → 0.06): other solves (s14-ikwrist).
+#      0.02 → 0.08, `w_smooth` 0.02 → 0.06; hand points and their touch rotation ×2, hand
+#      clearance 20 → 40, `contact_stall` 6 → 12): other solves (s14-ikwrist).
 RETARGET = Step("retarget", "17", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.

@@ -98,7 +98,10 @@ class IKConfig(Section):
     #: Hinge keeping the robot's hands apart where the human's are apart, at hand scale
     #: (embody/retarget/hand_clearance.py): G1's Dex3 hands are 1.4 human hands long on an arm
     #: span 0.76 of the human's, so without it hands passing near each other touch. 0: off.
-    w_hand_clearance: float = Field(20.0, ge=0)
+    #: (40, 20 before the wrist weighed 4: at 20 the hand passing the face in
+    #: tests/test_hand_clearance.py brushed it on 4 of 30 frames; 80, the old balance with the
+    #: wrist, failed benchmarks/fidelity.py's opposite-shoulder hold and location agreement.)
+    w_hand_clearance: float = Field(40.0, ge=0)
     #: The human's hands touch within this gap (m; the fidelity measure's `contact_eps`): no
     #: clearance is asked for there, the collision margin makes the touch.
     hand_contact_eps: float = Field(0.015, gt=0.0, le=0.1)
