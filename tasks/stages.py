@@ -315,7 +315,9 @@ SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=
 # v11: the optimiser's refresh frame by frame (`collision.refresh`): a frame keeps its candidate
 #      rows while its points moved < half the margin; the capsule term compiled; the objective's
 #      gradient by hand on the CPU (`collision.objective`), no autograd graph (s13-adam3).
-COLLIDE = Step("collide", "11", ("body", "collision"), _collide, _collision_result, (SOURCE,))
+# v12: the pull-back's search steps on by twice its last move instead of halving the bracket,
+#      and smooths s(t) over 0.15 s, not 0.25 s (`pull_back_window_s`): lower Pose MSE (s14-pull).
+COLLIDE = Step("collide", "12", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
 # v3: hand-hand and hand-chest clearance at hand scale (targets.hand_gap, retarget/hand_clearance.py).
