@@ -316,7 +316,7 @@ SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=
 #      rows while its points moved < half the margin; the capsule term compiled; the objective's
 #      gradient by hand on the CPU (`collision.objective`), no autograd graph (s13-adam3).
 # v12: the pull-back's search steps on by twice its last move instead of halving the bracket,
-#      and smooths s(t) over 0.15 s, not 0.25 s (`pull_back_window_s`): lower Pose MSE (s14-pull).
+#      and smooths s(t) over 0.1 s, not 0.25 s (`pull_back_window_s`): lower Pose MSE (s14-pull).
 COLLIDE = Step("collide", "12", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
