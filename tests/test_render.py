@@ -159,7 +159,7 @@ def test_decimated_robot_meshes_keep_the_silhouette(robot, renderer):
     assert (fast & full).sum() / (fast | full).sum() > 0.95
 
 
-# --- the render step: preview at the source frame rate, sheet frames reused, decimated body ---
+# --- the render step: preview in real time, sheet frames reused, skinned decimated body ---
 
 @pytest.fixture(scope="module")
 def fitted(robot):
@@ -180,43 +180,71 @@ def _wave(robot, n: int, fps: float):
     return Motion(pose=pose, transl=np.zeros((n, 3)), betas=np.zeros(10), fps=fps), q
 
 
-def test_preview_plays_every_source_frame_at_480px_and_sheet_reuses_its_frames(robot, fitted):
+def test_preview_plays_in_real_time_at_480px_and_sheet_reuses_its_frames(robot, fitted):
     import imageio_ffmpeg
 
     from embody.render.compare import open_renderer, render_comparison
     from embody.render.record import SequenceRender, render_sequence
     body, fit = fitted
-    cfg = RenderConfig(keyframes=3)
     motion, q = _wave(robot, 14, 24.0)
-    keys = np.array([0, 6, 13])
-    out = render_sequence(motion, body, fit, robot, q, keys, cfg, "t")
-    assert out.preview_suffix == ".mp4"
-    path = Path(tempfile.mkdtemp()) / "p.mp4"
-    path.write_bytes(out.preview)
-    reader = imageio_ffmpeg.read_frames(str(path))
-    meta = next(reader)
-    assert sum(1 for _ in reader) == 14  # every source frame
-    assert meta["fps"] == pytest.approx(24.0)  # played at the source rate
-    assert meta["size"] == (2 * cfg.supersample * cfg.width, cfg.supersample * cfg.height)
-    assert meta["size"][1] >= 480
-    # the sheet (first view taken from the preview's frames) matches one drawn directly
-    sheet = np.asarray(Image.open(io.BytesIO(out.sheet_png)))
-    with open_renderer(robot, body, fit, cfg) as renderer:
-        direct = render_comparison(renderer, cfg, keys, motion.fps, q,
-                                   reference_verts=renderer.skin(motion, keys)).sheet_png("t")
-    diff = np.abs(sheet.astype(int) - np.asarray(Image.open(io.BytesIO(direct))).astype(int))
-    assert diff.shape == sheet.shape and (diff > 2).mean() < 1e-3
-    again = SequenceRender.from_arrays(out.to_arrays(), out.to_attrs())
-    assert again.preview == out.preview and again.sheet_png == out.sheet_png
+    keys = np.array([0, 5, 13])  # frame 5 is not one of the 12 fps preview's
+    for cfg, shown in ((RenderConfig(keyframes=3, preview_fps=None), 14),
+                       (RenderConfig(keyframes=3, preview_fps=12.0), 7)):
+        out = render_sequence(motion, body, fit, robot, q, keys, cfg, "t")
+        assert out.preview_suffix == ".mp4"
+        path = Path(tempfile.mkdtemp()) / "p.mp4"
+        path.write_bytes(out.preview)
+        reader = imageio_ffmpeg.read_frames(str(path))
+        meta = next(reader)
+        assert sum(1 for _ in reader) == shown  # every source frame, or every 2nd
+        assert meta["fps"] == pytest.approx(24.0 * shown / 14)  # played in real time
+        assert meta["size"] == (2 * cfg.supersample * cfg.width, cfg.supersample * cfg.height)
+        assert meta["size"][1] >= 480
+        # the sheet (first view taken from the preview's pass) matches one drawn directly
+        sheet = np.asarray(Image.open(io.BytesIO(out.sheet_png)))
+        with open_renderer(robot, body, fit, cfg) as renderer:
+            direct = render_comparison(renderer, cfg, keys, motion.fps, q,
+                                       motion=motion).sheet_png("t")
+        assert np.array_equal(sheet, np.asarray(Image.open(io.BytesIO(direct))))
+        again = SequenceRender.from_arrays(out.to_arrays(), out.to_attrs())
+        assert again.preview == out.preview and again.sheet_png == out.sheet_png
+
+
+def test_reference_skin_draws_what_the_skinned_vertices_draw(robot, fitted):
+    """The bound MuJoCo skin (bone poses) and the re-uploaded mesh (vertices) give the same
+    picture up to edge pixels (float32 blending, MuJoCo's own normals)."""
+    from embody.render.compare import draw_reference, open_renderer
+    body, fit = fitted
+    motion, _ = _wave(robot, 6, 30.0)
+    frames = np.array([0, 5])
+    with open_renderer(robot, body, fit, RenderConfig()) as renderer:
+        assert renderer.posed
+        for view in ("front", "side"):
+            posed = draw_reference(renderer, motion, frames, view)
+            meshed = renderer.reference_frames(renderer.skin(motion, frames), view)
+            a, b = _mask(posed), _mask(meshed)
+            assert a.sum() > 1000 and (a & b).sum() / (a | b).sum() > 0.99
+            diff = np.abs(posed.astype(int) - meshed.astype(int)).max(axis=-1)
+            assert (diff > 8).mean() < 0.01
+    # a map that is not a similarity cannot be a skin
+    with open_renderer(robot, body, fit, RenderConfig()) as renderer:
+        with pytest.raises(ValueError, match="similarity|scale times a rotation"):
+            renderer.bind_reference_skin(np.zeros((len(renderer.reference_keep), 3)),
+                                         np.ones((len(renderer.reference_keep), 1)),
+                                         np.zeros((1, 3)), 1.0, np.diag([1.0, 1.0, -1.0]),
+                                         np.zeros(3))
 
 
 def test_preview_frames_follow_the_source_rate_or_the_configured_one():
     from embody.render.compare import preview_frames
-    frames, rate = preview_frames(RenderConfig(), 90, 30.0)
+    frames, rate = preview_frames(RenderConfig(preview_fps=None), 90, 30.0)
     assert len(frames) == 90 and rate == pytest.approx(30.0)
+    frames, rate = preview_frames(RenderConfig(), 90, 30.0)  # default 15 fps: every 2nd frame
+    assert len(frames) == 45 and rate == pytest.approx(15.0)
+    assert set(np.diff(frames)) <= {2, 3}
     frames, rate = preview_frames(RenderConfig(preview_fps=10.0), 90, 30.0)
     assert len(frames) == 30 and rate == pytest.approx(10.0)
-    frames, rate = preview_frames(RenderConfig(preview_max_frames=45), 90, 30.0)
+    frames, rate = preview_frames(RenderConfig(preview_fps=None, preview_max_frames=45), 90, 30.0)
     assert len(frames) == 45 and rate == pytest.approx(15.0)  # still real time
 
 

@@ -69,6 +69,13 @@ class ReferenceSkin:
         out = np.einsum("vtab,vb->tva", blended[..., :3], self.rest) + blended[..., 3].transpose(1, 0, 2)
         return out.astype(np.float64)
 
+    def transforms(self, motion: Motion, frames: np.ndarray) -> np.ndarray:
+        """(N,J,4,4) body-frame joint transforms at `frames` (root rotation removed): what a
+        renderer's bound skin (`SceneRenderer.bind_reference_skin`) draws from."""
+        with torch.no_grad():
+            return self.body.joint_transforms(_root_free(motion, np.asarray(frames)),
+                                              self.betas).cpu().numpy()
+
     def __call__(self, motion: Motion, frames: np.ndarray) -> np.ndarray:
         """(N,K,3) torso-frame vertices of the drawn mesh at `frames`."""
         frames = np.asarray(frames)
@@ -105,7 +112,9 @@ def reference_cells(body: BodyModel, cfg: RenderConfig) -> np.ndarray:
 
 def open_renderer(robot, body: BodyModel, fit, cfg: RenderConfig) -> SceneRenderer:
     """A renderer for this robot with the fitted body as reference mesh; `renderer.skin`
-    gives the drawn mesh's vertices of a motion's frames (a `ReferenceSkin`)."""
+    gives the drawn mesh's vertices of a motion's frames (a `ReferenceSkin`). When that
+    skinning is exact linear blend skinning, the body is also bound as a MuJoCo skin, and
+    `draw_reference` draws it from bone poses."""
     with torch.no_grad():
         betas = torch.as_tensor(fit.betas, dtype=torch.float64)
         rest = body.rest_vertices(betas)
@@ -117,7 +126,13 @@ def open_renderer(robot, body: BodyModel, fit, cfg: RenderConfig) -> SceneRender
                              torso_body=robot.spec.torso_body, reference_points=points,
                              reference_groups=bones, reference_cells=reference_cells(body, cfg))
     try:
-        renderer.skin = ReferenceSkin(body, fit, renderer.reference_keep, reach, reach_verts)
+        skin = renderer.skin = ReferenceSkin(body, fit, renderer.reference_keep, reach, reach_verts)
+        if skin.exact:  # linear blend skinning: MuJoCo can skin the drawn mesh itself
+            with torch.no_grad():
+                bind = body.rest_joints(betas).cpu().numpy()
+            renderer.bind_reference_skin(rest.cpu().numpy()[renderer.reference_keep],
+                                         np.asarray(body.skin_weights)[renderer.reference_keep],
+                                         bind, fit.scale, fit.rotation, fit.offset)
     except Exception:
         renderer.close()
         raise
@@ -158,12 +173,26 @@ class Comparison:
                 for i in range(len(self.keyframes))]
 
 
+def draw_reference(renderer: SceneRenderer, motion: Motion, frames: np.ndarray,
+                   view: str = "front", full: bool = False,
+                   out: np.ndarray | None = None) -> np.ndarray:
+    """Images of the reference body at `frames` of `motion`: from bone poses when the renderer
+    has a bound skin (`open_renderer` binds one for linear blend skinning), else from the
+    skinned vertices (`renderer.skin`)."""
+    if renderer.posed:
+        return renderer.reference_pose_frames(renderer.skin.transforms(motion, frames), view,
+                                              full=full, out=out)
+    return renderer.reference_frames(renderer.skin(motion, frames), view, full=full, out=out)
+
+
 def render_comparison(renderer: SceneRenderer, cfg: RenderConfig, keyframes: np.ndarray,
                       fps: float, q: np.ndarray, reference: dict[str, np.ndarray] | None = None,
                       reference_verts: np.ndarray | None = None,
-                      drawn: "PreviewFrames | None" = None) -> Comparison:
-    """Render robot keyframes (and the reference ones unless given, from `reference_verts`).
-    Views and keyframes that `drawn` (the preview's frames) already holds are not drawn again."""
+                      drawn: "PreviewFrames | None" = None,
+                      motion: Motion | None = None) -> Comparison:
+    """Render robot keyframes (and the reference ones unless given: drawn from `motion` with
+    `draw_reference`, else from `reference_verts`). Views and keyframes that `drawn` (the
+    preview's frames) already holds are not drawn again."""
     keyframes = np.asarray(keyframes)
     comp = Comparison(keyframes, fps)
     for view in cfg.views:
@@ -172,8 +201,12 @@ def render_comparison(renderer: SceneRenderer, cfg: RenderConfig, keyframes: np.
             comp.reference[view], comp.robot[view] = (downsample(x, cfg.supersample) for x in reused)
             continue
         comp.robot[view] = renderer.robot_frames(q[keyframes], view)
-        comp.reference[view] = (reference[view] if reference is not None
-                                else renderer.reference_frames(reference_verts, view))
+        if reference is not None:
+            comp.reference[view] = reference[view]
+        elif motion is not None:
+            comp.reference[view] = draw_reference(renderer, motion, keyframes, view)
+        else:
+            comp.reference[view] = renderer.reference_frames(reference_verts, view)
     return comp
 
 
@@ -197,9 +230,9 @@ class PreviewFrames:
 
 
 def preview_frames(cfg: RenderConfig, num_frames: int, fps: float) -> tuple[np.ndarray, float]:
-    """(source frame indices, playback fps) of the preview: every frame at the source rate
-    (`render.preview_fps` null), evenly subsampled beyond `render.preview_max_frames` or to
-    a lower `preview_fps`; playback is real time either way."""
+    """(source frame indices, playback fps) of the preview: `render.preview_fps` frames a
+    second of motion (every frame at the source rate when it is null or higher), evenly
+    subsampled beyond `render.preview_max_frames`; playback is real time either way."""
     duration = num_frames / fps
     rate = fps if cfg.preview_fps is None else min(cfg.preview_fps, fps)
     count = int(np.clip(round(duration * rate), min(2, num_frames),
@@ -212,23 +245,27 @@ def stream_preview(renderer: SceneRenderer, cfg: RenderConfig, motion: Motion, q
                    path: Path, keep: np.ndarray | None = None) -> tuple[Path | None, PreviewFrames]:
     """Draw the preview (first view; reference | robot side by side at the drawn size,
     `render.supersample` × width × height per body: 1280×480 by default) chunk by chunk into
-    the encoder. Returns the file written (None when `preview_format` is none: nothing drawn)
-    and the drawn images of the frames in `keep` that the preview holds (the sheet reuses them)."""
+    the encoder. The frames in `keep` (the sheet's keyframes) are drawn in the same pass, also
+    where the preview skips them, but only the preview's frames are encoded. Returns the file
+    written (None when `preview_format` is none: nothing drawn) and the drawn images of `keep`
+    (the sheet reuses them)."""
     view = cfg.views[0]
-    frames, rate = preview_frames(cfg, len(q), motion.fps)
-    keep = np.intersect1d(np.asarray(keep if keep is not None else [], dtype=np.int64), frames)
+    shown, rate = preview_frames(cfg, len(q), motion.fps)
+    keep = np.unique(np.asarray(keep if keep is not None else [], dtype=np.int64))
     kept: dict[str, list[np.ndarray]] = {"reference": [], "robot": []}
     if cfg.preview_format == "none":
         return None, PreviewFrames(view, keep[:0], np.zeros((0,)), np.zeros((0,)))
+    keep = keep[(keep >= 0) & (keep < len(q))]
+    frames = np.union1d(shown, keep)
     writer = PreviewWriter(path, rate, cfg.preview_format)
     w = renderer.size[0]
     for start in range(0, len(frames), _CHUNK):
         chunk = frames[start:start + _CHUNK]
         # both bodies drawn straight into their halves of the side-by-side frames
         both = np.empty((len(chunk), renderer.size[1], 2 * w, 3), dtype=np.uint8)
-        renderer.reference_frames(renderer.skin(motion, chunk), view, full=True, out=both[:, :, :w])
+        draw_reference(renderer, motion, chunk, view, full=True, out=both[:, :, :w])
         renderer.robot_frames(q[chunk], view, full=True, out=both[:, :, w:])
-        writer.add(both)
+        writer.add(both[np.isin(chunk, shown)])
         hit = np.isin(chunk, keep)
         kept["reference"].append(both[hit, :, :w])
         kept["robot"].append(both[hit, :, w:])

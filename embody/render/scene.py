@@ -1,7 +1,10 @@
 """Offscreen MuJoCo rendering of the robot and of the reference body from the same cameras.
 
-Two models share one GL context: a private copy of the robot model, and a one-mesh model of the
-reference body whose vertices are rewritten and re-uploaded every frame (`mjr_uploadMesh`).
+Two models share one GL context: a private copy of the robot model, and a model of the reference
+body. The body is a MuJoCo skin on one mocap body per bone when its skinning is linear blend
+skinning (`bind_reference_skin`): a frame is then only bone poses, MuJoCo skins and re-uploads the
+vertex buffer itself, ~3× cheaper on software GL than rewriting a mesh and rebuilding its display
+list (`mjr_uploadMesh`), which stays the path for vertices given directly.
 Both are placed in the robot torso frame's world pose at the T-pose and seen through identical
 free cameras, so reference and robot line up pixel for pixel; the framing fits both bodies
 (`embody.render.framing`). Shadows, reflections and skybox are off and (by default) the legs are
@@ -172,11 +175,13 @@ class SceneRenderer:
             self._robot_ctx = self._context(self._model)
             self._scene = mujoco.MjvScene(self._model, maxgeom=self._model.ngeom + 100)
             self._mesh: _MeshModel | None = None
+            self._skin: _SkinModel | None = None
             if faces is not None and rest_vertices is not None:
                 cells = cfg.reference_cell_m if reference_cells is None else reference_cells
                 keep, kept_faces = cluster_faces(rest_vertices, faces, cells, reference_groups)
                 self.reference_keep = keep
                 self._reference_count = len(rest_vertices)
+                self._kept_faces = kept_faces
                 self._mesh = _MeshModel(kept_faces, np.asarray(rest_vertices)[keep], cfg,
                                         self._model.vis.global_.fovy, self.size)
                 self._mesh_ctx = self._context(self._mesh.model)
@@ -341,6 +346,49 @@ class SceneRenderer:
                                      self._mesh_ctx, cam, None if out is None else out[i]))
         return self._finish(frames, full, out)
 
+    def bind_reference_skin(self, rest_vertices: np.ndarray, weights: np.ndarray,
+                            bind: np.ndarray, scale: float, rotation: np.ndarray,
+                            offset: np.ndarray) -> None:
+        """Draw the reference body as a MuJoCo skin from bone poses (`reference_pose_frames`).
+        `rest_vertices` (K,3) and `weights` (K,J) of the drawn vertices (`reference_keep`) and
+        the bind joints (J,3), all in the body frame, which maps into the torso frame as
+        p ↦ scale · rotation @ p + offset (a similarity: `rotation` proper)."""
+        if self._mesh is None:
+            raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
+        rotation = np.asarray(rotation, dtype=np.float64)
+        if not (scale > 0 and np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6)
+                and np.linalg.det(rotation) > 0):
+            raise ValueError("the body-to-torso map must be a positive scale times a rotation")
+        rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
+        self._ctx.make_current()
+        self._skin = _SkinModel(self._kept_faces, rest_vertices, weights, bind, scale,
+                                rot @ rotation, rot @ np.asarray(offset, np.float64) + pos,
+                                self.cfg, self._model.vis.global_.fovy, self.size)
+        self._skin_ctx = self._context(self._skin.model)
+        self._skin_scene = mujoco.MjvScene(self._skin.model, maxgeom=16)
+
+    @property
+    def posed(self) -> bool:
+        """Whether the reference body can be drawn from bone poses (`bind_reference_skin`)."""
+        return self._skin is not None
+
+    def reference_pose_frames(self, transforms: np.ndarray, view: str = "front",
+                              full: bool = False, out: np.ndarray | None = None) -> np.ndarray:
+        """Images (N,H,W,3) of the reference body posed by its joints' transforms (N,J,4,4)
+        in the body frame (`BodyModel.joint_transforms`); `full` and `out` as in `robot_frames`."""
+        if self._skin is None:
+            raise ValueError("no reference skin bound (bind_reference_skin)")
+        transforms = np.asarray(transforms, dtype=np.float64)
+        self._target(out, len(transforms), full)
+        self._ctx.make_current()
+        cam = self.camera(view)
+        frames = []
+        for i, pose in enumerate(self._skin.bone_poses(transforms)):
+            self._skin.set_pose(*pose)
+            frames.append(self._draw(self._skin.model, self._skin.data, self._skin_scene,
+                                     self._skin_ctx, cam, None if out is None else out[i]))
+        return self._finish(frames, full, out)
+
     def close(self) -> None:
         """Free GL resources now: EGL teardown at interpreter exit prints errors otherwise."""
         if self._ctx is None:
@@ -406,13 +454,7 @@ class _MeshModel:
 
     def __init__(self, faces: np.ndarray, rest_vertices: np.ndarray, cfg: RenderConfig,
                  fovy: float, size: tuple[int, int]) -> None:
-        spec = mujoco.MjSpec()
-        spec.visual.global_.offwidth, spec.visual.global_.offheight = size
-        spec.visual.quality.offsamples = 0
-        spec.visual.global_.fovy = fovy
-        spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
-        spec.visual.headlight.ambient = [0.1, 0.1, 0.1]
-        spec.worldbody.add_light(pos=[1, 0, 3.5], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+        spec = _lit_spec(cfg, fovy, size)
         mesh = spec.add_mesh(name="reference")
         mesh.uservert = np.asarray(rest_vertices, dtype=np.float64).ravel().tolist()
         mesh.userface = np.asarray(faces, dtype=np.int64).ravel().tolist()
@@ -460,3 +502,61 @@ class _MeshModel:
         else:
             self.model.mesh_normal[self._nadr + self._face_normal.ravel()] = normals[f.ravel()]
         mujoco.mjr_uploadMesh(self.model, ctx, self.mesh_id)
+
+
+def _lit_spec(cfg: RenderConfig, fovy: float, size: tuple[int, int]) -> mujoco.MjSpec:
+    """An empty model with the reference body's camera, buffer size and lights."""
+    spec = mujoco.MjSpec()
+    spec.visual.global_.offwidth, spec.visual.global_.offheight = size
+    spec.visual.quality.offsamples = 0
+    spec.visual.global_.fovy = fovy
+    spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
+    spec.visual.headlight.ambient = [0.1, 0.1, 0.1]
+    spec.worldbody.add_light(pos=[1, 0, 3.5], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    return spec
+
+
+class _SkinModel:
+    """The reference body as a MuJoCo skin: one mocap body per bone that moves any drawn vertex,
+    bound at the rest joints; MuJoCo blends the vertices and their normals each frame.
+
+    Bone j maps a rest vertex v (body frame) to R_j (v − b_j) + t_j; with the body→world map
+    p ↦ s·A p + c that is (A R_j)(s v − s b_j) + (s A t_j + c): the skin holds s·v, bind s·b_j,
+    and each mocap body gets the rotation A R_j at s A t_j + c."""
+
+    def __init__(self, faces: np.ndarray, rest_vertices: np.ndarray, weights: np.ndarray,
+                 bind: np.ndarray, scale: float, rotation: np.ndarray, offset: np.ndarray,
+                 cfg: RenderConfig, fovy: float, size: tuple[int, int]) -> None:
+        weights = np.asarray(weights, dtype=np.float64)
+        self.bones = np.flatnonzero((weights > 0).any(axis=0))
+        self.scale, self.rotation, self.offset = float(scale), rotation, offset
+        spec = _lit_spec(cfg, fovy, size)
+        for j in self.bones:
+            spec.worldbody.add_body(name=f"bone{j}", mocap=True)
+        skin = spec.add_skin(name="reference")
+        skin.vert = (self.scale * np.asarray(rest_vertices, np.float64)).ravel().tolist()
+        skin.face = np.asarray(faces, dtype=np.int64).ravel().tolist()
+        skin.rgba = list(cfg.reference_rgba)
+        skin.bodyname = [f"bone{j}" for j in self.bones]
+        skin.bindpos = (self.scale * np.asarray(bind, np.float64)[self.bones]).ravel().tolist()
+        skin.bindquat = np.tile([1.0, 0.0, 0.0, 0.0], len(self.bones)).tolist()
+        skin.vertid = [np.flatnonzero(weights[:, j] > 0).tolist() for j in self.bones]
+        skin.vertweight = [weights[weights[:, j] > 0, j].tolist() for j in self.bones]
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+
+    def bone_poses(self, transforms: np.ndarray):
+        """Per frame (mocap positions (B,3), quaternions (B,4)) of joint transforms (N,J,4,4)."""
+        tf = transforms[:, self.bones]
+        rot = np.einsum("ab,tjbc->tjac", self.rotation, tf[..., :3, :3])
+        pos = np.einsum("ab,tjb->tja", self.scale * self.rotation, tf[..., :3, 3]) + self.offset
+        quat = np.empty(rot.shape[:2] + (4,))
+        for t in range(len(rot)):
+            for j in range(rot.shape[1]):
+                mujoco.mju_mat2Quat(quat[t, j], rot[t, j].ravel())
+        return zip(pos, quat)
+
+    def set_pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
+        self.data.mocap_pos[:] = pos
+        self.data.mocap_quat[:] = quat
+        mujoco.mj_kinematics(self.model, self.data)
