@@ -46,11 +46,14 @@ def _cpu() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
-def phases(motion, body, fit, robot, q: np.ndarray, cfg) -> dict[str, float]:
-    """CPU ms per preview frame of each phase of drawing the preview (first view), timed around
-    the same calls `stream_preview` makes: skinning, the reference image, the robot image, the
-    x264 encoder (the child's CPU, at close) and opening the renderer."""
-    from embody.render.compare import open_renderer
+def phases(motion, body, fit, robot, q: np.ndarray, keys: np.ndarray, cfg) -> dict[str, float]:
+    """CPU ms per preview frame of each phase of the render step, timed around the same calls
+    `render_sequence` makes: opening the renderer, the bone poses (or skinned vertices), the
+    reference and robot images of the preview's pass (preview frames and first-view
+    keyframes), the x264 encoder (the child's CPU, at close), the other views' keyframes, the
+    sheet PNG and closing the renderer."""
+    from embody.render.compare import (Comparison, open_renderer, preview_frames,
+                                       render_comparison)
     from embody.render.preview import PreviewWriter
     acc: dict[str, float] = {}
 
@@ -62,21 +65,33 @@ def phases(motion, body, fit, robot, q: np.ndarray, cfg) -> dict[str, float]:
 
     renderer = timed("open_renderer", open_renderer, robot, body, fit, cfg)
     w, h = renderer.size
-    frames = np.arange(len(q))
+    shown, rate = preview_frames(cfg, len(q), motion.fps)
+    frames = np.union1d(shown, keys)
+    view = cfg.views[0]
     with tempfile.TemporaryDirectory() as tmp:
-        writer = PreviewWriter(Path(tmp) / "p", motion.fps)
+        writer = PreviewWriter(Path(tmp) / "p", rate)
         for start in range(0, len(frames), 32):
             chunk = frames[start:start + 32]
             both = np.empty((len(chunk), h, 2 * w, 3), dtype=np.uint8)
-            verts = timed("skin", renderer.skin, motion, chunk)
-            timed("reference_image", renderer.reference_frames, verts, cfg.views[0], full=True,
-                  out=both[:, :, :w])
-            timed("robot_image", renderer.robot_frames, q[chunk], cfg.views[0], full=True,
+            if renderer.posed:
+                tf = timed("bones", renderer.skin.transforms, motion, chunk)
+                timed("reference_image", renderer.reference_pose_frames, tf, view, full=True,
+                      out=both[:, :, :w])
+            else:
+                verts = timed("skin", renderer.skin, motion, chunk)
+                timed("reference_image", renderer.reference_frames, verts, view, full=True,
+                      out=both[:, :, :w])
+            timed("robot_image", renderer.robot_frames, q[chunk], view, full=True,
                   out=both[:, :, w:])
-            timed("encode", writer.add, both)
+            timed("encode", writer.add, both[np.isin(chunk, shown)])
         timed("encode", writer.close)
-    renderer.close()
-    return {k: 1000 * v / len(frames) for k, v in acc.items()}
+    other = cfg.model_copy(update={"views": list(cfg.views[1:])})
+    comp = timed("other_views", render_comparison, renderer, other, keys, motion.fps, q,
+                 motion=motion) if other.views else Comparison(keys, motion.fps)
+    if comp.reference:
+        timed("sheet_png", comp.sheet_png, "bench")
+    timed("close", renderer.close)
+    return {k: 1000 * v / len(shown) for k, v in acc.items()}
 
 
 def main() -> None:
@@ -119,7 +134,7 @@ def main() -> None:
               f"preview_frames={shape[0]} preview_hw={shape[1]}x{shape[2]} "
               f"preview_kb={len(out.preview or b'') / 1024:.0f} sheet_kb={len(out.sheet_png) / 1024:.0f}")
     if args.phases:
-        split = phases(motions[-1], body, fit, robot, q, cfg.render)
+        split = phases(motions[-1], body, fit, robot, q, keys, cfg.render)
         print("phases (CPU ms per preview frame): "
               + " ".join(f"{k}={v:.1f}" for k, v in split.items()))
     print(f"RESULT render_s={np.mean(walls):.2f} render_cpu_s={np.mean(cpus):.2f} "

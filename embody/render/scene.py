@@ -21,6 +21,7 @@ drawn). Reading back colour only (no depth buffer) saves most of the read-back t
 from __future__ import annotations
 
 import copy
+import hashlib
 import threading
 from typing import Protocol
 
@@ -37,10 +38,15 @@ _OFF_FLAGS = (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION
               mujoco.mjtRndFlag.mjRND_SKYBOX, mujoco.mjtRndFlag.mjRND_FOG,
               mujoco.mjtRndFlag.mjRND_HAZE)
 _HIDDEN_GROUP = 5
+#: Shadows are off, but every `MjrContext` allocates its shadow map: at MuJoCo's default 4096²
+#: that costs ~30 ms a context on software GL, at this size nothing.
+_SHADOW_SIZE = 64
 #: Robot models prepared for drawing (decimated, recoloured), per process: preparing G1's takes
 #: about half a second and every sequence's renderer needs the same one. Read-only once built.
 _PREPARED: dict[tuple, tuple[mujoco.MjModel, mujoco.MjModel]] = {}
 _PREPARED_LOCK = threading.Lock()
+#: `cluster_faces` results by content (`_clustered`), per process.
+_CLUSTERED: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
 
 class RenderableRobot(Protocol):
@@ -115,6 +121,30 @@ def cluster_faces(vertices: np.ndarray, faces: np.ndarray, cell: float | np.ndar
     return keep, np.searchsorted(keep, rep)
 
 
+def _clustered(vertices: np.ndarray, faces: np.ndarray, cell: float | np.ndarray,
+               groups: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """`cluster_faces`, remembered per process by the inputs' content: every sequence of a run
+    draws the same fitted body (~35 ms a renderer otherwise); each caller gets its own copies."""
+    arrays = [np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64),
+              np.asarray(cell, dtype=np.float64)]
+    if groups is not None:
+        arrays.append(np.asarray(groups, dtype=np.int64))
+    digest = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        digest.update(repr(a.shape).encode())
+        digest.update(np.ascontiguousarray(a).tobytes())
+    key = digest.hexdigest()
+    with _PREPARED_LOCK:
+        hit = _CLUSTERED.get(key)
+    if hit is None:
+        hit = cluster_faces(vertices, faces, cell, groups)
+        with _PREPARED_LOCK:
+            if len(_CLUSTERED) >= 8:
+                _CLUSTERED.clear()
+            _CLUSTERED[key] = hit
+    return hit[0].copy(), hit[1].copy()
+
+
 def cluster_mesh(model: mujoco.MjModel, mesh: int, cell: float) -> None:
     """Decimate one mesh in place by vertex clustering on a `cell`-sized grid.
 
@@ -178,14 +208,11 @@ class SceneRenderer:
             self._skin: _SkinModel | None = None
             if faces is not None and rest_vertices is not None:
                 cells = cfg.reference_cell_m if reference_cells is None else reference_cells
-                keep, kept_faces = cluster_faces(rest_vertices, faces, cells, reference_groups)
+                keep, kept_faces = _clustered(rest_vertices, faces, cells, reference_groups)
                 self.reference_keep = keep
                 self._reference_count = len(rest_vertices)
                 self._kept_faces = kept_faces
-                self._mesh = _MeshModel(kept_faces, np.asarray(rest_vertices)[keep], cfg,
-                                        self._model.vis.global_.fovy, self.size)
-                self._mesh_ctx = self._context(self._mesh.model)
-                self._mesh_scene = mujoco.MjvScene(self._mesh.model, maxgeom=16)
+                self._kept_rest = np.asarray(rest_vertices)[keep]
         except Exception:
             self.close()
             raise
@@ -218,6 +245,7 @@ class SceneRenderer:
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.size[0])
         model.vis.global_.offheight = max(model.vis.global_.offheight, self.size[1])
         model.vis.quality.offsamples = 0  # supersampled instead (see the module docstring)
+        model.vis.quality.shadowsize = _SHADOW_SIZE
         if self.cfg.upper_body:
             upper = _subtree_mask(model, model.body(torso_body).id)
             model.geom_group[~upper] = _HIDDEN_GROUP
@@ -327,7 +355,7 @@ class SceneRenderer:
         """Images (N,H,W,3) of reference meshes given as (N,V,3) vertices in the torso frame:
         every vertex of the mesh, or only the drawn ones (`reference_keep`); `full` and `out`
         as in `robot_frames`."""
-        if self._mesh is None:
+        if self.reference_keep is None:
             raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
         vertices = np.asarray(vertices)
         if vertices.shape[1] != len(self.reference_keep):
@@ -337,6 +365,11 @@ class SceneRenderer:
             vertices = vertices[:, self.reference_keep]
         self._target(out, len(vertices), full)
         self._ctx.make_current()
+        if self._mesh is None:  # built on first use: the posed path (a bound skin) needs none
+            self._mesh = _MeshModel(self._kept_faces, self._kept_rest, self.cfg,
+                                    self._model.vis.global_.fovy, self.size)
+            self._mesh_ctx = self._context(self._mesh.model)
+            self._mesh_scene = mujoco.MjvScene(self._mesh.model, maxgeom=16)
         cam = self.camera(view)
         rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
         frames = []
@@ -353,7 +386,7 @@ class SceneRenderer:
         `rest_vertices` (K,3) and `weights` (K,J) of the drawn vertices (`reference_keep`) and
         the bind joints (J,3), all in the body frame, which maps into the torso frame as
         p ↦ scale · rotation @ p + offset (a similarity: `rotation` proper)."""
-        if self._mesh is None:
+        if self.reference_keep is None:
             raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
         rotation = np.asarray(rotation, dtype=np.float64)
         if not (scale > 0 and np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6)
@@ -509,6 +542,7 @@ def _lit_spec(cfg: RenderConfig, fovy: float, size: tuple[int, int]) -> mujoco.M
     spec = mujoco.MjSpec()
     spec.visual.global_.offwidth, spec.visual.global_.offheight = size
     spec.visual.quality.offsamples = 0
+    spec.visual.quality.shadowsize = _SHADOW_SIZE
     spec.visual.global_.fovy = fovy
     spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
     spec.visual.headlight.ambient = [0.1, 0.1, 0.1]
