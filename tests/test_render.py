@@ -188,7 +188,7 @@ def test_preview_plays_in_real_time_at_480px_and_sheet_reuses_its_frames(robot, 
     body, fit = fitted
     motion, q = _wave(robot, 14, 24.0)
     keys = np.array([0, 5, 13])  # frame 5 is not one of the 12 fps preview's
-    for cfg, shown in ((RenderConfig(keyframes=3, preview_fps=None), 14),
+    for cfg, shown in ((RenderConfig(keyframes=3, preview_fps=None, preview_crop=False), 14),
                        (RenderConfig(keyframes=3, preview_fps=12.0), 7)):
         out = render_sequence(motion, body, fit, robot, q, keys, cfg, "t")
         assert out.preview_suffix == ".mp4"
@@ -198,8 +198,12 @@ def test_preview_plays_in_real_time_at_480px_and_sheet_reuses_its_frames(robot, 
         meta = next(reader)
         assert sum(1 for _ in reader) == shown  # every source frame, or every 2nd
         assert meta["fps"] == pytest.approx(24.0 * shown / 14)  # played in real time
-        assert meta["size"] == (2 * cfg.supersample * cfg.width, cfg.supersample * cfg.height)
-        assert meta["size"][1] >= 480
+        w, h = cfg.supersample * cfg.width, cfg.supersample * cfg.height
+        if cfg.preview_crop:  # only what the bodies reach, at the drawn scale
+            assert meta["size"][0] < 2 * w and meta["size"][1] <= h
+            assert meta["size"][0] % 4 == 0 and meta["size"][1] % 2 == 0
+        else:
+            assert meta["size"] == (2 * w, h) and h >= 480
         # the sheet (first view taken from the preview's pass) matches one drawn directly
         sheet = np.asarray(Image.open(io.BytesIO(out.sheet_png)))
         with open_renderer(robot, body, fit, cfg) as renderer:
@@ -208,6 +212,54 @@ def test_preview_plays_in_real_time_at_480px_and_sheet_reuses_its_frames(robot, 
         assert np.array_equal(sheet, np.asarray(Image.open(io.BytesIO(direct))))
         again = SequenceRender.from_arrays(out.to_arrays(), out.to_attrs())
         assert again.preview == out.preview and again.sheet_png == out.sheet_png
+
+
+def test_preview_crop_holds_both_bodies_and_draws_the_same_pixels(robot, fitted):
+    from embody.render.compare import draw_reference, open_renderer, preview_crop
+    body, fit = fitted
+    motion, q = _wave(robot, 8, 30.0)
+    frames = np.arange(8)
+    with open_renderer(robot, body, fit, RenderConfig()) as renderer:
+        w, h = renderer.size
+        crop = preview_crop(renderer, motion, q, frames, "front")
+        assert crop is not None
+        x0, y0, x1, y1 = crop
+        assert 0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h and (x1 - x0) * (y1 - y0) < 0.8 * w * h
+        assert (x1 - x0) % 2 == 0 and (y1 - y0) % 2 == 0
+        whole = [draw_reference(renderer, motion, frames, "front", full=True),
+                 renderer.robot_frames(q, "front", full=True)]
+        parts = [draw_reference(renderer, motion, frames, "front", full=True, crop=crop),
+                 renderer.robot_frames(q, "front", full=True, crop=crop)]
+        for full, part in zip(whole, parts):
+            outside = _mask(full)
+            outside[:, y0:y1, x0:x1] = False
+            assert _mask(full).sum() > 1000 and not outside.any()  # nothing cut off
+            diff = np.abs(part.astype(int) - full[:, y0:y1, x0:x1].astype(int)).max(axis=-1)
+            assert part.shape == (8, y1 - y0, x1 - x0, 3) and (diff > 2).mean() < 1e-3
+        with pytest.raises(ValueError, match="crop"):
+            renderer.robot_frames(q[:1], "front", full=True, crop=(0, 0, w + 2, h))
+
+
+def test_pixel_bounds_hold_the_spheres():
+    from embody.render.framing import pixel_bounds, project
+    from embody.robot import load_robot
+    model = load_robot().model
+    rng = np.random.default_rng(1)
+    centres = rng.uniform(-0.4, 0.4, (5, 3)) + [0.0, 0.0, 1.0]
+    radii = rng.uniform(0.02, 0.15, 5)
+    args = (model, np.array([0.0, 0.0, 1.0]), 2.0, 150.0, -5.0)
+    box = pixel_bounds(*args, centres, radii, 640, 480)
+    dirs = rng.normal(size=(2000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    surface = (centres[:, None] + radii[:, None, None] * dirs).reshape(-1, 3)
+    uv = project(*args, surface, 640, 480)
+    inside = (uv[:, 0] >= box[0]) & (uv[:, 0] <= box[2]) & (uv[:, 1] >= box[1]) & (uv[:, 1] <= box[3])
+    assert inside.all()
+    # and not much more: the box is within a few pixels of the sampled extent
+    assert box[0] >= uv[:, 0].min() - 12 and box[2] <= uv[:, 0].max() + 12
+    assert pixel_bounds(*args, np.array([[0.0, 0.0, 1.0]]) - 2.0 * np.array(
+        [np.cos(np.radians(-5)) * np.cos(np.radians(150)), np.cos(np.radians(-5)) * np.sin(np.radians(150)),
+         np.sin(np.radians(-5))]), 0.1, 640, 480) is None  # at the eye: behind the camera
 
 
 def test_reference_skin_draws_what_the_skinned_vertices_draw(robot, fitted):

@@ -56,6 +56,10 @@ class RenderConfig(Section):
     #: Preview frames per second of motion (plays in real time); null: the source frame rate.
     #: 15 (every 2nd frame of 30 fps sources) halves the preview's drawing and encoding.
     preview_fps: float | None = Field(15.0, gt=0.0, le=240.0)
+    #: The preview shows only the part of the drawn frame that the bodies reach in the
+    #: sequence (plus a few pixels), at the drawn scale: the framing leaves room for any pose
+    #: (raised hands), which a sequence seldom uses, and drawing and encoding pay per pixel.
+    preview_crop: bool = True
     #: Frames rendered for the preview at most (longer sequences are evenly subsampled, still
     #: playing in real time); at 30 fps the default covers a minute.
     preview_max_frames: int = Field(1800, ge=2, le=100_000)

@@ -18,11 +18,13 @@ from embody.body.base import BodyModel
 from embody.config.render import RenderConfig
 from embody.motion import Motion
 from embody.render.preview import PreviewWriter
-from embody.render.scene import SceneRenderer, downsample
+from embody.render.scene import Crop, SceneRenderer, downsample
 from embody.render.sheet import comparison_sheet, png_bytes
 
 #: Frames skinned at once for the preview (bounds memory on long sequences).
 _CHUNK = 32
+#: Pixels kept around what the bodies reach in a cropped preview (`preview_crop`).
+_CROP_MARGIN = 4
 
 
 def _root_free(motion: Motion, frames: np.ndarray) -> torch.Tensor:
@@ -174,15 +176,23 @@ class Comparison:
 
 
 def draw_reference(renderer: SceneRenderer, motion: Motion, frames: np.ndarray,
-                   view: str = "front", full: bool = False,
-                   out: np.ndarray | None = None) -> np.ndarray:
+                   view: str = "front", full: bool = False, out: np.ndarray | None = None,
+                   crop: Crop | None = None) -> np.ndarray:
     """Images of the reference body at `frames` of `motion`: from bone poses when the renderer
     has a bound skin (`open_renderer` binds one for linear blend skinning), else from the
-    skinned vertices (`renderer.skin`)."""
+    skinned vertices (`renderer.skin`); `full`, `out`, `crop` as in `SceneRenderer.robot_frames`."""
+    if len(frames) == 0:  # nothing to draw (e.g. a chunk without keyframes)
+        if out is not None:
+            return out
+        w, h = renderer.size if full else (renderer.cfg.width, renderer.cfg.height)
+        if crop is not None:
+            w, h = crop[2] - crop[0], crop[3] - crop[1]
+        return np.zeros((0, h, w, 3), dtype=np.uint8)
     if renderer.posed:
         return renderer.reference_pose_frames(renderer.skin.transforms(motion, frames), view,
-                                              full=full, out=out)
-    return renderer.reference_frames(renderer.skin(motion, frames), view, full=full, out=out)
+                                              full=full, out=out, crop=crop)
+    return renderer.reference_frames(renderer.skin(motion, frames), view, full=full, out=out,
+                                     crop=crop)
 
 
 def render_comparison(renderer: SceneRenderer, cfg: RenderConfig, keyframes: np.ndarray,
@@ -241,12 +251,50 @@ def preview_frames(cfg: RenderConfig, num_frames: int, fps: float) -> tuple[np.n
     return frames, len(frames) / duration
 
 
+def preview_crop(renderer: SceneRenderer, motion: Motion, q: np.ndarray, frames: np.ndarray,
+                 view: str, margin: int = _CROP_MARGIN) -> Crop | None:
+    """The part of the drawn image (`renderer.size`) that the robot's bounding spheres and the
+    reference body's drawn vertices reach at `frames`, plus `margin` pixels, even-sized (x264's
+    4:2:0); one box for both bodies, so the side-by-side halves keep one scale and line up.
+    None when it would not be smaller than the whole image."""
+    boxes = []
+    centres, radii = renderer.robot_spheres(q[frames])
+    boxes.append(renderer.pixel_bounds(centres.reshape(-1, 3), np.tile(radii, len(frames)),
+                                       view, margin))
+    if renderer.skin is not None:
+        rot, pos = renderer.world_from_torso[:3, :3], renderer.world_from_torso[:3, 3]
+        for start in range(0, len(frames), _CHUNK):
+            verts = renderer.skin(motion, frames[start:start + _CHUNK]).reshape(-1, 3)
+            boxes.append(renderer.pixel_bounds(verts @ rot.T + pos, 0.0, view, margin))
+    if any(b is None for b in boxes):
+        return None
+    (w, h), box = renderer.size, np.array(boxes)
+    x0, y0 = int(box[:, 0].min()), int(box[:, 1].min())
+    x1, y1 = int(box[:, 2].max()), int(box[:, 3].max())
+    x0, x1 = _even(x0, x1, w)
+    y0, y1 = _even(y0, y1, h)
+    if (x1 - x0) * (y1 - y0) >= w * h or x1 <= x0 or y1 <= y0:
+        return None
+    return x0, y0, x1, y1
+
+
+def _even(lo: int, hi: int, size: int) -> tuple[int, int]:
+    """Widen [lo, hi) by a pixel, where it fits, to an even length (the drawn size is even)."""
+    if (hi - lo) % 2:
+        if hi < size:
+            hi += 1
+        else:
+            lo -= 1
+    return lo, hi
+
+
 def stream_preview(renderer: SceneRenderer, cfg: RenderConfig, motion: Motion, q: np.ndarray,
                    path: Path, keep: np.ndarray | None = None) -> tuple[Path | None, PreviewFrames]:
     """Draw the preview (first view; reference | robot side by side at the drawn size,
-    `render.supersample` × width × height per body: 1280×480 by default) chunk by chunk into
-    the encoder. The frames in `keep` (the sheet's keyframes) are drawn in the same pass, also
-    where the preview skips them, but only the preview's frames are encoded. Returns the file
+    `render.supersample` × width × height per body: 1280×480 by default, or the part of it
+    the bodies reach with `render.preview_crop`) chunk by chunk into the encoder. The frames in
+    `keep` (the sheet's keyframes) are drawn whole in the same pass, also where the preview
+    skips them; the preview's frames among them are cut from those images. Returns the file
     written (None when `preview_format` is none: nothing drawn) and the drawn images of `keep`
     (the sheet reuses them)."""
     view = cfg.views[0]
@@ -256,19 +304,32 @@ def stream_preview(renderer: SceneRenderer, cfg: RenderConfig, motion: Motion, q
     if cfg.preview_format == "none":
         return None, PreviewFrames(view, keep[:0], np.zeros((0,)), np.zeros((0,)))
     keep = keep[(keep >= 0) & (keep < len(q))]
-    frames = np.union1d(shown, keep)
+    w, h = renderer.size
+    crop = preview_crop(renderer, motion, q, shown, view) if cfg.preview_crop else None
+    x0, y0, x1, y1 = crop if crop is not None else (0, 0, w, h)
+    cw, ch = x1 - x0, y1 - y0
     writer = PreviewWriter(path, rate, cfg.preview_format)
-    w = renderer.size[0]
+    frames = np.union1d(shown, keep)
     for start in range(0, len(frames), _CHUNK):
         chunk = frames[start:start + _CHUNK]
-        # both bodies drawn straight into their halves of the side-by-side frames
-        both = np.empty((len(chunk), renderer.size[1], 2 * w, 3), dtype=np.uint8)
-        draw_reference(renderer, motion, chunk, view, full=True, out=both[:, :, :w])
-        renderer.robot_frames(q[chunk], view, full=True, out=both[:, :, w:])
-        writer.add(both[np.isin(chunk, shown)])
-        hit = np.isin(chunk, keep)
-        kept["reference"].append(both[hit, :, :w])
-        kept["robot"].append(both[hit, :, w:])
+        keys, show = chunk[np.isin(chunk, keep)], chunk[np.isin(chunk, shown)]
+        # the keyframes whole, both bodies straight into their halves of side-by-side frames
+        whole = np.empty((len(keys), h, 2 * w, 3), dtype=np.uint8)
+        draw_reference(renderer, motion, keys, view, full=True, out=whole[:, :, :w])
+        renderer.robot_frames(q[keys], view, full=True, out=whole[:, :, w:])
+        kept["reference"].append(whole[:, :, :w])
+        kept["robot"].append(whole[:, :, w:])
+        # the preview's other frames: only the crop drawn
+        rest = show[~np.isin(show, keys)]
+        part = np.empty((len(rest), ch, 2 * cw, 3), dtype=np.uint8)
+        draw_reference(renderer, motion, rest, view, full=True, out=part[:, :, :cw], crop=crop)
+        renderer.robot_frames(q[rest], view, full=True, out=part[:, :, cw:], crop=crop)
+        video = np.empty((len(show), ch, 2 * cw, 3), dtype=np.uint8)
+        video[np.isin(show, rest)] = part
+        cut = np.isin(keys, show)
+        video[~np.isin(show, rest), :, :cw] = whole[cut, y0:y1, x0:x1]
+        video[~np.isin(show, rest), :, cw:] = whole[cut, y0:y1, w + x0:w + x1]
+        writer.add(video)
     out = writer.close()
     return out, PreviewFrames(view, keep, np.concatenate(kept["reference"]),
                               np.concatenate(kept["robot"]))

@@ -29,7 +29,7 @@ import numpy as np
 import scipy.sparse
 
 from embody.config.render import RenderConfig
-from embody.render.framing import Framing, fit_camera, robot_points
+from embody.render.framing import Framing, fit_camera, pixel_bounds, robot_points
 from embody.render.gl import create_context
 
 import mujoco  # noqa: E402  (after embody.render.gl has set MUJOCO_GL)
@@ -47,6 +47,10 @@ _PREPARED: dict[tuple, tuple[mujoco.MjModel, mujoco.MjModel]] = {}
 _PREPARED_LOCK = threading.Lock()
 #: `cluster_faces` results by content (`_clustered`), per process.
 _CLUSTERED: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+
+#: Part of a drawn image: x0, y0, x1, y1 in pixels (top row 0), end-exclusive.
+Crop = tuple[int, int, int, int]
 
 
 class RenderableRobot(Protocol):
@@ -222,6 +226,7 @@ class SceneRenderer:
         #: Background painted in GL (`_fill_background_gl`): None until the first image checks it.
         self._gl_fill: bool | None = None
         self._pixels = np.empty((self.size[1], self.size[0], 3), dtype=np.uint8)  # read-back
+        self._crop_pixels: dict[tuple[int, int], np.ndarray] = {}  # read-back per crop size
 
     # --- setup ----------------------------------------------------------------------------
 
@@ -301,18 +306,24 @@ class SceneRenderer:
 
     # --- rendering ------------------------------------------------------------------------
 
-    def _draw(self, model, data, scene, ctx, cam, into: np.ndarray | None = None) -> np.ndarray:
-        """One image (H,W,3), top row first; written into `into` when given (no extra copy)."""
+    def _draw(self, model, data, scene, ctx, cam, into: np.ndarray | None = None,
+              crop: Crop | None = None) -> np.ndarray:
+        """One image (H,W,3), top row first; written into `into` when given (no extra copy).
+        With `crop` (x0, y0, x1, y1; drawn pixels, top row 0) only that part of the image is
+        drawn, through the matching off-centre frustum: the same pixels as cutting it out of
+        the whole image, at the cost of the smaller one."""
         mujoco.mjv_updateScene(model, data, self._option, None, cam,
                                mujoco.mjtCatBit.mjCAT_ALL, scene)
         for flag in _OFF_FLAGS:
             scene.flags[flag] = 0
-        out = self._pixels
+        rect, out = self._rect, self._pixels
+        if crop is not None:
+            rect, out = self._crop_view(scene, crop)
         # each MjrContext owns a framebuffer; bind this one's (the last created is bound)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, ctx)
-        mujoco.mjr_render(self._rect, scene, ctx)
+        mujoco.mjr_render(rect, scene, ctx)
         filled = self._gl_fill is not False and _fill_background_gl(self._background)
-        mujoco.mjr_readPixels(out, None, self._rect, ctx)
+        mujoco.mjr_readPixels(out, None, rect, ctx)
         flat = out.reshape(-1, 3)
         if self._gl_fill is None:  # first image: check that the GL fill left no clear colour
             self._gl_fill = bool(filled) and not _black(flat).any()
@@ -323,23 +334,67 @@ class SceneRenderer:
         into[...] = out[::-1]
         return into
 
+    def _crop_view(self, scene: mujoco.MjvScene, crop: Crop) -> tuple[mujoco.MjrRect, np.ndarray]:
+        """Narrow the scene's cameras to `crop`; the viewport and read-back buffer for it."""
+        x0, y0, x1, y1 = crop
+        w, h = self.size
+        if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+            raise ValueError(f"crop {crop} is not inside the drawn image {self.size}")
+        for cam in scene.camera:
+            top = cam.frustum_top
+            half = top * w / h  # MuJoCo's half-width from the viewport's aspect
+            left, right = -half + 2 * half * x0 / w, -half + 2 * half * x1 / w
+            cam.frustum_center, cam.frustum_width = (left + right) / 2, (right - left) / 2
+            cam.frustum_top, cam.frustum_bottom = top - 2 * top * y0 / h, top - 2 * top * y1 / h
+        buffer = self._crop_pixels.get((x1 - x0, y1 - y0))
+        if buffer is None:
+            buffer = self._crop_pixels[(x1 - x0, y1 - y0)] = np.empty((y1 - y0, x1 - x0, 3), np.uint8)
+        return mujoco.MjrRect(0, 0, x1 - x0, y1 - y0), buffer
+
     def _finish(self, frames: list[np.ndarray], full: bool, out: np.ndarray | None) -> np.ndarray:
         if out is not None:
             return out
         images = np.stack(frames) if frames else np.zeros((0, self.size[1], self.size[0], 3), np.uint8)
         return images if full else downsample(images, self.cfg.supersample)
 
-    def _target(self, out: np.ndarray | None, n: int, full: bool) -> None:
-        if out is not None and (not full or out.shape != (n, self.size[1], self.size[0], 3)):
-            raise ValueError(f"out must be ({n}, {self.size[1]}, {self.size[0]}, 3) with full=True")
+    def _target(self, out: np.ndarray | None, n: int, full: bool, crop: Crop | None = None) -> None:
+        w, h = self.size if crop is None else (crop[2] - crop[0], crop[3] - crop[1])
+        if crop is not None and not full:
+            raise ValueError("a crop is drawn as drawn: full=True")
+        if out is not None and (not full or out.shape != (n, h, w, 3)):
+            raise ValueError(f"out must be ({n}, {h}, {w}, 3) with full=True")
+
+    def pixel_bounds(self, centres_world: np.ndarray, radii: np.ndarray | float, view: str,
+                     margin: int = 0) -> Crop | None:
+        """Pixel box of the drawn image (`self.size`) holding these world-frame spheres in
+        `view` (`framing.pixel_bounds`)."""
+        cam = self.camera(view)
+        return pixel_bounds(self._model, np.array(cam.lookat), cam.distance, cam.azimuth,
+                            cam.elevation, centres_world, radii, *self.size, margin=margin)
+
+    def robot_spheres(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding spheres of the drawn robot geoms at configurations q (N,n): centres (N,G,3)
+        and radii (G,), world frame (each geom's bounding box about its centre)."""
+        visible = np.flatnonzero(self._model.geom_group < 3)  # what `self._option` draws
+        box = self._model.geom_aabb[visible]
+        radii = np.linalg.norm(box[:, 3:], axis=1)
+        centres = np.empty((len(np.atleast_2d(q)), len(visible), 3))
+        data = mujoco.MjData(self._model)
+        for i, qi in enumerate(np.atleast_2d(q)):
+            data.qpos[:] = self.robot.qpos(np.asarray(qi, dtype=np.float64))
+            mujoco.mj_kinematics(self._model, data)
+            rot = data.geom_xmat[visible].reshape(-1, 3, 3)
+            centres[i] = data.geom_xpos[visible] + np.einsum("gab,gb->ga", rot, box[:, :3])
+        return centres, radii
 
     def robot_frames(self, q: np.ndarray, view: str = "front", full: bool = False,
-                     out: np.ndarray | None = None) -> np.ndarray:
+                     out: np.ndarray | None = None, crop: Crop | None = None) -> np.ndarray:
         """Images (N,H,W,3) of joint configurations q (N,n) in the robot's joint order; at the
         configured size, or as drawn (`self.size`, supersampled) with `full`, then written into
-        `out` when given (e.g. one half of the preview's side-by-side frames)."""
+        `out` when given (e.g. one half of the preview's side-by-side frames); only the `crop`
+        of the drawn image when given (`_draw`)."""
         q = np.atleast_2d(q)
-        self._target(out, len(q), full)
+        self._target(out, len(q), full, crop)
         self._ctx.make_current()
         cam = self.camera(view)
         frames = []
@@ -347,14 +402,15 @@ class SceneRenderer:
             self._data.qpos[:] = self.robot.qpos(np.asarray(qi, dtype=np.float64))
             mujoco.mj_kinematics(self._model, self._data)
             frames.append(self._draw(self._model, self._data, self._scene, self._robot_ctx, cam,
-                                     None if out is None else out[i]))
+                                     None if out is None else out[i], crop))
         return self._finish(frames, full, out)
 
     def reference_frames(self, vertices: np.ndarray, view: str = "front",
-                         full: bool = False, out: np.ndarray | None = None) -> np.ndarray:
+                         full: bool = False, out: np.ndarray | None = None,
+                         crop: Crop | None = None) -> np.ndarray:
         """Images (N,H,W,3) of reference meshes given as (N,V,3) vertices in the torso frame:
-        every vertex of the mesh, or only the drawn ones (`reference_keep`); `full` and `out`
-        as in `robot_frames`."""
+        every vertex of the mesh, or only the drawn ones (`reference_keep`); `full`, `out` and
+        `crop` as in `robot_frames`."""
         if self.reference_keep is None:
             raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
         vertices = np.asarray(vertices)
@@ -363,7 +419,7 @@ class SceneRenderer:
                 raise ValueError(f"reference vertices: expected {self._reference_count} or "
                                  f"{len(self.reference_keep)} per frame, got {vertices.shape[1]}")
             vertices = vertices[:, self.reference_keep]
-        self._target(out, len(vertices), full)
+        self._target(out, len(vertices), full, crop)
         self._ctx.make_current()
         if self._mesh is None:  # built on first use: the posed path (a bound skin) needs none
             self._mesh = _MeshModel(self._kept_faces, self._kept_rest, self.cfg,
@@ -376,7 +432,7 @@ class SceneRenderer:
         for i, verts in enumerate(np.asarray(vertices, dtype=np.float64)):
             self._mesh.set_vertices(verts @ rot.T + pos, self._mesh_ctx)
             frames.append(self._draw(self._mesh.model, self._mesh.data, self._mesh_scene,
-                                     self._mesh_ctx, cam, None if out is None else out[i]))
+                                     self._mesh_ctx, cam, None if out is None else out[i], crop))
         return self._finish(frames, full, out)
 
     def bind_reference_skin(self, rest_vertices: np.ndarray, weights: np.ndarray,
@@ -406,20 +462,22 @@ class SceneRenderer:
         return self._skin is not None
 
     def reference_pose_frames(self, transforms: np.ndarray, view: str = "front",
-                              full: bool = False, out: np.ndarray | None = None) -> np.ndarray:
+                              full: bool = False, out: np.ndarray | None = None,
+                              crop: Crop | None = None) -> np.ndarray:
         """Images (N,H,W,3) of the reference body posed by its joints' transforms (N,J,4,4)
-        in the body frame (`BodyModel.joint_transforms`); `full` and `out` as in `robot_frames`."""
+        in the body frame (`BodyModel.joint_transforms`); `full`, `out` and `crop` as in
+        `robot_frames`."""
         if self._skin is None:
             raise ValueError("no reference skin bound (bind_reference_skin)")
         transforms = np.asarray(transforms, dtype=np.float64)
-        self._target(out, len(transforms), full)
+        self._target(out, len(transforms), full, crop)
         self._ctx.make_current()
         cam = self.camera(view)
         frames = []
         for i, pose in enumerate(self._skin.bone_poses(transforms)):
             self._skin.set_pose(*pose)
             frames.append(self._draw(self._skin.model, self._skin.data, self._skin_scene,
-                                     self._skin_ctx, cam, None if out is None else out[i]))
+                                     self._skin_ctx, cam, None if out is None else out[i], crop))
         return self._finish(frames, full, out)
 
     def close(self) -> None:
