@@ -47,51 +47,49 @@ def _cpu() -> float:
 
 
 def phases(motion, body, fit, robot, q: np.ndarray, keys: np.ndarray, cfg) -> dict[str, float]:
-    """CPU ms per preview frame of each phase of the render step, timed around the same calls
-    `render_sequence` makes: opening the renderer, the bone poses (or skinned vertices), the
-    reference and robot images of the preview's pass (preview frames and first-view
-    keyframes), the x264 encoder (the child's CPU, at close), the other views' keyframes, the
-    sheet PNG and closing the renderer."""
-    from embody.render.compare import (Comparison, open_renderer, preview_frames,
-                                       render_comparison)
+    """CPU ms per preview frame of each phase of one `render_sequence` call, each timed
+    exclusive of the phases it calls: opening the renderer, the preview's crop, reference and
+    robot images (the preview's pass and the other views' keyframes), the x264 encoder (the
+    child's CPU, at close), the sheet PNG, closing the renderer, and the rest."""
+    from embody.render import compare, record, scene
     from embody.render.preview import PreviewWriter
     acc: dict[str, float] = {}
+    stack: list[float] = []  # CPU time of the phases called inside the running one
 
-    def timed(name, fn, *a, **k):
+    def wrap(owner, attr, name):
+        fn = getattr(owner, attr)
+
+        def timed(*a, **k):
+            c = _cpu()
+            stack.append(0.0)
+            try:
+                return fn(*a, **k)
+            finally:
+                inner = stack.pop()
+                spent = _cpu() - c
+                acc[name] = acc.get(name, 0.0) + spent - inner
+                if stack:
+                    stack[-1] += spent
+        setattr(owner, attr, timed)
+        return owner, attr, fn
+
+    patched = [wrap(record, "open_renderer", "open_renderer"),
+               wrap(compare, "preview_crop", "crop"),
+               wrap(compare, "draw_reference", "reference_image"),
+               wrap(scene.SceneRenderer, "robot_frames", "robot_image"),
+               wrap(PreviewWriter, "add", "encode"), wrap(PreviewWriter, "close", "encode"),
+               wrap(compare.Comparison, "sheet_png", "sheet_png"),
+               wrap(scene.SceneRenderer, "close", "close")]
+    try:
         c = _cpu()
-        out = fn(*a, **k)
-        acc[name] = acc.get(name, 0.0) + _cpu() - c
-        return out
-
-    renderer = timed("open_renderer", open_renderer, robot, body, fit, cfg)
-    w, h = renderer.size
-    shown, rate = preview_frames(cfg, len(q), motion.fps)
-    frames = np.union1d(shown, keys)
-    view = cfg.views[0]
-    with tempfile.TemporaryDirectory() as tmp:
-        writer = PreviewWriter(Path(tmp) / "p", rate)
-        for start in range(0, len(frames), 32):
-            chunk = frames[start:start + 32]
-            both = np.empty((len(chunk), h, 2 * w, 3), dtype=np.uint8)
-            if renderer.posed:
-                tf = timed("bones", renderer.skin.transforms, motion, chunk)
-                timed("reference_image", renderer.reference_pose_frames, tf, view, full=True,
-                      out=both[:, :, :w])
-            else:
-                verts = timed("skin", renderer.skin, motion, chunk)
-                timed("reference_image", renderer.reference_frames, verts, view, full=True,
-                      out=both[:, :, :w])
-            timed("robot_image", renderer.robot_frames, q[chunk], view, full=True,
-                  out=both[:, :, w:])
-            timed("encode", writer.add, both[np.isin(chunk, shown)])
-        timed("encode", writer.close)
-    other = cfg.model_copy(update={"views": list(cfg.views[1:])})
-    comp = timed("other_views", render_comparison, renderer, other, keys, motion.fps, q,
-                 motion=motion) if other.views else Comparison(keys, motion.fps)
-    if comp.reference:
-        timed("sheet_png", comp.sheet_png, "bench")
-    timed("close", renderer.close)
-    return {k: 1000 * v / len(shown) for k, v in acc.items()}
+        record.render_sequence(motion, body, fit, robot, q, keys, cfg, "bench")
+        total = _cpu() - c
+    finally:
+        for owner, attr, fn in patched:
+            setattr(owner, attr, fn)
+    acc["other"] = total - sum(acc.values())
+    shown = len(compare.preview_frames(cfg, len(q), motion.fps)[0])
+    return {k: 1000 * v / shown for k, v in acc.items()}
 
 
 def main() -> None:

@@ -253,19 +253,20 @@ def preview_frames(cfg: RenderConfig, num_frames: int, fps: float) -> tuple[np.n
 
 def preview_crop(renderer: SceneRenderer, motion: Motion, q: np.ndarray, frames: np.ndarray,
                  view: str, margin: int = _CROP_MARGIN) -> Crop | None:
-    """The part of the drawn image (`renderer.size`) that the robot's bounding spheres and the
-    reference body's drawn vertices reach at `frames`, plus `margin` pixels, even-sized (x264's
-    4:2:0); one box for both bodies, so the side-by-side halves keep one scale and line up.
-    None when it would not be smaller than the whole image."""
-    boxes = []
+    """The part of the drawn image (`renderer.size`) that the bounding spheres of the robot's
+    geoms and of the reference body's bones reach at `frames`, plus `margin` pixels,
+    even-sized (x264's 4:2:0); one box for both bodies, so the side-by-side halves keep one
+    scale and line up. None when it would not be smaller than the whole image, or when the
+    reference is drawn from vertices (no bound skin)."""
+    if renderer.skin is not None and not renderer.posed:
+        return None
     centres, radii = renderer.robot_spheres(q[frames])
-    boxes.append(renderer.pixel_bounds(centres.reshape(-1, 3), np.tile(radii, len(frames)),
-                                       view, margin))
+    boxes = [renderer.pixel_bounds(centres.reshape(-1, 3), np.tile(radii, len(frames)), view,
+                                   margin)]
     if renderer.skin is not None:
-        rot, pos = renderer.world_from_torso[:3, :3], renderer.world_from_torso[:3, 3]
-        for start in range(0, len(frames), _CHUNK):
-            verts = renderer.skin(motion, frames[start:start + _CHUNK]).reshape(-1, 3)
-            boxes.append(renderer.pixel_bounds(verts @ rot.T + pos, 0.0, view, margin))
+        bones, radii = renderer.reference_spheres(renderer.skin.transforms(motion, frames))
+        boxes.append(renderer.pixel_bounds(bones.reshape(-1, 3), np.tile(radii, len(frames)),
+                                           view, margin))
     if any(b is None for b in boxes):
         return None
     (w, h), box = renderer.size, np.array(boxes)

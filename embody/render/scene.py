@@ -372,6 +372,13 @@ class SceneRenderer:
         return pixel_bounds(self._model, np.array(cam.lookat), cam.distance, cam.azimuth,
                             cam.elevation, centres_world, radii, *self.size, margin=margin)
 
+    def reference_spheres(self, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Spheres (centres (N,B,3) world, radii (B,)) holding the bound skin posed by joint
+        transforms (N,J,4,4), one per bone (`_SkinModel.bone_spheres`)."""
+        if self._skin is None:
+            raise ValueError("no reference skin bound (bind_reference_skin)")
+        return self._skin.bone_spheres(np.asarray(transforms, dtype=np.float64))
+
     def robot_spheres(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Bounding spheres of the drawn robot geoms at configurations q (N,n): centres (N,G,3)
         and radii (G,), world frame (each geom's bounding box about its centre)."""
@@ -636,6 +643,9 @@ class _SkinModel:
         skin.vertweight = [weights[weights[:, j] > 0, j].tolist() for j in self.bones]
         self.model = spec.compile()
         self.data = mujoco.MjData(self.model)
+        offsets = np.linalg.norm(np.asarray(rest_vertices, np.float64)[:, None]
+                                 - np.asarray(bind, np.float64)[self.bones], axis=2)  # (K,B)
+        self.radii = self.scale * np.where(weights[:, self.bones] > 0, offsets, 0.0).max(axis=0)
 
     def bone_poses(self, transforms: np.ndarray):
         """Per frame (mocap positions (B,3), quaternions (B,4)) of joint transforms (N,J,4,4)."""
@@ -647,6 +657,15 @@ class _SkinModel:
             for j in range(rot.shape[1]):
                 mujoco.mju_mat2Quat(quat[t, j], rot[t, j].ravel())
         return zip(pos, quat)
+
+    def bone_spheres(self, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per bone, a sphere about its posed joint (N,B,3) of radius (B,) the farthest scaled
+        rest offset of a vertex it moves: bone j alone would put each of its vertices inside
+        its sphere, and a blended vertex is a convex combination of such positions, so its
+        image lies in the box of the spheres' images."""
+        pos = (np.einsum("ab,tjb->tja", self.scale * self.rotation,
+                         transforms[:, self.bones][..., :3, 3]) + self.offset)
+        return pos, self.radii
 
     def set_pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
         self.data.mocap_pos[:] = pos
