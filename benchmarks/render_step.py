@@ -1,14 +1,16 @@
 """The render step alone: `render_sequence` (comparison sheet + preview) on the default set.
 
 Renders the first N sequences of the default synthetic set (the source motion as reference, the
-robot at a slowly waving T-pose: the cost hardly depends on the pose) exactly as the pipeline's
-render step does, and reports wall and CPU seconds per sequence (CPU time, encoder included, is the
-steadier figure on a shared machine), the CPU milliseconds per drawn image (reference and robot
-of every preview frame, plus the other views' keyframes; the encoder and sheet included), the
-preview's frame count, rate, size and bytes. Run it on two checkouts
+robot signing it: IK on the source motion, not timed; `--tpose`: a slowly waving T-pose, as
+before the preview was cropped to what the bodies reach) exactly as the pipeline's render step
+does, and reports wall and CPU seconds per sequence (CPU time, encoder included, is the steadier
+figure on a shared machine; `render_cpu_s_warm` leaves out the first sequence, which also
+prepares the robot model once a process), the CPU milliseconds per drawn image (reference and
+robot of every preview frame and first-view keyframe, plus the other views' keyframes; the
+encoder and sheet included), the preview's frame count, size and bytes. Run it on two checkouts
 back to back (`PYTHONPATH=<checkout>`) to compare.
 
-    python benchmarks/render_step.py [--n 3] [--phases]
+    python benchmarks/render_step.py [--n 3] [--phases] [--tpose]
 """
 
 from __future__ import annotations
@@ -95,6 +97,9 @@ def phases(motion, body, fit, robot, q: np.ndarray, keys: np.ndarray, cfg) -> di
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=3)
+    parser.add_argument("--tpose", action="store_true",
+                        help="The robot at a slowly waving T-pose (the figures before "
+                             "2026-11-27 s14) instead of IK on the motion.")
     parser.add_argument("--phases", action="store_true",
                         help="Also print CPU ms per preview frame of each drawing phase.")
     args = parser.parse_args()
@@ -103,6 +108,7 @@ def main() -> None:
     from embody.body import load_body_model
     from embody.config import Config
     from embody.io import load_dataset
+    from embody.render.compare import preview_frames
     from embody.render.record import render_sequence
     from embody.retarget import shape_fit
     from embody.robot import load_robot
@@ -114,19 +120,31 @@ def main() -> None:
     body, robot = load_body_model(cfg.body), load_robot(cfg.robot)
     fit = shape_fit(robot, body, cfg.ik)
     roll = robot.joint_index("left_shoulder_roll_joint")
+    from embody.render import select_keyframes
+    from embody.retarget import build_targets
+    from embody.retarget.windows import solve_windowed
     walls, cpus, drawn = [], [], []
     for motion in motions:
         t = motion.num_frames
-        q = np.tile(robot.tpose, (t, 1))
-        q[:, roll] += 0.5 * np.sin(np.linspace(0, 2 * np.pi, t))
-        keys = np.linspace(0, t - 1, cfg.render.keyframes).round().astype(np.int64)
+        if args.tpose:
+            q = np.tile(robot.tpose, (t, 1))
+            q[:, roll] += 0.5 * np.sin(np.linspace(0, 2 * np.pi, t))
+            keys = np.linspace(0, t - 1, cfg.render.keyframes).round().astype(np.int64)
+        else:  # the robot signing (IK on the source motion) and the step's keyframes
+            targets = build_targets(motion, body, fit, robot, cfg.ik)
+            q = solve_windowed(robot, targets, cfg.ik).q
+            keys = select_keyframes(targets.wrist_pos, cfg.render.keyframes)
         w0, c0 = time.perf_counter(), _cpu()
         out = render_sequence(motion, body, fit, robot, q, keys, cfg.render, "bench")
         walls.append(time.perf_counter() - w0)
         cpus.append(_cpu() - c0)
         shape = _preview_shape(out.preview, out.preview_suffix) if out.preview else (0, 0, 0)
-        # images drawn: reference + robot per preview frame, and per keyframe of the other views
-        drawn.append(2 * shape[0] + 2 * len(keys) * (len(cfg.render.views) - 1))
+        # images drawn: reference + robot per preview frame or keyframe (first view), and per
+        # keyframe of the other views
+        shown = (preview_frames(cfg.render, t, motion.fps)[0] if out.preview
+                 else np.zeros(0, np.int64))
+        drawn.append(2 * len(np.union1d(shown, keys)) * (len(cfg.render.views) > 0)
+                     + 2 * len(keys) * (len(cfg.render.views) - 1))
         print(f"frames={t} fps={motion.fps:g} wall_s={walls[-1]:.2f} cpu_s={cpus[-1]:.2f} "
               f"cpu_ms_per_image={1000 * cpus[-1] / drawn[-1]:.1f} "
               f"preview_frames={shape[0]} preview_hw={shape[1]}x{shape[2]} "
@@ -135,9 +153,13 @@ def main() -> None:
         split = phases(motions[-1], body, fit, robot, q, keys, cfg.render)
         print("phases (CPU ms per preview frame): "
               + " ".join(f"{k}={v:.1f}" for k, v in split.items()))
+    # the first sequence also prepares the robot model and compiles GL state, once a process
+    warm = np.mean(cpus[1:]) if len(cpus) > 1 else cpus[0]
     print(f"RESULT render_s={np.mean(walls):.2f} render_cpu_s={np.mean(cpus):.2f} "
+          f"render_cpu_s_warm={warm:.2f} "
           f"cpu_ms_per_image={1000 * np.sum(cpus) / np.sum(drawn):.1f} "
-          f"preview_frames={shape[0]} preview_height={shape[1]} sequences={len(motions)}")
+          f"preview_frames={shape[0]} preview_height={shape[1]} preview_width={shape[2]} "
+          f"sequences={len(motions)}")
 
 
 if __name__ == "__main__":
