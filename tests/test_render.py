@@ -154,9 +154,21 @@ def test_decimated_robot_meshes_keep_the_silhouette(robot, renderer):
     q = robot.tpose.copy()
     q[robot.joint_index("left_elbow_joint")] = 0.3
     fast = _mask(renderer.robot_frames(q[None])[0])  # any robot pixel: shading may differ
-    with SceneRenderer(robot, CFG.model_copy(update={"mesh_cell_m": 0.0})) as full_renderer:
+    whole = CFG.model_copy(update={"mesh_cell_m": 0.0, "robot_body_cell_m": 0.0})
+    with SceneRenderer(robot, whole) as full_renderer:
         full = _mask(full_renderer.robot_frames(q[None])[0])
     assert (fast & full).sum() / (fast | full).sum() > 0.95
+    # the torso on the coarser grid, the arms (hands included) on the fine one
+    faces = {}
+    for cell in (None, CFG.robot_body_cell_m):
+        model = SceneRenderer(robot, CFG.model_copy(update={"robot_body_cell_m": cell}))
+        m = model._model
+        meshes = lambda body: m.geom_dataid[(m.geom_bodyid == m.body(body).id) & (m.geom_dataid >= 0)]
+        faces[cell] = (m.mesh_facenum[meshes("torso_link")].sum(),
+                       m.mesh_facenum[meshes("left_wrist_yaw_link")].sum())
+        model.close()
+    assert faces[CFG.robot_body_cell_m][0] < 0.6 * faces[None][0]
+    assert faces[CFG.robot_body_cell_m][1] == faces[None][1]
 
 
 # --- the render step: preview in real time, sheet frames reused, skinned decimated body ---

@@ -38,6 +38,7 @@ _OFF_FLAGS = (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION
               mujoco.mjtRndFlag.mjRND_SKYBOX, mujoco.mjtRndFlag.mjRND_FOG,
               mujoco.mjtRndFlag.mjRND_HAZE)
 _HIDDEN_GROUP = 5
+_MESH = mujoco.mjtGeom.mjGEOM_MESH
 #: Shadows are off, but every `MjrContext` allocates its shadow map: at MuJoCo's default 4096²
 #: that costs ~30 ms a context on software GL, at this size nothing.
 _SHADOW_SIZE = 64
@@ -233,6 +234,7 @@ class SceneRenderer:
     def _robot_model(self, model: mujoco.MjModel, torso_body: str) -> mujoco.MjModel:
         cfg = self.cfg
         key = (id(model), torso_body, self.size, cfg.upper_body, cfg.mesh_cell_m,
+               cfg.robot_body_cell_m,
                tuple(cfg.robot_rgba))
         with _PREPARED_LOCK:
             source, prepared = _PREPARED.get(key, (None, None))
@@ -254,9 +256,19 @@ class SceneRenderer:
         if self.cfg.upper_body:
             upper = _subtree_mask(model, model.body(torso_body).id)
             model.geom_group[~upper] = _HIDDEN_GROUP
-        if self.cfg.mesh_cell_m > 0:
-            for mesh in range(model.nmesh):
-                cluster_mesh(model, mesh, self.cfg.mesh_cell_m)
+        cells = np.full(model.nmesh, self.cfg.mesh_cell_m)
+        if self.cfg.robot_body_cell_m is not None:  # coarser outside the arms
+            links = getattr(getattr(self.robot, "spec", None), "links", {}) or {}
+            arms = np.zeros(model.ngeom, dtype=bool)
+            for name in ("left_shoulder", "right_shoulder"):
+                if name in links:
+                    arms |= _subtree_mask(model, model.body(links[name].body).id)
+            if arms.any():
+                body_meshes = np.setdiff1d(model.geom_dataid[~arms & (model.geom_type == _MESH)],
+                                           model.geom_dataid[arms & (model.geom_type == _MESH)])
+                cells[body_meshes[body_meshes >= 0]] = self.cfg.robot_body_cell_m
+        for mesh in np.flatnonzero(cells > 0):
+            cluster_mesh(model, int(mesh), float(cells[mesh]))
         model.geom_matid[:] = -1  # one light material instead of the robot's dark ones
         model.geom_rgba[:] = self.cfg.robot_rgba
         model.vis.headlight.ambient[:] = 0.45
