@@ -27,6 +27,7 @@ class RenderConfig(Section):
     #: OpenGL backend; osmesa needs `libosmesa6`. egl falls back to osmesa when it fails.
     gl: Literal["egl", "osmesa"] = "egl"
     #: Hide geometry below the torso (legs): signing is upper-body, and it halves render time.
+    #: The reference body's legs (hips down) are left out with the robot's.
     upper_body: bool = True
     #: Robot meshes are decimated on a grid of this cell size (m) for rendering only; 0 keeps
     #: them whole. Software GL's cost follows the triangle count, hardly the pixels: 8 mm (about

@@ -93,15 +93,35 @@ class ReferenceSkin:
         return np.concatenate(out) if out else np.zeros((0, len(self.keep), 3))
 
 
-def hand_bones(body: BodyModel) -> np.ndarray:
-    """Indices of the wrist joints and every joint below them (the fingers); empty when the
-    body names no wrists."""
+def _subtree_bones(body: BodyModel, roots: tuple[str, ...]) -> np.ndarray:
     names = list(body.joint_names)
     parents = np.asarray(body.parents)
     inside = np.zeros(len(names), dtype=bool)
     for j in range(len(names)):  # parents precede children
-        inside[j] = names[j] in ("left_wrist", "right_wrist") or (parents[j] >= 0 and inside[parents[j]])
+        inside[j] = names[j] in roots or (parents[j] >= 0 and inside[parents[j]])
     return np.flatnonzero(inside)
+
+
+def hand_bones(body: BodyModel) -> np.ndarray:
+    """Indices of the wrist joints and every joint below them (the fingers); empty when the
+    body names no wrists."""
+    return _subtree_bones(body, ("left_wrist", "right_wrist"))
+
+
+def leg_bones(body: BodyModel) -> np.ndarray:
+    """Indices of the hip joints and every joint below them; empty when the body names no hips."""
+    return _subtree_bones(body, ("left_hip", "right_hip"))
+
+
+def drawn_faces(body: BodyModel, cfg: RenderConfig) -> np.ndarray:
+    """The reference body's faces that are drawn: with `render.upper_body`, not the legs' (every
+    vertex's dominant skinning bone a hip or below), as the robot's legs are hidden: signing
+    is upper-body, and they were a quarter of the drawn triangles."""
+    faces = np.asarray(body.faces)
+    if not cfg.upper_body:
+        return faces
+    legs = np.isin(np.asarray(body.skin_weights).argmax(axis=1), leg_bones(body))
+    return faces[~legs[faces].all(axis=1)]
 
 
 def reference_cells(body: BodyModel, cfg: RenderConfig) -> np.ndarray:
@@ -124,7 +144,7 @@ def open_renderer(robot, body: BodyModel, fit, cfg: RenderConfig) -> SceneRender
         reach_verts = body.vertices(reach, betas)
         points = fit.apply(reach_verts).cpu().numpy().reshape(-1, 3)
     bones = np.asarray(body.skin_weights).argmax(axis=1)
-    renderer = SceneRenderer(robot, cfg, np.asarray(body.faces), rest.cpu().numpy(),
+    renderer = SceneRenderer(robot, cfg, drawn_faces(body, cfg), rest.cpu().numpy(),
                              torso_body=robot.spec.torso_body, reference_points=points,
                              reference_groups=bones, reference_cells=reference_cells(body, cfg))
     try:
