@@ -360,6 +360,22 @@ def test_reference_hands_keep_the_fine_cell(fitted):
     assert np.all(same == cfg.reference_cell_m)
 
 
+def test_reference_legs_are_left_out_with_the_robots(fitted):
+    from embody.render.compare import drawn_faces, leg_bones
+    body, _ = fitted
+    assert {body.joint_names[j] for j in leg_bones(body)} >= {"left_hip", "right_knee", "left_foot"}
+    faces = np.asarray(body.faces)
+    assert np.array_equal(drawn_faces(body, RenderConfig(upper_body=False)), faces)
+    upper = drawn_faces(body, RenderConfig())
+    bones = np.asarray(body.skin_weights).argmax(axis=1)
+    on_legs = np.isin(bones, leg_bones(body))
+    assert 0.1 * len(faces) < len(faces) - len(upper) < 0.5 * len(faces)
+    assert not on_legs[upper].all(axis=1).any()  # no face left wholly on the legs
+    on_hand = (bones[faces] == body.joint_names.index("left_wrist")).all(axis=1)
+    kept = {tuple(f) for f in upper.tolist()}
+    assert on_hand.any() and all(tuple(f) in kept for f in faces[on_hand].tolist())
+
+
 def test_downsample_is_the_rounded_block_mean():
     from embody.render.scene import downsample
 

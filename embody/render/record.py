@@ -50,9 +50,10 @@ def render_sequence(motion, body, fit, robot, q: np.ndarray, keyframes: np.ndarr
     """Render the final trajectory `q` beside the reference body at `keyframes` (pick them with
     `select_keyframes` on the reference wrists, as the critic loop does, or take the loop's).
 
-    The preview's frames (`render.preview_fps`, first view) and the keyframes are drawn in one
-    pass; the sheet's first view takes its keyframes from it, so only the other views are drawn
-    for the sheet."""
+    The preview's frames (`render.preview_fps`, first view; only the part of the image the
+    bodies reach with `render.preview_crop`) and the keyframes (whole) are drawn in one pass;
+    the sheet's first view takes its keyframes from it, so only the other views are drawn for
+    the sheet."""
     keys = np.asarray(keyframes)
     q = np.asarray(q)
     renderer = open_renderer(robot, body, fit, cfg)
