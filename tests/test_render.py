@@ -290,7 +290,16 @@ def test_reference_skin_draws_what_the_skinned_vertices_draw(robot, fitted):
             assert a.sum() > 1000 and (a & b).sum() / (a | b).sum() > 0.99
             diff = np.abs(posed.astype(int) - meshed.astype(int)).max(axis=-1)
             assert (diff > 8).mean() < 0.01
-    # a map that is not a similarity cannot be a skin
+    # a body→torso map that is not a similarity: no skin, the vertex path, no preview crop
+    import dataclasses
+
+    from embody.render.compare import preview_crop
+    mirrored = dataclasses.replace(fit, rotation=fit.rotation @ np.diag([1.0, 1.0, -1.0]))
+    with open_renderer(robot, body, mirrored, RenderConfig()) as renderer:
+        assert not renderer.posed
+        assert _mask(draw_reference(renderer, motion, frames, "front")).sum() > 1000
+        assert preview_crop(renderer, motion, np.tile(robot.tpose, (6, 1)), frames, "front") is None
+    # and the renderer refuses to bind one
     with open_renderer(robot, body, fit, RenderConfig()) as renderer:
         with pytest.raises(ValueError, match="similarity|scale times a rotation"):
             renderer.bind_reference_skin(np.zeros((len(renderer.reference_keep), 3)),

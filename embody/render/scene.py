@@ -464,7 +464,8 @@ class SceneRenderer:
         if self.reference_keep is None:
             raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
         rotation = np.asarray(rotation, dtype=np.float64)
-        if not (scale > 0 and np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6)
+        if not (scale > 0 and rotation.shape == (3, 3)
+                and np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6)
                 and np.linalg.det(rotation) > 0):
             raise ValueError("the body-to-torso map must be a positive scale times a rotation")
         rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
