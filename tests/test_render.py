@@ -158,17 +158,20 @@ def test_decimated_robot_meshes_keep_the_silhouette(robot, renderer):
     with SceneRenderer(robot, whole) as full_renderer:
         full = _mask(full_renderer.robot_frames(q[None])[0])
     assert (fast & full).sum() / (fast | full).sum() > 0.95
-    # the torso on the coarser grid, the arms (hands included) on the fine one
+    # the torso and arms on the coarser grid, the hands on the fine one
     faces = {}
     for cell in (None, CFG.robot_body_cell_m):
         model = SceneRenderer(robot, CFG.model_copy(update={"robot_body_cell_m": cell}))
         m = model._model
         meshes = lambda body: m.geom_dataid[(m.geom_bodyid == m.body(body).id) & (m.geom_dataid >= 0)]
         faces[cell] = (m.mesh_facenum[meshes("torso_link")].sum(),
-                       m.mesh_facenum[meshes("left_wrist_yaw_link")].sum())
+                       m.mesh_facenum[meshes("left_elbow_link")].sum(),
+                       m.mesh_facenum[meshes("left_wrist_yaw_link")].sum(),
+                       m.mesh_facenum[meshes("right_hand_index_1_link")].sum())
         model.close()
-    assert faces[CFG.robot_body_cell_m][0] < 0.6 * faces[None][0]
-    assert faces[CFG.robot_body_cell_m][1] == faces[None][1]
+    coarse, fine = faces[CFG.robot_body_cell_m], faces[None]
+    assert coarse[0] < 0.6 * fine[0] and coarse[1] < fine[1]
+    assert coarse[2:] == fine[2:]
 
 
 # --- the render step: preview in real time, sheet frames reused, skinned decimated body ---

@@ -33,9 +33,9 @@ class RenderConfig(Section):
     #: them whole. Software GL's cost follows the triangle count, hardly the pixels: 8 mm (about
     #: 1.5 px at 320×240 and 1.2 m) draws G1's upper body with 48k instead of 470k triangles.
     mesh_cell_m: float = Field(0.008, ge=0.0, le=0.05)
-    #: The robot's meshes outside the arms (torso, head, waist: large and smooth) on a coarser
-    #: grid; null: `mesh_cell_m`. 16 mm draws G1's torso with 4k instead of 12k triangles
-    #: (a quarter of the drawn robot's cost); arms and hands keep `mesh_cell_m`.
+    #: The robot's meshes outside the hands (torso, head, arms: large and smooth) on a coarser
+    #: grid; null: `mesh_cell_m`. 16 mm draws G1's upper body with 12k instead of 25k
+    #: triangles; the hands (the wrist links and below) keep `mesh_cell_m`.
     robot_body_cell_m: float | None = Field(0.016, ge=0.0, le=0.05)
     #: The reference body's hands (wrist and finger bones) are decimated the same way (within
     #: each rigid piece and skinning bone, so fingers never merge). 0 keeps them whole.

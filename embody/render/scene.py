@@ -39,6 +39,9 @@ _OFF_FLAGS = (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION
               mujoco.mjtRndFlag.mjRND_HAZE)
 _HIDDEN_GROUP = 5
 _MESH = mujoco.mjtGeom.mjGEOM_MESH
+#: Robot links whose subtrees (the hands) keep the fine `mesh_cell_m`; `robot_body_cell_m`
+#: elsewhere.
+_FINE_LINKS = ("left_wrist", "right_wrist")
 #: Shadows are off, but every `MjrContext` allocates its shadow map: at MuJoCo's default 4096²
 #: that costs ~30 ms a context on software GL, at this size nothing.
 _SHADOW_SIZE = 64
@@ -257,15 +260,16 @@ class SceneRenderer:
             upper = _subtree_mask(model, model.body(torso_body).id)
             model.geom_group[~upper] = _HIDDEN_GROUP
         cells = np.full(model.nmesh, self.cfg.mesh_cell_m)
-        if self.cfg.robot_body_cell_m is not None:  # coarser outside the arms
+        if self.cfg.robot_body_cell_m is not None:  # coarser outside the hands
             links = getattr(getattr(self.robot, "spec", None), "links", {}) or {}
-            arms = np.zeros(model.ngeom, dtype=bool)
-            for name in ("left_shoulder", "right_shoulder"):
+            hands = np.zeros(model.ngeom, dtype=bool)
+            for name in _FINE_LINKS:
                 if name in links:
-                    arms |= _subtree_mask(model, model.body(links[name].body).id)
-            if arms.any():
-                body_meshes = np.setdiff1d(model.geom_dataid[~arms & (model.geom_type == _MESH)],
-                                           model.geom_dataid[arms & (model.geom_type == _MESH)])
+                    hands |= _subtree_mask(model, model.body(links[name].body).id)
+            if hands.any():
+                mesh = model.geom_type == _MESH
+                body_meshes = np.setdiff1d(model.geom_dataid[~hands & mesh],
+                                           model.geom_dataid[hands & mesh])
                 cells[body_meshes[body_meshes >= 0]] = self.cfg.robot_body_cell_m
         for mesh in np.flatnonzero(cells > 0):
             cluster_mesh(model, int(mesh), float(cells[mesh]))
