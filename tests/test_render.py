@@ -163,11 +163,10 @@ def test_decimated_robot_meshes_keep_the_silhouette(robot, renderer):
     for cell in (None, CFG.robot_body_cell_m):
         model = SceneRenderer(robot, CFG.model_copy(update={"robot_body_cell_m": cell}))
         m = model._model
-        meshes = lambda body: m.geom_dataid[(m.geom_bodyid == m.body(body).id) & (m.geom_dataid >= 0)]
-        faces[cell] = (m.mesh_facenum[meshes("torso_link")].sum(),
-                       m.mesh_facenum[meshes("left_elbow_link")].sum(),
-                       m.mesh_facenum[meshes("left_wrist_yaw_link")].sum(),
-                       m.mesh_facenum[meshes("right_hand_index_1_link")].sum())
+        faces[cell] = tuple(
+            m.mesh_facenum[m.geom_dataid[(m.geom_bodyid == m.body(b).id) & (m.geom_dataid >= 0)]].sum()
+            for b in ("torso_link", "left_elbow_link", "left_wrist_yaw_link",
+                      "right_hand_index_1_link"))
         model.close()
     coarse, fine = faces[CFG.robot_body_cell_m], faces[None]
     assert coarse[0] < 0.6 * fine[0] and coarse[1] < fine[1]
@@ -272,9 +271,10 @@ def test_pixel_bounds_hold_the_spheres():
     assert inside.all()
     # and not much more: the box is within a few pixels of the sampled extent
     assert box[0] >= uv[:, 0].min() - 12 and box[2] <= uv[:, 0].max() + 12
-    assert pixel_bounds(*args, np.array([[0.0, 0.0, 1.0]]) - 2.0 * np.array(
-        [np.cos(np.radians(-5)) * np.cos(np.radians(150)), np.cos(np.radians(-5)) * np.sin(np.radians(150)),
-         np.sin(np.radians(-5))]), 0.1, 640, 480) is None  # at the eye: behind the camera
+    az, el = np.radians(150.0), np.radians(-5.0)
+    forward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    eye = np.array([0.0, 0.0, 1.0]) - 2.0 * forward
+    assert pixel_bounds(*args, eye[None], 0.1, 640, 480) is None  # reaches behind the camera
 
 
 def test_reference_skin_draws_what_the_skinned_vertices_draw(robot, fitted):

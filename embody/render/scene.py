@@ -362,10 +362,10 @@ class SceneRenderer:
             left, right = -half + 2 * half * x0 / w, -half + 2 * half * x1 / w
             cam.frustum_center, cam.frustum_width = (left + right) / 2, (right - left) / 2
             cam.frustum_top, cam.frustum_bottom = top - 2 * top * y0 / h, top - 2 * top * y1 / h
-        buffer = self._crop_pixels.get((x1 - x0, y1 - y0))
-        if buffer is None:
-            buffer = self._crop_pixels[(x1 - x0, y1 - y0)] = np.empty((y1 - y0, x1 - x0, 3), np.uint8)
-        return mujoco.MjrRect(0, 0, x1 - x0, y1 - y0), buffer
+        size = (x1 - x0, y1 - y0)
+        if size not in self._crop_pixels:
+            self._crop_pixels[size] = np.empty((size[1], size[0], 3), np.uint8)
+        return mujoco.MjrRect(0, 0, *size), self._crop_pixels[size]
 
     def _finish(self, frames: list[np.ndarray], full: bool, out: np.ndarray | None) -> np.ndarray:
         if out is not None:
