@@ -372,9 +372,11 @@ REFINE = Step("refine", "18", ("body", "robot", "ik", "render", "critic"), _refi
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
 # v3: coarser draw meshes (robot 8 mm, reference body 20 mm, hands 6 mm).
-RENDER = Step("render", "3", ("body", "robot", "render"), _render, _render_result,
+# v4: the reference body drawn as a MuJoCo skin (bone poses), its legs left out; robot meshes
+#     outside the hands on 16 mm; previews at 15 fps, cropped to what the bodies reach.
+RENDER = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
               (COLLIDE, SHAPE_FIT, RETARGET), metrics=_render_metrics, files=_robot_files)
-RENDER_REFINED = Step("render", "3", ("body", "robot", "render"), _render, _render_result,
+RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
 # v5: the exported control-rate array (validated), sign fidelity on that array, the report's wrist tracks.
