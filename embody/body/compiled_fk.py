@@ -58,17 +58,18 @@ def forward_at(local: np.ndarray, offsets: np.ndarray, root: np.ndarray, parents
 
 @njit(cache=True, nogil=True)
 def backward_at(local: np.ndarray, world: np.ndarray, offsets: np.ndarray, parents: np.ndarray,
-                order: np.ndarray, grad: np.ndarray, out: np.ndarray) -> None:
-    """`out` (T,J,3,3) ∂/∂local of the joints in `order` from `grad` (T,J,4,4) ∂/∂world (its
-    bottom row unused). `order` must hold every descendant of its joints (`subtree`): a
-    joint's ∂local reads its descendants' ∂world only; the other joints' `out` is left as is."""
-    n_t, n_j = local.shape[0], local.shape[1]
+                order: np.ndarray, grad: np.ndarray, frames: np.ndarray, out: np.ndarray) -> None:
+    """`out` (T,J,3,3) ∂/∂local of the joints in `order` at `frames` from `grad` (T,J,4,4)
+    ∂/∂world (its bottom row unused). `order` must hold every descendant of its joints
+    (`subtree`): a joint's ∂local reads its descendants' ∂world only; the other joints' and
+    frames' `out` is left as is."""
+    n_j = local.shape[1]
     g_r = np.empty((n_j, 3, 3))
     g_p = np.empty((n_j, 3))
     inside = np.zeros(n_j, dtype=np.bool_)
     for j in order:
         inside[j] = True
-    for t in range(n_t):
+    for t in frames:
         o = offsets[t] if offsets.shape[0] > 1 else offsets[0]
         for j in order:
             for a in range(3):
@@ -126,18 +127,28 @@ def _rodrigues(axis_angle: np.ndarray, out: np.ndarray) -> None:
 
 
 @njit(cache=True, nogil=True)
-def rodrigues_at(axis_angle: np.ndarray, joints: np.ndarray, out: np.ndarray) -> None:
-    """`_rodrigues` of the given joints only (`out`'s other entries untouched)."""
+def rodrigues_at(axis_angle: np.ndarray, joints: np.ndarray, out: np.ndarray,
+                 coefficients: np.ndarray) -> None:
+    """`_rodrigues` of the given joints only (`out`'s other entries untouched), keeping each
+    one's `_coefficients` in `coefficients` (T,J,4) for `rodrigues_backward_frames`."""
     for t in range(axis_angle.shape[0]):
         for j in joints:
-            _rodrigues_one(axis_angle[t, j], out[t, j])
+            c = coefficients[t, j]
+            v = axis_angle[t, j]
+            c[0], c[1], c[2], c[3] = _coefficients(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            _rodrigues_from(v, c[0], c[1], out[t, j])
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _rodrigues_one(v: np.ndarray, r: np.ndarray) -> None:
+    a, b, _, _ = _coefficients(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    _rodrigues_from(v, a, b, r)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rodrigues_from(v: np.ndarray, a: float, b: float, r: np.ndarray) -> None:
     x, y, z = v[0], v[1], v[2]
     s = x * x + y * y + z * z
-    a, b, _, _ = _coefficients(s)
     c = 1.0 - b * s
     r[0, 0], r[0, 1], r[0, 2] = c + b * x * x, -a * z + b * x * y, a * y + b * x * z
     r[1, 0], r[1, 1], r[1, 2] = a * z + b * y * x, c + b * y * y, -a * x + b * y * z
@@ -146,9 +157,15 @@ def _rodrigues_one(v: np.ndarray, r: np.ndarray) -> None:
 
 @njit(cache=True, nogil=True, inline="always")
 def _rodrigues_backward_one(r: np.ndarray, g: np.ndarray, out: np.ndarray) -> None:
+    a, b, da, db = _coefficients(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    _rodrigues_backward_from(r, a, b, da, db, g, out)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rodrigues_backward_from(r: np.ndarray, a: float, b: float, da: float, db: float,
+                             g: np.ndarray, out: np.ndarray) -> None:
     x, y, z = r[0], r[1], r[2]
     s = x * x + y * y + z * z
-    a, b, da, db = _coefficients(s)
     trace = g[0, 0] + g[1, 1] + g[2, 2]
     gk = (g[2, 1] - g[1, 2]) * x + (g[0, 2] - g[2, 0]) * y + (g[1, 0] - g[0, 1]) * z
     rgr = 0.0
@@ -184,6 +201,19 @@ def rodrigues_backward_at(axis_angle: np.ndarray, grad: np.ndarray, joints: np.n
             _rodrigues_backward_one(axis_angle[t, j], grad[t, j], out[t, j])
 
 
+@njit(cache=True, nogil=True)
+def rodrigues_backward_frames(axis_angle: np.ndarray, coefficients: np.ndarray,
+                              grad: np.ndarray, frames: np.ndarray, joints: np.ndarray,
+                              out: np.ndarray) -> None:
+    """`rodrigues_backward_at` at `frames` only, from the `coefficients` `rodrigues_at` kept
+    (the same values: no sine, cosine or root computed twice)."""
+    for t in frames:
+        for j in joints:
+            c = coefficients[t, j]
+            _rodrigues_backward_from(axis_angle[t, j], c[0], c[1], c[2], c[3], grad[t, j],
+                                     out[t, j])
+
+
 class _CompiledFK(torch.autograd.Function):
     @staticmethod
     def forward(ctx, axis_angle: torch.Tensor, offsets: torch.Tensor, root: torch.Tensor,
@@ -202,7 +232,8 @@ class _CompiledFK(torch.autograd.Function):
     def backward(ctx, grad: torch.Tensor):  # type: ignore[override]
         g_local = np.empty(ctx.local.shape)
         backward_at(ctx.local, ctx.world, ctx.off, ctx.parents, ctx.order,
-                  grad.detach().double().contiguous().numpy(), g_local)
+                    grad.detach().double().contiguous().numpy(), np.arange(len(g_local)),
+                    g_local)
         out = np.empty(ctx.aa.shape)
         _rodrigues_backward(ctx.aa, g_local, out)
         return torch.from_numpy(out).to(grad.dtype), None, None, None, None

@@ -30,7 +30,7 @@ import torch
 from numba import njit
 
 from embody.body.compiled_fk import (_rodrigues, backward_at, forward_at, rodrigues_at,
-                                     rodrigues_backward_at, subtree)
+                                     rodrigues_backward_frames, subtree)
 from embody.collision.capsules import Capsules, _capsule_pass
 from embody.collision.energy import CollisionModel, Contacts, penetrations
 from embody.collision.narrow import blend_at, depths_backward_blended, depths_blended
@@ -40,8 +40,9 @@ from embody.collision.narrow import blend_at, depths_backward_blended, depths_bl
 def _forward_step(x0: np.ndarray, u: np.ndarray, w: np.ndarray, jidx: np.ndarray,
                   source: np.ndarray, moved: np.ndarray, sub: np.ndarray, offsets: np.ndarray,
                   root: np.ndarray, parents: np.ndarray, rest_inverse: np.ndarray,
-                  delta: np.ndarray, x: np.ndarray, aa: np.ndarray, local: np.ndarray,
-                  world: np.ndarray, tr: np.ndarray, tr64: np.ndarray, blend: np.ndarray) -> None:
+                  delta: np.ndarray, x: np.ndarray, aa: np.ndarray, coefficients: np.ndarray,
+                  local: np.ndarray, world: np.ndarray, tr: np.ndarray, tr64: np.ndarray,
+                  blend: np.ndarray) -> None:
     """δ = w ⊙ scatter(u), x = x0 + δ on the masked rows (in x's dtype, as the tensor ops),
     then the moved joints' rotations and the subtree's world transforms, their cast to x's
     dtype (`tr`) and back to float64 (`tr64`, what the depths see) and skinning transforms."""
@@ -55,7 +56,7 @@ def _forward_step(x0: np.ndarray, u: np.ndarray, w: np.ndarray, jidx: np.ndarray
         for j in moved:
             for c in range(3):
                 aa[t, j, c] = np.float64(x[t, source[j], c])
-    rodrigues_at(aa, moved, local)
+    rodrigues_at(aa, moved, local, coefficients)
     forward_at(local, offsets, root, parents, sub, world)
     for t in range(world.shape[0]):
         for j in sub:
@@ -67,20 +68,45 @@ def _forward_step(x0: np.ndarray, u: np.ndarray, w: np.ndarray, jidx: np.ndarray
 
 
 @njit(cache=True, nogil=True)
-def _gradient_step(g_aa: np.ndarray, row_ptr: np.ndarray, row_joints: np.ndarray,
-                   jidx: np.ndarray, s2: np.ndarray, delta: np.ndarray, w: np.ndarray,
-                   c_smooth: float, c_close: float, out: np.ndarray) -> None:
-    """∂/∂u (T,K,3) from ∂/∂axis-angle of the moved FK joints (`row_joints[row_ptr[k]:…]`:
-    those reading masked row k, summed in joint order as `index_add_`), the smoothness term
-    (c_smooth Δ²x, added as +[t−2] −2[t−1] +[t]) and the closeness term (c_close δ), times w."""
+def _moving_frames(g_tr: np.ndarray, joints: np.ndarray) -> np.ndarray:
+    """The frames with a non-zero ∂/∂world on one of `joints`: the others' ∂/∂axis-angle is
+    0 (a zero gradient's chain adds only zeros to the closeness and smoothness terms)."""
+    out = np.empty(g_tr.shape[0], dtype=np.int64)
+    n = 0
+    for t in range(g_tr.shape[0]):
+        hit = False
+        for j in joints:
+            for a in range(3):
+                for c in range(4):
+                    if g_tr[t, j, a, c] != 0.0:
+                        hit = True
+            if hit:
+                break
+        if hit:
+            out[n] = t
+            n += 1
+    return out[:n]
+
+
+@njit(cache=True, nogil=True)
+def _gradient_step(g_aa: np.ndarray, frames: np.ndarray, row_ptr: np.ndarray,
+                   row_joints: np.ndarray, jidx: np.ndarray, s2: np.ndarray, delta: np.ndarray,
+                   w: np.ndarray, c_smooth: float, c_close: float, out: np.ndarray) -> None:
+    """∂/∂u (T,K,3) from ∂/∂axis-angle of the moved FK joints at `frames` (0 elsewhere;
+    `row_joints[row_ptr[k]:…]`: those reading masked row k, summed in joint order as
+    `index_add_`), the smoothness term (c_smooth Δ²x, added as +[t−2] −2[t−1] +[t]) and the
+    closeness term (c_close δ), times w."""
     n_t = out.shape[0]
+    live = np.zeros(n_t, dtype=np.bool_)
+    live[frames] = True
     for t in range(n_t):
         for k in range(len(jidx)):
             j = jidx[k]
             for c in range(3):
                 g = 0.0
-                for m in range(row_ptr[k], row_ptr[k + 1]):
-                    g += g_aa[t, row_joints[m], c]
+                if live[t]:
+                    for m in range(row_ptr[k], row_ptr[k + 1]):
+                        g += g_aa[t, row_joints[m], c]
                 if t >= 2:
                     g = g + c_smooth * np.float64(s2[t - 2, j, c])
                 if 1 <= t <= n_t - 2:
@@ -135,6 +161,7 @@ class Objective:
         blend_at(self.tr64, model.rest_inverse, np.arange(n_j), self.blend)
         self.g_local = np.zeros((t, n_j, 3, 3))
         self.g_aa = np.zeros((t, n_j, 3))
+        self.coefficients = np.zeros((t, n_j, 4))
 
     def _row_lists(self, jn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(joints, ptr): the moved FK joints reading each masked row, in joint order."""
@@ -151,8 +178,9 @@ class Objective:
         The returned tensor is this objective's buffer: the next call overwrites it."""
         _forward_step(self.x0_np, u.detach().numpy(), self.w_np, self.jn, self.source,
                       self.moved, self.sub, self.offsets, self.root, self.parents,
-                      self.model.rest_inverse, self.delta_np, self.x_np, self.aa, self.local,
-                      self.world, self.tr_np, self.tr64, self.blend)
+                      self.model.rest_inverse, self.delta_np, self.x_np, self.aa,
+                      self.coefficients, self.local, self.world, self.tr_np, self.tr64,
+                      self.blend)
         return self.tr
 
     @torch.no_grad()
@@ -188,12 +216,13 @@ class Objective:
         return e, exact
 
     @torch.no_grad()
-    def gradient(self, lam: torch.Tensor) -> tuple[float, torch.Tensor]:
-        """The objective with per-frame weights `lam` and its gradient in u (T,K,3)."""
+    def gradient(self, lam: torch.Tensor, value: bool = True) -> tuple[float, torch.Tensor]:
+        """The objective with per-frame weights `lam` (0.0 unless `value`: the optimiser reads
+        it at its refresh steps only) and its gradient in u (T,K,3)."""
         t, x, delta = self.x.shape[0], self.x, self.delta
         s2 = x[2:] - 2.0 * x[1:-1] + x[:-2]
-        obj = (lam * self.e).sum() / t + self.lc * ((delta ** 2).sum() / t) \
-            + self.ls * ((s2 ** 2).sum() / t)
+        obj = 0.0 if not value else (lam * self.e).sum() / t \
+            + self.lc * ((delta ** 2).sum() / t) + self.ls * ((s2 ** 2).sum() / t)
         g_e = (lam / t * self.live).double()  # ∂obj/∂e_t, through live
         if self.sel is not None:
             g_d = (g_e[self.sel.t] * 2.0 * self.depth.double()).numpy()
@@ -206,11 +235,13 @@ class Objective:
             g_pos = np.zeros(self.pos.shape)
             _capsule_pass(self.pos, c.a, c.b, c.reach, 0.0, (g_e * self.cw).numpy(), g_pos)
             g_tr[:, :, :3, 3] += g_pos
-        backward_at(self.local, self.world, self.offsets, self.parents, self.sub, g_tr,
+        frames = _moving_frames(g_tr, self.sub)
+        backward_at(self.local, self.world, self.offsets, self.parents, self.sub, g_tr, frames,
                     self.g_local)
-        rodrigues_backward_at(self.aa, self.g_local, self.moved, self.g_aa)
+        rodrigues_backward_frames(self.aa, self.coefficients, self.g_local, frames, self.moved,
+                                  self.g_aa)
         grad = np.empty((t, len(self.jn), 3), dtype=self.x_np.dtype)
-        _gradient_step(self.g_aa, self.row_ptr, self.row_joints, self.jn,
+        _gradient_step(self.g_aa, frames, self.row_ptr, self.row_joints, self.jn,
                        s2.contiguous().numpy(), self.delta_np, self.w_np, 2.0 * self.ls / t,
                        2.0 * self.lc / t, grad)
         return float(obj), torch.from_numpy(grad)

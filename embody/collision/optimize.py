@@ -502,7 +502,7 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
                 e_sum = float(exact.sum())
                 lam = torch.where(exact > 0, torch.clamp(lam * cfg.lambda_growth,
                                                          max=cfg.lambda_max), lam)
-            obj_v, u.grad = manual.gradient(lam)
+            obj_v, u.grad = manual.gradient(lam, check)  # its value: refresh steps
             delta = manual.delta
         else:
             if check:
