@@ -173,6 +173,19 @@ def broad_phase(blend: np.ndarray, rot: np.ndarray, trans: np.ndarray,
     return rows[:nr], pts[:npt]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _sort_small(a: np.ndarray, n: int) -> None:
+    """Sort a[:n] in place (insertion sort: a group's few keys; `np.sort` allocated a copy
+    per group, most of `index_rows`' time)."""
+    for i in range(1, n):
+        v = a[i]
+        j = i - 1
+        while j >= 0 and a[j] > v:
+            a[j + 1] = a[j]
+            j -= 1
+        a[j + 1] = v
+
+
 @njit(cache=True, nogil=True)
 def index_rows(t: np.ndarray, h: np.ndarray, n: np.ndarray, b: np.ndarray, size: int,
                n_parts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -218,8 +231,8 @@ def index_rows(t: np.ndarray, h: np.ndarray, n: np.ndarray, b: np.ndarray, size:
                 n_pts += 1
         chunk_first[n_groups] = first[g_first]
         n_groups += 1
-        pairs = np.sort(keys[:n_keys])
-        for kb in pairs:  # (point, part) pairs in increasing (n, b)
+        _sort_small(keys, n_keys)
+        for kb in keys[:n_keys]:  # (point, part) pairs in increasing (n, b)
             pair_id[kb] = n_pairs
             part_first[n_pairs] = pair_row[kb]
             part_point[n_pairs] = point_id[kb // n_parts]
