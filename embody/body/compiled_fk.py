@@ -118,6 +118,24 @@ def _coefficients(s: float) -> tuple[float, float, float, float]:
     return a, b, (np.cos(theta) - a) / (2.0 * s), (0.5 * a - b) / s
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _values(s: float) -> tuple[float, float]:
+    """a and b of `_coefficients` (the same arithmetic) without the derivatives' cosine."""
+    if s < _SMALL:
+        return 1.0 - s / 6.0 + s * s / 120.0, 0.5 - s / 24.0 + s * s / 720.0
+    theta = np.sqrt(s)
+    half = np.sin(0.5 * theta)
+    return np.sin(theta) / theta, 2.0 * half * half / s
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _derivatives(s: float, a: float, b: float) -> tuple[float, float]:
+    """The derivatives of `_coefficients` (the same arithmetic) from its a and b."""
+    if s < _SMALL:
+        return -1.0 / 6.0 + s / 60.0, -1.0 / 24.0 + s / 360.0
+    return (np.cos(np.sqrt(s)) - a) / (2.0 * s), (0.5 * a - b) / s
+
+
 @njit(cache=True, nogil=True)
 def _rodrigues(axis_angle: np.ndarray, out: np.ndarray) -> None:
     """R = (1 − bθ²) I + a K + b r rᵀ per (T,J) axis-angle (3,), as `axis_angle_to_matrix`."""
@@ -130,12 +148,13 @@ def _rodrigues(axis_angle: np.ndarray, out: np.ndarray) -> None:
 def rodrigues_at(axis_angle: np.ndarray, joints: np.ndarray, out: np.ndarray,
                  coefficients: np.ndarray) -> None:
     """`_rodrigues` of the given joints only (`out`'s other entries untouched), keeping each
-    one's `_coefficients` in `coefficients` (T,J,4) for `rodrigues_backward_frames`."""
+    one's a and b of `_coefficients` in `coefficients` (T,J,2) for
+    `rodrigues_backward_frames` (which derives the derivatives where it needs them)."""
     for t in range(axis_angle.shape[0]):
         for j in joints:
             c = coefficients[t, j]
             v = axis_angle[t, j]
-            c[0], c[1], c[2], c[3] = _coefficients(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            c[0], c[1] = _values(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
             _rodrigues_from(v, c[0], c[1], out[t, j])
 
 
@@ -210,8 +229,9 @@ def rodrigues_backward_frames(axis_angle: np.ndarray, coefficients: np.ndarray,
     for t in frames:
         for j in joints:
             c = coefficients[t, j]
-            _rodrigues_backward_from(axis_angle[t, j], c[0], c[1], c[2], c[3], grad[t, j],
-                                     out[t, j])
+            r = axis_angle[t, j]
+            da, db = _derivatives(r[0] * r[0] + r[1] * r[1] + r[2] * r[2], c[0], c[1])
+            _rodrigues_backward_from(r, c[0], c[1], da, db, grad[t, j], out[t, j])
 
 
 class _CompiledFK(torch.autograd.Function):

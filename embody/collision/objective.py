@@ -161,7 +161,7 @@ class Objective:
         blend_at(self.tr64, model.rest_inverse, np.arange(n_j), self.blend)
         self.g_local = np.zeros((t, n_j, 3, 3))
         self.g_aa = np.zeros((t, n_j, 3))
-        self.coefficients = np.zeros((t, n_j, 4))
+        self.coefficients = np.zeros((t, n_j, 2))
 
     def _row_lists(self, jn: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(joints, ptr): the moved FK joints reading each masked row, in joint order."""
