@@ -14,8 +14,8 @@ two colliding windows, cross-faded; 0 skips it). Before any timed run, `mitigate
 untimed on a short colliding window of the first sequence (`warm_up`): a fresh process loads
 the compiled kernels from numba's cache (0.6-0.8 s, once per process), a start-up cost that
 would otherwise land on the first timed sequence, not a per-150-frame one; the judge's memo is
-cleared after it, so no timed run reuses its judged frames. `--sweep` first prints one row per closeness weight and
-clearance in `SWEEP` (how the default was picked; see `embody.config.collision`).
+cleared after it, so no timed run reuses its judged frames. `--sweep` first prints one row
+per closeness weight and clearance in `SWEEP` (how the default was picked; see `embody.config.collision`).
 
     python benchmarks/collision.py [--data DIR] [--n 24] [--paper-n 6] [--long-n 8] [--sweep]
         [--solver gauss_newton] [--set lambda_col=300 ...]
