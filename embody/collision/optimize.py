@@ -490,11 +490,12 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
     lam = torch.full((t,), float(cfg.lambda_col), device=dev)
     caps = arm_capsules(body, motion.betas, cfg.allow_pairs) if cfg.capsule_weight > 0 else None
     margin = cfg.refresh_margin + cfg.clearance
-    refresh = Refresh(model, margin, max(0.0, cfg.clearance - cfg.tolerance), live_frames)
     fk = body.compiled_fk_inputs(x0, betas) if dev.type == "cpu" else None
     manual = None if fk is None else Objective(
         fk, model, x0, w, jidx, live.to(x0.dtype), caps, cfg.capsule_weight, cfg.lambda_close,
         cfg.lambda_smooth)
+    refresh = Refresh(model, margin, max(0.0, cfg.clearance - cfg.tolerance), live_frames,
+                      None if manual is None else manual.sub)  # only the subtree moves
     best_key = (float("inf"), float("inf"))
     best = torch.zeros_like(x0)
     clear_since, near, step, settling = None, None, 0, False
@@ -515,7 +516,7 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
                 e_sum = float(exact.sum())
                 lam = torch.where(exact > 0, torch.clamp(lam * cfg.lambda_growth,
                                                          max=cfg.lambda_max), lam)
-            obj_v, u.grad = manual.gradient(lam)
+            obj_v, u.grad = manual.gradient(lam, check)  # its value: refresh steps
             delta = manual.delta
         else:
             if check:
