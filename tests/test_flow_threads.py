@@ -31,3 +31,24 @@ def test_several_workers_get_one_blas_thread_and_the_setting_returns():
         assert all(n == 2 for n in _blas_threads())
         with worker_blas(1):
             assert all(n == 2 for n in _blas_threads())
+
+
+def test_metrics_step_runs_torch_on_one_thread_and_gives_the_setting_back():
+    """The metrics step's torch work (many small ops) runs on one intra-op thread; the setting
+    before it comes back afterwards, also when the step fails."""
+    import pytest
+    import torch
+
+    from embody.tasks.stages import _one_torch_thread
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with _one_torch_thread():
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+        with pytest.raises(RuntimeError), _one_torch_thread():
+            raise RuntimeError("a failing step")
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
