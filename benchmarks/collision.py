@@ -10,8 +10,12 @@ kept apart by `mitigate`); `total_seconds_per_150_frames` adds it back, and
 vertex): frames deeper than 5 mm before/after and the max depth after, on the default set, and
 the same plus Pose MSE / ΔAccel / the unchanged-far-frames check (`long_*`) on one long
 real-like sequence with sparse collisions (`--long-n` synthetic sequences' clear stretches and
-two colliding windows, cross-faded; 0 skips it). `--sweep` first prints one row per closeness weight and
-clearance in `SWEEP` (how the default was picked; see `embody.config.collision`).
+two colliding windows, cross-faded; 0 skips it). Before any timed run, `mitigate` runs once
+untimed on a short colliding window of the first sequence (`warm_up`): a fresh process loads
+the compiled kernels from numba's cache (0.6-0.8 s, once per process), a start-up cost that
+would otherwise land on the first timed sequence, not a per-150-frame one; the judge's memo is
+cleared after it, so no timed run reuses its judged frames. `--sweep` first prints one row
+per closeness weight and clearance in `SWEEP` (how the default was picked; see `embody.config.collision`).
 
     python benchmarks/collision.py [--data DIR] [--n 24] [--paper-n 6] [--long-n 8] [--sweep]
         [--solver gauss_newton] [--set lambda_col=300 ...]
@@ -29,7 +33,7 @@ import torch
 import yaml
 
 from embody.body import MannequinBody
-from embody.collision import mitigate, part_volumes
+from embody.collision import depth, mitigate, part_volumes
 from embody.collision.energy import collision_model, frame_energies
 from embody.collision.metrics import table1
 from embody.collision.optimize import blend_weights
@@ -104,6 +108,21 @@ def _clear_runs(e: np.ndarray) -> list[tuple[int, int]]:
     return runs
 
 
+def warm_up(path: Path, body, cfg: CollisionConfig, frames: int = 30) -> None:
+    """Run `mitigate` once, untimed, on `frames` frames around the first sequence's most
+    colliding one: loads the compiled kernels (numba's cache) before any timed run."""
+    m = load(path)
+    model = collision_model(body, m.betas, vertex_stride=cfg.vertex_stride)
+    with torch.no_grad():
+        e = frame_energies(model, body.joint_transforms(
+            torch.as_tensor(m.pose, dtype=torch.float32),
+            torch.as_tensor(m.betas, dtype=torch.float32)), cfg.tolerance).numpy()
+    a = max(0, min(int(np.argmax(e)) - frames // 2, len(m.pose) - frames))
+    mitigate(Motion(pose=m.pose[a:a + frames], transl=m.transl[a:a + frames], betas=m.betas,
+                    fps=m.fps), body, cfg)
+    depth._memo.clear()  # timed runs judge their own frames
+
+
 def long_sequence(paths: list[Path], body, cfg: CollisionConfig, fade: int = 8) -> Motion:
     """A long real-like sequence with sparse collisions: each sequence's longest clear stretch
     (stride-8 energy 0), and a 20-frame colliding window from the first two, cross-faded."""
@@ -174,6 +193,9 @@ def main() -> None:
     if args.solver is not None:
         over["solver"] = args.solver
     default = CollisionConfig.model_validate({**CollisionConfig().model_dump(), **over})
+    t = time.perf_counter()
+    warm_up(paths[0], body, default)
+    print(f"warm-up (compiled kernels loaded) in {time.perf_counter() - t:.1f}s, untimed")
     if args.sweep:
         for close, clearance, stall in SWEEP:
             cfg = CollisionConfig.model_validate({**default.model_dump(), "lambda_close": close,

@@ -1,14 +1,16 @@
 """The render step alone: `render_sequence` (comparison sheet + preview) on the default set.
 
 Renders the first N sequences of the default synthetic set (the source motion as reference, the
-robot at a slowly waving T-pose: the cost hardly depends on the pose) exactly as the pipeline's
-render step does, and reports wall and CPU seconds per sequence (CPU time, encoder included, is the
-steadier figure on a shared machine), the CPU milliseconds per drawn image (reference and robot
-of every preview frame, plus the other views' keyframes; the encoder and sheet included), the
-preview's frame count, rate, size and bytes. Run it on two checkouts
+robot signing it: IK on the source motion, not timed; `--tpose`: a slowly waving T-pose, as
+before the preview was cropped to what the bodies reach) exactly as the pipeline's render step
+does, and reports wall and CPU seconds per sequence (CPU time, encoder included, is the steadier
+figure on a shared machine; `render_cpu_s_warm` leaves out the first sequence, which also
+prepares the robot model once a process), the CPU milliseconds per drawn image (reference and
+robot of every preview frame and first-view keyframe, plus the other views' keyframes; the
+encoder and sheet included), the preview's frame count, size and bytes. Run it on two checkouts
 back to back (`PYTHONPATH=<checkout>`) to compare.
 
-    python benchmarks/render_step.py [--n 3] [--phases]
+    python benchmarks/render_step.py [--n 3] [--phases] [--tpose]
 """
 
 from __future__ import annotations
@@ -46,42 +48,58 @@ def _cpu() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
-def phases(motion, body, fit, robot, q: np.ndarray, cfg) -> dict[str, float]:
-    """CPU ms per preview frame of each phase of drawing the preview (first view), timed around
-    the same calls `stream_preview` makes: skinning, the reference image, the robot image, the
-    x264 encoder (the child's CPU, at close) and opening the renderer."""
-    from embody.render.compare import open_renderer
+def phases(motion, body, fit, robot, q: np.ndarray, keys: np.ndarray, cfg) -> dict[str, float]:
+    """CPU ms per preview frame of each phase of one `render_sequence` call, each timed
+    exclusive of the phases it calls: opening the renderer, the preview's crop, reference and
+    robot images (the preview's pass and the other views' keyframes), the x264 encoder (the
+    child's CPU, at close), the sheet PNG, closing the renderer, and the rest."""
+    from embody.render import compare, record, scene
     from embody.render.preview import PreviewWriter
     acc: dict[str, float] = {}
+    stack: list[float] = []  # CPU time of the phases called inside the running one
 
-    def timed(name, fn, *a, **k):
+    def wrap(owner, attr, name):
+        fn = getattr(owner, attr)
+
+        def timed(*a, **k):
+            c = _cpu()
+            stack.append(0.0)
+            try:
+                return fn(*a, **k)
+            finally:
+                inner = stack.pop()
+                spent = _cpu() - c
+                acc[name] = acc.get(name, 0.0) + spent - inner
+                if stack:
+                    stack[-1] += spent
+        setattr(owner, attr, timed)
+        return owner, attr, fn
+
+    patched = [wrap(record, "open_renderer", "open_renderer"),
+               wrap(compare, "preview_crop", "crop"),
+               wrap(compare, "draw_reference", "reference_image"),
+               wrap(scene.SceneRenderer, "robot_frames", "robot_image"),
+               wrap(PreviewWriter, "add", "encode"), wrap(PreviewWriter, "close", "encode"),
+               wrap(compare.Comparison, "sheet_png", "sheet_png"),
+               wrap(scene.SceneRenderer, "close", "close")]
+    try:
         c = _cpu()
-        out = fn(*a, **k)
-        acc[name] = acc.get(name, 0.0) + _cpu() - c
-        return out
-
-    renderer = timed("open_renderer", open_renderer, robot, body, fit, cfg)
-    w, h = renderer.size
-    frames = np.arange(len(q))
-    with tempfile.TemporaryDirectory() as tmp:
-        writer = PreviewWriter(Path(tmp) / "p", motion.fps)
-        for start in range(0, len(frames), 32):
-            chunk = frames[start:start + 32]
-            both = np.empty((len(chunk), h, 2 * w, 3), dtype=np.uint8)
-            verts = timed("skin", renderer.skin, motion, chunk)
-            timed("reference_image", renderer.reference_frames, verts, cfg.views[0], full=True,
-                  out=both[:, :, :w])
-            timed("robot_image", renderer.robot_frames, q[chunk], cfg.views[0], full=True,
-                  out=both[:, :, w:])
-            timed("encode", writer.add, both)
-        timed("encode", writer.close)
-    renderer.close()
-    return {k: 1000 * v / len(frames) for k, v in acc.items()}
+        record.render_sequence(motion, body, fit, robot, q, keys, cfg, "bench")
+        total = _cpu() - c
+    finally:
+        for owner, attr, fn in patched:
+            setattr(owner, attr, fn)
+    acc["other"] = total - sum(acc.values())
+    shown = len(compare.preview_frames(cfg, len(q), motion.fps)[0])
+    return {k: 1000 * v / shown for k, v in acc.items()}
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=3)
+    parser.add_argument("--tpose", action="store_true",
+                        help="The robot at a slowly waving T-pose (the figures before "
+                             "2026-11-27 s14) instead of IK on the motion.")
     parser.add_argument("--phases", action="store_true",
                         help="Also print CPU ms per preview frame of each drawing phase.")
     args = parser.parse_args()
@@ -90,6 +108,7 @@ def main() -> None:
     from embody.body import load_body_model
     from embody.config import Config
     from embody.io import load_dataset
+    from embody.render.compare import preview_frames
     from embody.render.record import render_sequence
     from embody.retarget import shape_fit
     from embody.robot import load_robot
@@ -101,30 +120,46 @@ def main() -> None:
     body, robot = load_body_model(cfg.body), load_robot(cfg.robot)
     fit = shape_fit(robot, body, cfg.ik)
     roll = robot.joint_index("left_shoulder_roll_joint")
+    from embody.render import select_keyframes
+    from embody.retarget import build_targets
+    from embody.retarget.windows import solve_windowed
     walls, cpus, drawn = [], [], []
     for motion in motions:
         t = motion.num_frames
-        q = np.tile(robot.tpose, (t, 1))
-        q[:, roll] += 0.5 * np.sin(np.linspace(0, 2 * np.pi, t))
-        keys = np.linspace(0, t - 1, cfg.render.keyframes).round().astype(np.int64)
+        if args.tpose:
+            q = np.tile(robot.tpose, (t, 1))
+            q[:, roll] += 0.5 * np.sin(np.linspace(0, 2 * np.pi, t))
+            keys = np.linspace(0, t - 1, cfg.render.keyframes).round().astype(np.int64)
+        else:  # the robot signing (IK on the source motion) and the step's keyframes
+            targets = build_targets(motion, body, fit, robot, cfg.ik)
+            q = solve_windowed(robot, targets, cfg.ik).q
+            keys = select_keyframes(targets.wrist_pos, cfg.render.keyframes)
         w0, c0 = time.perf_counter(), _cpu()
         out = render_sequence(motion, body, fit, robot, q, keys, cfg.render, "bench")
         walls.append(time.perf_counter() - w0)
         cpus.append(_cpu() - c0)
         shape = _preview_shape(out.preview, out.preview_suffix) if out.preview else (0, 0, 0)
-        # images drawn: reference + robot per preview frame, and per keyframe of the other views
-        drawn.append(2 * shape[0] + 2 * len(keys) * (len(cfg.render.views) - 1))
+        # images drawn: reference + robot per preview frame or keyframe (first view), and per
+        # keyframe of the other views
+        shown = (preview_frames(cfg.render, t, motion.fps)[0] if out.preview
+                 else np.zeros(0, np.int64))
+        drawn.append(2 * len(np.union1d(shown, keys)) * (len(cfg.render.views) > 0)
+                     + 2 * len(keys) * (len(cfg.render.views) - 1))
         print(f"frames={t} fps={motion.fps:g} wall_s={walls[-1]:.2f} cpu_s={cpus[-1]:.2f} "
               f"cpu_ms_per_image={1000 * cpus[-1] / drawn[-1]:.1f} "
               f"preview_frames={shape[0]} preview_hw={shape[1]}x{shape[2]} "
               f"preview_kb={len(out.preview or b'') / 1024:.0f} sheet_kb={len(out.sheet_png) / 1024:.0f}")
     if args.phases:
-        split = phases(motions[-1], body, fit, robot, q, cfg.render)
+        split = phases(motions[-1], body, fit, robot, q, keys, cfg.render)
         print("phases (CPU ms per preview frame): "
               + " ".join(f"{k}={v:.1f}" for k, v in split.items()))
+    # the first sequence also prepares the robot model and compiles GL state, once a process
+    warm = np.mean(cpus[1:]) if len(cpus) > 1 else cpus[0]
     print(f"RESULT render_s={np.mean(walls):.2f} render_cpu_s={np.mean(cpus):.2f} "
+          f"render_cpu_s_warm={warm:.2f} "
           f"cpu_ms_per_image={1000 * np.sum(cpus) / np.sum(drawn):.1f} "
-          f"preview_frames={shape[0]} preview_height={shape[1]} sequences={len(motions)}")
+          f"preview_frames={shape[0]} preview_height={shape[1]} preview_width={shape[2]} "
+          f"sequences={len(motions)}")
 
 
 if __name__ == "__main__":

@@ -329,7 +329,7 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     from embody.io import load_dataset
 
     from embody.flows.env import register_server
-    from embody.flows.threads import worker_blas
+    from embody.flows.threads import worker_threads
 
     t0 = time.perf_counter()
     store = ArtifactStore(cfg.run.store)
@@ -346,7 +346,7 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     batches = [[new_record(r) for r in refs[i:i + size]] for i in range(0, len(refs), size)]
     bar = Progress([s.name for s in pipeline.per_sequence], len(refs), enabled=progress)
     driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers)
-    with worker_blas(cfg.run.workers):
+    with worker_threads(cfg.run.workers):
         driver.run(batches)
     return finish_run(store, run, manifest, cfg, dataset=dataset, split=split, t0=t0,
                       computed=driver.computed,

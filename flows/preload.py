@@ -5,8 +5,8 @@ another; if that task was the first to import torch, scipy's array-API check saw
 `torch` module (`partially initialized module 'torch' has no attribute 'Tensor'`), the worker
 died and the run went on with one worker fewer. Dask imports this module (`--preload
 embody.flows.preload`) when a worker starts; `flows.runners` passes it to local clusters.
-A worker runs several task threads, so its BLAS is single-threaded for its lifetime
-(`flows.threads`: concurrent OpenBLAS calls deadlocked).
+A worker runs several task threads, so its BLAS and torch are single-threaded for its lifetime
+(`flows.threads`: concurrent OpenBLAS calls deadlocked; a second torch thread only waits).
 """
 
 from __future__ import annotations
@@ -19,3 +19,4 @@ import embody.io  # noqa: F401
 import embody.tasks.stages  # noqa: F401
 
 threadpool_limits(limits=1, user_api="blas")
+torch.set_num_threads(1)

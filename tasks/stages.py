@@ -9,6 +9,8 @@ from __future__ import annotations
 import hashlib
 import threading
 from collections import OrderedDict
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -55,7 +57,15 @@ def _robot_files(cfg: Any) -> list[Path]:
 #: Targets built in this process, by content (`_targets`); a few batches' worth.
 _TARGETS: OrderedDict[bytes, Any] = OrderedDict()
 _TARGETS_LOCK = threading.Lock()
+#: Targets kept at least; a run keeps those of all its sequences in flight (`_targets_size`).
 _TARGETS_SIZE = 32
+
+
+def _targets_size(cfg: Any) -> int:
+    """Targets the memo keeps: every sequence a run can have in flight (its driver keeps
+    2 × workers batches going), so a batch's metrics step still finds the targets its retarget
+    step built while the other batches build theirs."""
+    return max(_TARGETS_SIZE, 2 * cfg.run.workers * cfg.run.batch_size)
 
 
 def _digest(*arrays: Any, text: str = "") -> bytes:
@@ -67,10 +77,13 @@ def _digest(*arrays: Any, text: str = "") -> bytes:
     return h.digest()
 
 
-def _targets(ctx: Context, motion: Motion, fit: Any, ik: Any) -> Any:
+def _targets(ctx: Context, motion: Motion, fit: Any, ik: Any, remember: bool = True) -> Any:
     """`build_targets`, computed once per process for the same motion, fit and IK config: the
     refine (and render) steps take the targets the retarget step built, instead of rebuilding
-    them. Keyed by content, so a hit is exactly what a rebuild would give."""
+    them. Keyed by content, so a hit is exactly what a rebuild would give. `remember=False`:
+    targets no later step asks for (the metrics step's IK-only baseline) are built without
+    pushing the retarget step's out of the memo (in a default 24-sequence run they did so for 14
+    sequences, whose metrics step then rebuilt the location-preserving targets, ~0.2 CPU-s each)."""
     from embody.retarget import build_targets
     transl = np.zeros(0) if motion.transl is None else motion.transl
     key = _digest(motion.pose, transl, motion.betas, np.asarray(motion.fps),
@@ -81,9 +94,11 @@ def _targets(ctx: Context, motion: Motion, fit: Any, ik: Any) -> Any:
             _TARGETS.move_to_end(key)
             return _TARGETS[key]
     targets = build_targets(motion, ctx.body, fit, ctx.robot, ik)
+    if not remember:
+        return targets
     with _TARGETS_LOCK:
         _TARGETS[key] = targets
-        while len(_TARGETS) > _TARGETS_SIZE:
+        while len(_TARGETS) > _targets_size(ctx.cfg):
             _TARGETS.popitem(last=False)
     return targets
 
@@ -195,7 +210,7 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     out: dict[str, Any] = {}
     if cfg.ik.location_preserving and cfg.fidelity.baseline:
         plain = cfg.ik.model_copy(update={"location_preserving": False})
-        plain_targets = _targets(ctx, motion, inputs["shape_fit"], plain)
+        plain_targets = _targets(ctx, motion, inputs["shape_fit"], plain, remember=False)
         # nothing anchored: the retarget step already solved this very problem
         same = same_problem(plain_targets, _targets(ctx, motion, inputs["shape_fit"], cfg.ik))
         base = ik if same else solve(ctx.robot, plain_targets, plain)
@@ -257,11 +272,34 @@ def _control_counts(ik: Any, q_control: np.ndarray) -> dict[str, float] | None:
     return {k: float(ik.metrics[f"control_{k}"]) for k in names}
 
 
+@contextmanager
+def _one_torch_thread() -> Iterator[None]:
+    """Torch intra-op threads at 1 for one step, then as before (as `collision.threads` does for
+    the optimiser). Why: the metrics step's torch work (the IK baseline's chain FK, the human's
+    FK) is many small ops, where a second OpenMP thread only adds barrier waits: with 2 threads
+    the step took 4.6 CPU-s per sequence at load 4, with 1 thread 0.67, the same bits (the run's
+    parallelism is its workers). The setting is torch's process-wide one, like the optimiser's."""
+    import torch
+    before = torch.get_num_threads()
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)
+
+
 def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     """Smoothness, MuJoCo-verified validity and sign fidelity of the final joint trajectory (the
     refined one when the critic ran). Validity is measured on the exact control-rate array
     `embody export` writes (stored here as `q_control`); the source-rate counters go under
-    `source_*`. Every number the report's tables and the export read."""
+    `source_*`. Every number the report's tables and the export read. Torch on one thread
+    (`_one_torch_thread`)."""
+    with _one_torch_thread():
+        return _measure(ctx, inputs)
+
+
+def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
+    """`_trajectory_metrics`' work."""
     from embody.metrics import mean_jerk
     from embody.retarget.control import control_trajectory
     from embody.retarget.validation import validation_counts
@@ -315,7 +353,9 @@ SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=
 # v11: the optimiser's refresh frame by frame (`collision.refresh`): a frame keeps its candidate
 #      rows while its points moved < half the margin; the capsule term compiled; the objective's
 #      gradient by hand on the CPU (`collision.objective`), no autograd graph (s13-adam3).
-COLLIDE = Step("collide", "11", ("body", "collision"), _collide, _collision_result, (SOURCE,))
+# v12: the pull-back's search steps on by twice its last move instead of halving the bracket,
+#      and smooths s(t) over 0.1 s, not 0.25 s (`pull_back_window_s`): lower Pose MSE (s14-pull).
+COLLIDE = Step("collide", "12", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
 # v3: hand-hand and hand-chest clearance at hand scale (targets.hand_gap, retarget/hand_clearance.py).
@@ -374,9 +414,11 @@ REFINE = Step("refine", "19", ("body", "robot", "ik", "render", "critic"), _refi
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
 # v3: coarser draw meshes (robot 8 mm, reference body 20 mm, hands 6 mm).
-RENDER = Step("render", "3", ("body", "robot", "render"), _render, _render_result,
+# v4: the reference body drawn as a MuJoCo skin (bone poses), its legs left out; robot meshes
+#     outside the hands on 16 mm; previews at 15 fps, cropped to what the bodies reach.
+RENDER = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
               (COLLIDE, SHAPE_FIT, RETARGET), metrics=_render_metrics, files=_robot_files)
-RENDER_REFINED = Step("render", "3", ("body", "robot", "render"), _render, _render_result,
+RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
 # v5: the exported control-rate array (validated), sign fidelity on that array, the report's wrist tracks.

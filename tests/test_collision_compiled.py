@@ -110,3 +110,63 @@ def test_compiled_fk_matches_the_torch_fk(body):
         lambda x: body.joint_transforms_compiled(x, betas.double()), (p,))
     with pytest.raises(ValueError):
         body.joint_transforms(pose, betas.clone().requires_grad_(), compiled=True)
+
+
+def test_fk_over_a_subtree_is_the_whole_pass_bit_for_bit(body):
+    """Changing only some joints' rotations: `forward_at` over their `subtree` updates the
+    world transforms to exactly the whole pass's, and `backward_at` /
+    `rodrigues_backward_frames` on some frames give exactly the whole backward's gradient for
+    those joints and frames (the optimiser's objective relies on both)."""
+    from embody.body.compiled_fk import (_rodrigues, _rodrigues_backward, backward_at,
+                                         forward_at, rodrigues_at, rodrigues_backward_frames,
+                                         subtree)
+    src, off, root, parents, order = body.compiled_fk_inputs(torch.zeros(5, 55, 3),
+                                                             torch.zeros(10))
+    rng = np.random.default_rng(4)
+    aa = rng.normal(0.0, 0.4, (5, len(src), 3))
+    aa[0, :5] = 0.0  # Rodrigues' series branch
+    moved = np.array([16, 18, 20, 37, 40], dtype=np.int64)
+    sub = subtree(parents, order, moved)
+    assert set(moved) <= set(sub) and len(sub) < len(order)
+    assert all(parents[j] in sub for j in sub if j not in moved)  # descendants only
+
+    def whole(a):
+        local, world = np.empty((5, len(src), 3, 3)), np.empty((5, len(src), 4, 4))
+        _rodrigues(a, local)
+        forward_at(local, off, root, parents, order, world)
+        return local, world
+
+    local, world = whole(aa)
+    new = aa.copy()
+    new[:, moved] += rng.normal(0.0, 0.2, (5, len(moved), 3))
+    coefficients = np.zeros((5, len(src), 2))
+    rodrigues_at(new, moved, local, coefficients)
+    forward_at(local, off, root, parents, sub, world)
+    local_ref, world_ref = whole(new)
+    assert np.array_equal(local, local_ref) and np.array_equal(world, world_ref)
+    grad = rng.normal(0.0, 1.0, (5, len(src), 4, 4))
+    g_ref = np.empty((5, len(src), 3, 3))
+    backward_at(local_ref, world_ref, off, parents, order, grad, np.arange(5), g_ref)
+    aa_ref = np.empty((5, len(src), 3))
+    _rodrigues_backward(new, g_ref, aa_ref)
+    frames = np.array([0, 3], dtype=np.int64)
+    g_local, g_aa = np.zeros((5, len(src), 3, 3)), np.zeros((5, len(src), 3))
+    backward_at(local, world, off, parents, sub, grad, frames, g_local)
+    rodrigues_backward_frames(new, coefficients, g_local, frames, moved, g_aa)
+    assert np.array_equal(g_aa[frames][:, moved], aa_ref[frames][:, moved])
+    assert not g_aa[[1, 2, 4]].any()  # the other frames are left as they were
+
+
+def test_broad_phase_limit_test_is_the_root_comparison():
+    """`broad._below` (squared distance against a squared limit, the root only near it)
+    answers as `sqrt(d2) < limit` / `<= limit`, at and around the limit and for 0 and
+    negative limits."""
+    from embody.collision.broad import _below
+    rng = np.random.default_rng(5)
+    limits = np.concatenate([rng.uniform(1e-4, 1.0, 400), [0.0, -0.01, 0.022]])
+    for limit in limits:
+        roots = limit + np.concatenate([rng.normal(0.0, 1e-3, 40), [0.0],
+                                        np.spacing(abs(limit)) * np.arange(-3, 4)])
+        for d2 in np.concatenate([np.abs(roots) ** 2, [0.0, limit * limit]]):
+            assert _below(d2, limit, True) == (np.sqrt(d2) < limit)
+            assert _below(d2, limit, False) == (np.sqrt(d2) <= limit)

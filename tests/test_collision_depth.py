@@ -226,3 +226,28 @@ def test_regula_falsi_finds_the_smallest_clear_fraction_in_few_judge_calls():
     far = _regula_falsi(lambda f, s: 0.1 * np.clip(0.8 - s, 0, None), np.array([0.08]),
                         np.zeros(1), np.array([0.001]), 10)
     assert 0.79 <= far[0] < 1.0
+
+
+def test_regula_falsi_steps_on_from_the_clear_side_instead_of_halving():
+    """Where the first probes land on the flat, clear side of a contact well below s = 1 (roots
+    near 0.92, as on the synthetic set), the search steps on from the clear end (twice its last
+    move) rather than probing the middle of [0, s]: this frame settles in 3 judge calls, clear
+    and within the tolerances of the root (a halving probed s ≈ 0.48 and took 5)."""
+    from embody.collision.optimize import _D_TOL, _S_TOL, _regula_falsi
+
+    contact, slope, limit = 0.93, 0.1, np.array([0.001])
+
+    def depth(s: np.ndarray) -> np.ndarray:
+        return slope * np.clip(contact - s, 0, None)
+
+    probes: list[float] = []
+
+    def judge(f: np.ndarray, s: np.ndarray) -> np.ndarray:
+        probes.extend(s.tolist())
+        return depth(s)
+
+    s = _regula_falsi(judge, depth(np.zeros(1)), depth(np.ones(1)), limit, 5)
+    root = contact - limit[0] / slope
+    assert depth(s)[0] <= limit[0] and s[0] >= root - 1e-12
+    assert s[0] - root <= _S_TOL or depth(s)[0] >= limit[0] - _D_TOL
+    assert len(probes) <= 3 and min(probes) > 0.9

@@ -85,3 +85,22 @@ def test_merge_keeps_frame_order_and_each_sides_order():
     redo = np.array([False, True, False, True, False])
     out = _merge(old, fresh, redo)
     assert out.tolist() == [[0, 1], [0, 2], [1, 9], [1, 3], [2, 7], [2, 8], [3, 4], [4, 1]]
+
+
+def test_displacement_over_the_moving_joints_is_the_whole_bound(body, model):
+    """When only a subtree of joints moves, `_displacement_at` over those joints gives the
+    whole `displacement` bound, value for value (what `Refresh(joints=...)` uses)."""
+    from embody.body.compiled_fk import subtree
+    from embody.collision.refresh import _displacement_at, joint_levers
+    rng = np.random.default_rng(2)
+    pose = crossing_poses()
+    moved = pose.copy()
+    moved[:, 16:22] += rng.normal(0.0, 0.05, (len(pose), 6, 3))  # elbows, wrists, hands
+    a, b = _tr(body, pose), _tr(body, moved)
+    src, _, _, parents, order = body.compiled_fk_inputs(torch.zeros(1, 55, 3), torch.zeros(10))
+    joints = subtree(parents, order, np.flatnonzero(np.isin(src, np.arange(16, 22))))
+    same = np.setdiff1d(np.arange(a.shape[1]), joints)
+    assert torch.equal(a[:, same], b[:, same])
+    fast = _displacement_at(a.numpy(), b.numpy(), joints, joint_levers(model),
+                            model.part_joints, part_reaches(model, MARGIN))
+    assert np.array_equal(fast, displacement(model, MARGIN, a, b).numpy())

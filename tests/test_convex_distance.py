@@ -66,3 +66,31 @@ def test_geom_distance_replaces_false_zero_on_g1():
         assert false_zero >= 1  # the bug this guards against, present in this MuJoCo
     hands = robot_contacts(robot, np.array([G1_Q]))[0, 0]
     assert hands > 0.005  # the nearest pair is 8.8 mm apart, not the false 0.0
+
+
+def test_robot_contacts_equal_every_pair_measured():
+    """The broad phase (bounding spheres) leaves the least distances unchanged, bit for bit:
+    per frame and channel the same value as `closest_pair` over all the channel's geom pairs,
+    on frames from the T-pose to hands together before the body (near and far pairs both)."""
+    from embody.config import Config
+    from embody.metrics.embodiments import RobotContactGeoms, closest_pair, robot_contacts
+    from embody.metrics.fidelity import CONTACTS
+    from embody.robot import load_robot
+
+    robot = load_robot(Config().robot)
+    m, d = robot.model, mujoco.MjData(robot.model)
+    rng = np.random.default_rng(5)
+    s = np.linspace(0.0, 1.0, 12)[:, None]
+    q = (1 - s) * robot.tpose + s * np.array(G1_Q)
+    q = np.concatenate([q, q[6:] + rng.normal(scale=0.15, size=q[6:].shape)])
+    got = robot_contacts(robot, q)
+    geoms = RobotContactGeoms(robot)
+    expected = np.empty_like(got)
+    for t, qt in enumerate(q):
+        d.qpos[:] = robot.qpos(qt)
+        mujoco.mj_kinematics(m, d)
+        for c, name in enumerate(CONTACTS):
+            a, b = geoms.pairs[name]
+            expected[t, c] = closest_pair(m, d, geoms.sets[a], geoms.sets[b], 0.1)[0]
+    assert np.array_equal(got, expected)
+    assert (got < 0.1).sum() >= 3 and (got == 0.1).sum() >= 3  # near and far channels both

@@ -219,3 +219,31 @@ def test_subset_skin_is_the_bodys_own_skinning():
     got = emb._SubsetSkin(body, betas, subset)(tr)
     assert got.shape == want.shape and got.dtype == np.float64
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-7)
+
+
+def test_human_contacts_remember_each_shape_exactly():
+    """The subset skin is made once per body and shape (`_contact_skin`): a second call gives the
+    same distances bit for bit, and another shape gets its own skin, not the first one's."""
+    import torch
+
+    from embody.body import load_body_model
+    from embody.metrics import embodiments as emb
+    from embody.synth import generate_sequence
+
+    body = load_body_model()
+    m = generate_sequence(0, 7)
+    pose = torch.as_tensor(np.asarray(m.pose)[::6], dtype=torch.float64)
+    a = np.asarray(m.betas, dtype=np.float64)
+    b = a + 1.0  # another body shape
+    with torch.no_grad():
+        tr_a, tr_b = (body.joint_transforms(pose, torch.as_tensor(x)).numpy() for x in (a, b))
+    emb._SKINS.clear()
+    fresh_b = emb.human_contacts(body, tr_b, b)
+    emb._SKINS.clear()
+    first = emb.human_contacts(body, tr_a, a)
+    assert np.array_equal(emb.human_contacts(body, tr_a, a), first)
+    assert np.array_equal(emb.human_contacts(body, tr_b, b), fresh_b)
+    assert emb._contact_skin(body, a)[1] is emb._contact_skin(body, a.copy())[1]
+    # the shape matters to the skin, so serving a's skin for b would be seen above
+    subset = emb._contact_skin(body, a)[1]
+    assert not np.array_equal(subset(tr_b), emb._contact_skin(body, b)[1](tr_b))

@@ -1,12 +1,13 @@
-"""A run with several workers runs BLAS single-threaded and gives the setting back afterwards
-(two workers' concurrent OpenBLAS matmuls deadlocked an `embody run`)."""
+"""A run with several workers runs BLAS and torch single-threaded and gives the settings back
+afterwards (two workers' concurrent OpenBLAS matmuls deadlocked an `embody run`; a second torch
+thread per worker only waited)."""
 
 import threading
 
 import numpy as np
 from threadpoolctl import threadpool_info, threadpool_limits
 
-from embody.flows.threads import worker_blas
+from embody.flows.threads import worker_threads
 
 
 def _blas_threads() -> list[int]:
@@ -16,7 +17,7 @@ def _blas_threads() -> list[int]:
 def test_several_workers_get_one_blas_thread_and_the_setting_returns():
     with threadpool_limits(limits=2, user_api="blas"):
         assert _blas_threads() and all(n == 2 for n in _blas_threads())
-        with worker_blas(2):
+        with worker_threads(2):
             assert all(n == 1 for n in _blas_threads())
             # two threads' float32 matmuls at once (the metrics step's skinning shape) finish
             a = np.random.default_rng(0).random((3000, 60), dtype=np.float32)
@@ -29,5 +30,45 @@ def test_several_workers_get_one_blas_thread_and_the_setting_returns():
                 t.join(timeout=60)
             assert len(out) == 2 and np.array_equal(out[0], out[1])
         assert all(n == 2 for n in _blas_threads())
-        with worker_blas(1):
+        with worker_threads(1):
             assert all(n == 2 for n in _blas_threads())
+
+
+def test_several_workers_get_one_torch_thread_and_the_setting_returns():
+    import pytest
+    import torch
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with worker_threads(2):
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+        with worker_threads(1):
+            assert torch.get_num_threads() == 2
+        with pytest.raises(RuntimeError), worker_threads(3):
+            raise RuntimeError("a failing run")
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+
+
+def test_metrics_step_runs_torch_on_one_thread_and_gives_the_setting_back():
+    """The metrics step's torch work (many small ops) runs on one intra-op thread; the setting
+    before it comes back afterwards, also when the step fails."""
+    import pytest
+    import torch
+
+    from embody.tasks.stages import _one_torch_thread
+
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        with _one_torch_thread():
+            assert torch.get_num_threads() == 1
+        assert torch.get_num_threads() == 2
+        with pytest.raises(RuntimeError), _one_torch_thread():
+            raise RuntimeError("a failing step")
+        assert torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)

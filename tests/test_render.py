@@ -154,12 +154,26 @@ def test_decimated_robot_meshes_keep_the_silhouette(robot, renderer):
     q = robot.tpose.copy()
     q[robot.joint_index("left_elbow_joint")] = 0.3
     fast = _mask(renderer.robot_frames(q[None])[0])  # any robot pixel: shading may differ
-    with SceneRenderer(robot, CFG.model_copy(update={"mesh_cell_m": 0.0})) as full_renderer:
+    whole = CFG.model_copy(update={"mesh_cell_m": 0.0, "robot_body_cell_m": 0.0})
+    with SceneRenderer(robot, whole) as full_renderer:
         full = _mask(full_renderer.robot_frames(q[None])[0])
     assert (fast & full).sum() / (fast | full).sum() > 0.95
+    # the torso and arms on the coarser grid, the hands on the fine one
+    faces = {}
+    for cell in (None, CFG.robot_body_cell_m):
+        model = SceneRenderer(robot, CFG.model_copy(update={"robot_body_cell_m": cell}))
+        m = model._model
+        faces[cell] = tuple(
+            m.mesh_facenum[m.geom_dataid[(m.geom_bodyid == m.body(b).id) & (m.geom_dataid >= 0)]].sum()
+            for b in ("torso_link", "left_elbow_link", "left_wrist_yaw_link",
+                      "right_hand_index_1_link"))
+        model.close()
+    coarse, fine = faces[CFG.robot_body_cell_m], faces[None]
+    assert coarse[0] < 0.6 * fine[0] and coarse[1] < fine[1]
+    assert coarse[2:] == fine[2:]
 
 
-# --- the render step: preview at the source frame rate, sheet frames reused, decimated body ---
+# --- the render step: preview in real time, sheet frames reused, skinned decimated body ---
 
 @pytest.fixture(scope="module")
 def fitted(robot):
@@ -180,43 +194,133 @@ def _wave(robot, n: int, fps: float):
     return Motion(pose=pose, transl=np.zeros((n, 3)), betas=np.zeros(10), fps=fps), q
 
 
-def test_preview_plays_every_source_frame_at_480px_and_sheet_reuses_its_frames(robot, fitted):
+def test_preview_plays_in_real_time_at_480px_and_sheet_reuses_its_frames(robot, fitted):
     import imageio_ffmpeg
 
     from embody.render.compare import open_renderer, render_comparison
     from embody.render.record import SequenceRender, render_sequence
     body, fit = fitted
-    cfg = RenderConfig(keyframes=3)
     motion, q = _wave(robot, 14, 24.0)
-    keys = np.array([0, 6, 13])
-    out = render_sequence(motion, body, fit, robot, q, keys, cfg, "t")
-    assert out.preview_suffix == ".mp4"
-    path = Path(tempfile.mkdtemp()) / "p.mp4"
-    path.write_bytes(out.preview)
-    reader = imageio_ffmpeg.read_frames(str(path))
-    meta = next(reader)
-    assert sum(1 for _ in reader) == 14  # every source frame
-    assert meta["fps"] == pytest.approx(24.0)  # played at the source rate
-    assert meta["size"] == (2 * cfg.supersample * cfg.width, cfg.supersample * cfg.height)
-    assert meta["size"][1] >= 480
-    # the sheet (first view taken from the preview's frames) matches one drawn directly
-    sheet = np.asarray(Image.open(io.BytesIO(out.sheet_png)))
-    with open_renderer(robot, body, fit, cfg) as renderer:
-        direct = render_comparison(renderer, cfg, keys, motion.fps, q,
-                                   reference_verts=renderer.skin(motion, keys)).sheet_png("t")
-    diff = np.abs(sheet.astype(int) - np.asarray(Image.open(io.BytesIO(direct))).astype(int))
-    assert diff.shape == sheet.shape and (diff > 2).mean() < 1e-3
-    again = SequenceRender.from_arrays(out.to_arrays(), out.to_attrs())
-    assert again.preview == out.preview and again.sheet_png == out.sheet_png
+    keys = np.array([0, 5, 13])  # frame 5 is not one of the 12 fps preview's
+    for cfg, shown in ((RenderConfig(keyframes=3, preview_fps=None, preview_crop=False), 14),
+                       (RenderConfig(keyframes=3, preview_fps=12.0), 7)):
+        out = render_sequence(motion, body, fit, robot, q, keys, cfg, "t")
+        assert out.preview_suffix == ".mp4"
+        path = Path(tempfile.mkdtemp()) / "p.mp4"
+        path.write_bytes(out.preview)
+        reader = imageio_ffmpeg.read_frames(str(path))
+        meta = next(reader)
+        assert sum(1 for _ in reader) == shown  # every source frame, or every 2nd
+        assert meta["fps"] == pytest.approx(24.0 * shown / 14)  # played in real time
+        w, h = cfg.supersample * cfg.width, cfg.supersample * cfg.height
+        if cfg.preview_crop:  # only what the bodies reach, at the drawn scale
+            assert meta["size"][0] < 2 * w and meta["size"][1] <= h
+            assert meta["size"][0] % 4 == 0 and meta["size"][1] % 2 == 0
+        else:
+            assert meta["size"] == (2 * w, h) and h >= 480
+        # the sheet (first view taken from the preview's pass) matches one drawn directly
+        sheet = np.asarray(Image.open(io.BytesIO(out.sheet_png)))
+        with open_renderer(robot, body, fit, cfg) as renderer:
+            direct = render_comparison(renderer, cfg, keys, motion.fps, q,
+                                       motion=motion).sheet_png("t")
+        assert np.array_equal(sheet, np.asarray(Image.open(io.BytesIO(direct))))
+        again = SequenceRender.from_arrays(out.to_arrays(), out.to_attrs())
+        assert again.preview == out.preview and again.sheet_png == out.sheet_png
+
+
+def test_preview_crop_holds_both_bodies_and_draws_the_same_pixels(robot, fitted):
+    from embody.render.compare import draw_reference, open_renderer, preview_crop
+    body, fit = fitted
+    motion, q = _wave(robot, 8, 30.0)
+    frames = np.arange(8)
+    with open_renderer(robot, body, fit, RenderConfig()) as renderer:
+        w, h = renderer.size
+        crop = preview_crop(renderer, motion, q, frames, "front")
+        assert crop is not None
+        x0, y0, x1, y1 = crop
+        assert 0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h and (x1 - x0) * (y1 - y0) < 0.8 * w * h
+        assert (x1 - x0) % 2 == 0 and (y1 - y0) % 2 == 0
+        whole = [draw_reference(renderer, motion, frames, "front", full=True),
+                 renderer.robot_frames(q, "front", full=True)]
+        parts = [draw_reference(renderer, motion, frames, "front", full=True, crop=crop),
+                 renderer.robot_frames(q, "front", full=True, crop=crop)]
+        for full, part in zip(whole, parts):
+            outside = _mask(full)
+            outside[:, y0:y1, x0:x1] = False
+            assert _mask(full).sum() > 1000 and not outside.any()  # nothing cut off
+            diff = np.abs(part.astype(int) - full[:, y0:y1, x0:x1].astype(int)).max(axis=-1)
+            assert part.shape == (8, y1 - y0, x1 - x0, 3) and (diff > 2).mean() < 1e-3
+        with pytest.raises(ValueError, match="crop"):
+            renderer.robot_frames(q[:1], "front", full=True, crop=(0, 0, w + 2, h))
+
+
+def test_pixel_bounds_hold_the_spheres():
+    from embody.render.framing import pixel_bounds, project
+    from embody.robot import load_robot
+    model = load_robot().model
+    rng = np.random.default_rng(1)
+    centres = rng.uniform(-0.4, 0.4, (5, 3)) + [0.0, 0.0, 1.0]
+    radii = rng.uniform(0.02, 0.15, 5)
+    args = (model, np.array([0.0, 0.0, 1.0]), 2.0, 150.0, -5.0)
+    box = pixel_bounds(*args, centres, radii, 640, 480)
+    dirs = rng.normal(size=(2000, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    surface = (centres[:, None] + radii[:, None, None] * dirs).reshape(-1, 3)
+    uv = project(*args, surface, 640, 480)
+    inside = (uv[:, 0] >= box[0]) & (uv[:, 0] <= box[2]) & (uv[:, 1] >= box[1]) & (uv[:, 1] <= box[3])
+    assert inside.all()
+    # and not much more: the box is within a few pixels of the sampled extent
+    assert box[0] >= uv[:, 0].min() - 12 and box[2] <= uv[:, 0].max() + 12
+    az, el = np.radians(150.0), np.radians(-5.0)
+    forward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    eye = np.array([0.0, 0.0, 1.0]) - 2.0 * forward
+    assert pixel_bounds(*args, eye[None], 0.1, 640, 480) is None  # reaches behind the camera
+
+
+def test_reference_skin_draws_what_the_skinned_vertices_draw(robot, fitted):
+    """The bound MuJoCo skin (bone poses) and the re-uploaded mesh (vertices) give the same
+    picture up to edge pixels (float32 blending, MuJoCo's own normals)."""
+    from embody.render.compare import draw_reference, open_renderer
+    body, fit = fitted
+    motion, _ = _wave(robot, 6, 30.0)
+    frames = np.array([0, 5])
+    with open_renderer(robot, body, fit, RenderConfig()) as renderer:
+        assert renderer.posed
+        for view in ("front", "side"):
+            posed = draw_reference(renderer, motion, frames, view)
+            meshed = renderer.reference_frames(renderer.skin(motion, frames), view)
+            a, b = _mask(posed), _mask(meshed)
+            assert a.sum() > 1000 and (a & b).sum() / (a | b).sum() > 0.99
+            diff = np.abs(posed.astype(int) - meshed.astype(int)).max(axis=-1)
+            assert (diff > 8).mean() < 0.01
+    # a body→torso map that is not a similarity: no skin, the vertex path, no preview crop
+    import dataclasses
+
+    from embody.render.compare import preview_crop
+    mirrored = dataclasses.replace(fit, rotation=fit.rotation @ np.diag([1.0, 1.0, -1.0]))
+    with open_renderer(robot, body, mirrored, RenderConfig()) as renderer:
+        assert not renderer.posed
+        assert _mask(draw_reference(renderer, motion, frames, "front")).sum() > 1000
+        assert preview_crop(renderer, motion, np.tile(robot.tpose, (6, 1)), frames, "front") is None
+    # and the renderer refuses to bind one
+    with open_renderer(robot, body, fit, RenderConfig()) as renderer:
+        with pytest.raises(ValueError, match="similarity|scale times a rotation"):
+            renderer.bind_reference_skin(np.zeros((len(renderer.reference_keep), 3)),
+                                         np.ones((len(renderer.reference_keep), 1)),
+                                         np.zeros((1, 3)), 1.0, np.diag([1.0, 1.0, -1.0]),
+                                         np.zeros(3))
 
 
 def test_preview_frames_follow_the_source_rate_or_the_configured_one():
     from embody.render.compare import preview_frames
-    frames, rate = preview_frames(RenderConfig(), 90, 30.0)
+    frames, rate = preview_frames(RenderConfig(preview_fps=None), 90, 30.0)
     assert len(frames) == 90 and rate == pytest.approx(30.0)
+    frames, rate = preview_frames(RenderConfig(), 90, 30.0)  # default 15 fps: every 2nd frame
+    assert len(frames) == 45 and rate == pytest.approx(15.0)
+    assert set(np.diff(frames)) <= {2, 3}
     frames, rate = preview_frames(RenderConfig(preview_fps=10.0), 90, 30.0)
     assert len(frames) == 30 and rate == pytest.approx(10.0)
-    frames, rate = preview_frames(RenderConfig(preview_max_frames=45), 90, 30.0)
+    frames, rate = preview_frames(RenderConfig(preview_fps=None, preview_max_frames=45), 90, 30.0)
     assert len(frames) == 45 and rate == pytest.approx(15.0)  # still real time
 
 
@@ -266,6 +370,22 @@ def test_reference_hands_keep_the_fine_cell(fitted):
     assert np.all(cells[~on_hand] == cfg.reference_body_cell_m)
     same = reference_cells(body, RenderConfig(reference_body_cell_m=None))
     assert np.all(same == cfg.reference_cell_m)
+
+
+def test_reference_legs_are_left_out_with_the_robots(fitted):
+    from embody.render.compare import drawn_faces, leg_bones
+    body, _ = fitted
+    assert {body.joint_names[j] for j in leg_bones(body)} >= {"left_hip", "right_knee", "left_foot"}
+    faces = np.asarray(body.faces)
+    assert np.array_equal(drawn_faces(body, RenderConfig(upper_body=False)), faces)
+    upper = drawn_faces(body, RenderConfig())
+    bones = np.asarray(body.skin_weights).argmax(axis=1)
+    on_legs = np.isin(bones, leg_bones(body))
+    assert 0.1 * len(faces) < len(faces) - len(upper) < 0.5 * len(faces)
+    assert not on_legs[upper].all(axis=1).any()  # no face left wholly on the legs
+    on_hand = (bones[faces] == body.joint_names.index("left_wrist")).all(axis=1)
+    kept = {tuple(f) for f in upper.tolist()}
+    assert on_hand.any() and all(tuple(f) in kept for f in faces[on_hand].tolist())
 
 
 def test_downsample_is_the_rounded_block_mean():

@@ -49,3 +49,30 @@ def test_targets_are_built_once_per_content(tmp_path):
     moved = motion.with_pose(motion.pose + np.float32(0.01))
     other = _targets(ctx, moved, fit, ctx.cfg.ik)
     assert other is not first and not np.array_equal(other.wrist_pos, first.wrist_pos)
+
+
+def test_baseline_targets_leave_the_memo_alone(tmp_path):
+    """The metrics step's IK-only baseline targets (asked for once) are built without entering
+    the memo, so they never push out the targets the retarget step built for a later step."""
+    from embody.retarget import shape_fit
+    from embody.tasks.stages import _TARGETS, _targets
+    ctx = Context(cfg=Config(), store_root=str(tmp_path), run="t")
+    fit = shape_fit(ctx.robot, ctx.body, ctx.cfg.ik)
+    motion = _motion(8)
+    _TARGETS.clear()  # as in a fresh worker: no earlier test's targets
+    first = _targets(ctx, motion, fit, ctx.cfg.ik)
+    held = dict(_TARGETS)
+    plain = ctx.cfg.ik.model_copy(update={"location_preserving": False})
+    baseline = _targets(ctx, motion, fit, plain, remember=False)
+    assert dict(_TARGETS) == held  # nothing added, nothing evicted
+    assert _targets(ctx, motion, fit, plain, remember=False) is not baseline  # built afresh
+    rebuilt = build_targets(motion, ctx.body, fit, ctx.robot, plain)
+    assert np.array_equal(baseline.wrist_pos, rebuilt.wrist_pos)
+    assert _targets(ctx, motion, fit, ctx.cfg.ik) is first
+
+
+def test_targets_memo_holds_every_sequence_a_run_has_in_flight():
+    """The driver keeps 2 × workers batches in flight: the memo holds their targets (at least 32)."""
+    from embody.tasks.stages import _targets_size
+    assert _targets_size(Config.model_validate({"run": {"workers": 4, "batch_size": 10}})) == 80
+    assert _targets_size(Config()) == 32

@@ -26,8 +26,13 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True)
-def _forward(local: np.ndarray, offsets: np.ndarray, root: np.ndarray, parents: np.ndarray,
-             order: np.ndarray, out: np.ndarray) -> None:
+def forward_at(local: np.ndarray, offsets: np.ndarray, root: np.ndarray, parents: np.ndarray,
+               order: np.ndarray, out: np.ndarray) -> None:
+    """World transforms `out` (T,J,4,4) of the joints in `order` (parents first) from their
+    local rotations (T,J,3,3); a joint whose parent is not in `order` reads the parent's world
+    transform already in `out`. With `subtree`'s order this redoes only the joints a few
+    moved rotations reach (the same arithmetic per joint as the whole pass, so the same
+    bits)."""
     n_t = local.shape[0]
     for t in range(n_t):
         o = offsets[t] if offsets.shape[0] > 1 else offsets[0]
@@ -52,15 +57,21 @@ def _forward(local: np.ndarray, offsets: np.ndarray, root: np.ndarray, parents: 
 
 
 @njit(cache=True, nogil=True)
-def _backward(local: np.ndarray, world: np.ndarray, offsets: np.ndarray, parents: np.ndarray,
-              order: np.ndarray, grad: np.ndarray, out: np.ndarray) -> None:
-    """`out` (T,J,3,3) ∂/∂local from `grad` (T,J,4,4) ∂/∂world (its bottom row unused)."""
-    n_t, n_j = local.shape[0], local.shape[1]
+def backward_at(local: np.ndarray, world: np.ndarray, offsets: np.ndarray, parents: np.ndarray,
+                order: np.ndarray, grad: np.ndarray, frames: np.ndarray, out: np.ndarray) -> None:
+    """`out` (T,J,3,3) ∂/∂local of the joints in `order` at `frames` from `grad` (T,J,4,4)
+    ∂/∂world (its bottom row unused). `order` must hold every descendant of its joints
+    (`subtree`): a joint's ∂local reads its descendants' ∂world only; the other joints' and
+    frames' `out` is left as is."""
+    n_j = local.shape[1]
     g_r = np.empty((n_j, 3, 3))
     g_p = np.empty((n_j, 3))
-    for t in range(n_t):
+    inside = np.zeros(n_j, dtype=np.bool_)
+    for j in order:
+        inside[j] = True
+    for t in frames:
         o = offsets[t] if offsets.shape[0] > 1 else offsets[0]
-        for j in range(n_j):
+        for j in order:
             for a in range(3):
                 for b in range(3):
                     g_r[j, a, b] = grad[t, j, a, b]
@@ -78,6 +89,8 @@ def _backward(local: np.ndarray, world: np.ndarray, offsets: np.ndarray, parents
                     out[t, j, a, b] = (world[t, p, 0, a] * g_r[j, 0, b]
                                        + world[t, p, 1, a] * g_r[j, 1, b]
                                        + world[t, p, 2, a] * g_r[j, 2, b])
+            if not inside[p]:  # the parent's gradient is not asked for
+                continue
             for a in range(3):
                 for b in range(3):
                     g_r[p, a, b] += (g_r[j, a, 0] * local[t, j, b, 0]
@@ -105,26 +118,73 @@ def _coefficients(s: float) -> tuple[float, float, float, float]:
     return a, b, (np.cos(theta) - a) / (2.0 * s), (0.5 * a - b) / s
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _values(s: float) -> tuple[float, float]:
+    """a and b of `_coefficients` (the same arithmetic) without the derivatives' cosine."""
+    if s < _SMALL:
+        return 1.0 - s / 6.0 + s * s / 120.0, 0.5 - s / 24.0 + s * s / 720.0
+    theta = np.sqrt(s)
+    half = np.sin(0.5 * theta)
+    return np.sin(theta) / theta, 2.0 * half * half / s
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _derivatives(s: float, a: float, b: float) -> tuple[float, float]:
+    """The derivatives of `_coefficients` (the same arithmetic) from its a and b."""
+    if s < _SMALL:
+        return -1.0 / 6.0 + s / 60.0, -1.0 / 24.0 + s / 360.0
+    return (np.cos(np.sqrt(s)) - a) / (2.0 * s), (0.5 * a - b) / s
+
+
 @njit(cache=True, nogil=True)
 def _rodrigues(axis_angle: np.ndarray, out: np.ndarray) -> None:
     """R = (1 − bθ²) I + a K + b r rᵀ per (T,J) axis-angle (3,), as `axis_angle_to_matrix`."""
     for t in range(axis_angle.shape[0]):
         for j in range(axis_angle.shape[1]):
-            x, y, z = axis_angle[t, j, 0], axis_angle[t, j, 1], axis_angle[t, j, 2]
-            s = x * x + y * y + z * z
-            a, b, _, _ = _coefficients(s)
-            c = 1.0 - b * s
-            r = out[t, j]
-            r[0, 0], r[0, 1], r[0, 2] = c + b * x * x, -a * z + b * x * y, a * y + b * x * z
-            r[1, 0], r[1, 1], r[1, 2] = a * z + b * y * x, c + b * y * y, -a * x + b * y * z
-            r[2, 0], r[2, 1], r[2, 2] = -a * y + b * z * x, a * x + b * z * y, c + b * z * z
+            _rodrigues_one(axis_angle[t, j], out[t, j])
+
+
+@njit(cache=True, nogil=True)
+def rodrigues_at(axis_angle: np.ndarray, joints: np.ndarray, out: np.ndarray,
+                 coefficients: np.ndarray) -> None:
+    """`_rodrigues` of the given joints only (`out`'s other entries untouched), keeping each
+    one's a and b of `_coefficients` in `coefficients` (T,J,2) for
+    `rodrigues_backward_frames` (which derives the derivatives where it needs them)."""
+    for t in range(axis_angle.shape[0]):
+        for j in joints:
+            c = coefficients[t, j]
+            v = axis_angle[t, j]
+            c[0], c[1] = _values(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+            _rodrigues_from(v, c[0], c[1], out[t, j])
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rodrigues_one(v: np.ndarray, r: np.ndarray) -> None:
+    a, b, _, _ = _coefficients(v[0] * v[0] + v[1] * v[1] + v[2] * v[2])
+    _rodrigues_from(v, a, b, r)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rodrigues_from(v: np.ndarray, a: float, b: float, r: np.ndarray) -> None:
+    x, y, z = v[0], v[1], v[2]
+    s = x * x + y * y + z * z
+    c = 1.0 - b * s
+    r[0, 0], r[0, 1], r[0, 2] = c + b * x * x, -a * z + b * x * y, a * y + b * x * z
+    r[1, 0], r[1, 1], r[1, 2] = a * z + b * y * x, c + b * y * y, -a * x + b * y * z
+    r[2, 0], r[2, 1], r[2, 2] = -a * y + b * z * x, a * x + b * z * y, c + b * z * z
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _rodrigues_backward_one(r: np.ndarray, g: np.ndarray, out: np.ndarray) -> None:
+    a, b, da, db = _coefficients(r[0] * r[0] + r[1] * r[1] + r[2] * r[2])
+    _rodrigues_backward_from(r, a, b, da, db, g, out)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _rodrigues_backward_from(r: np.ndarray, a: float, b: float, da: float, db: float,
+                             g: np.ndarray, out: np.ndarray) -> None:
     x, y, z = r[0], r[1], r[2]
     s = x * x + y * y + z * z
-    a, b, da, db = _coefficients(s)
     trace = g[0, 0] + g[1, 1] + g[2, 2]
     gk = (g[2, 1] - g[1, 2]) * x + (g[0, 2] - g[2, 0]) * y + (g[1, 0] - g[0, 1]) * z
     rgr = 0.0
@@ -160,6 +220,20 @@ def rodrigues_backward_at(axis_angle: np.ndarray, grad: np.ndarray, joints: np.n
             _rodrigues_backward_one(axis_angle[t, j], grad[t, j], out[t, j])
 
 
+@njit(cache=True, nogil=True)
+def rodrigues_backward_frames(axis_angle: np.ndarray, coefficients: np.ndarray,
+                              grad: np.ndarray, frames: np.ndarray, joints: np.ndarray,
+                              out: np.ndarray) -> None:
+    """`rodrigues_backward_at` at `frames` only, from the `coefficients` `rodrigues_at` kept
+    (the same values: no sine, cosine or root computed twice)."""
+    for t in frames:
+        for j in joints:
+            c = coefficients[t, j]
+            r = axis_angle[t, j]
+            da, db = _derivatives(r[0] * r[0] + r[1] * r[1] + r[2] * r[2], c[0], c[1])
+            _rodrigues_backward_from(r, c[0], c[1], da, db, grad[t, j], out[t, j])
+
+
 class _CompiledFK(torch.autograd.Function):
     @staticmethod
     def forward(ctx, axis_angle: torch.Tensor, offsets: torch.Tensor, root: torch.Tensor,
@@ -169,7 +243,7 @@ class _CompiledFK(torch.autograd.Function):
         _rodrigues(aa, local)
         off = offsets.detach().double().reshape(-1, *offsets.shape[-2:]).numpy()
         world = np.empty((*aa.shape[:2], 4, 4))
-        _forward(local, off, root.detach().double().numpy(), parents, order, world)
+        forward_at(local, off, root.detach().double().numpy(), parents, order, world)
         ctx.parents, ctx.order = parents, order
         ctx.aa, ctx.local, ctx.off, ctx.world = aa, local, off, world
         return torch.from_numpy(world).to(axis_angle.dtype)
@@ -177,11 +251,24 @@ class _CompiledFK(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad: torch.Tensor):  # type: ignore[override]
         g_local = np.empty(ctx.local.shape)
-        _backward(ctx.local, ctx.world, ctx.off, ctx.parents, ctx.order,
-                  grad.detach().double().contiguous().numpy(), g_local)
+        backward_at(ctx.local, ctx.world, ctx.off, ctx.parents, ctx.order,
+                    grad.detach().double().contiguous().numpy(), np.arange(len(g_local)),
+                    g_local)
         out = np.empty(ctx.aa.shape)
         _rodrigues_backward(ctx.aa, g_local, out)
         return torch.from_numpy(out).to(grad.dtype), None, None, None, None
+
+
+def subtree(parents: np.ndarray, order: np.ndarray, joints: np.ndarray) -> np.ndarray:
+    """`order` (parents first) restricted to `joints` and all their descendants: the joints
+    whose world transform moves when only `joints`' rotations change (`forward_at`,
+    `backward_at`)."""
+    inside = np.zeros(len(parents), dtype=bool)
+    inside[np.asarray(joints, dtype=np.int64)] = True
+    for j in order:
+        if parents[j] >= 0 and inside[parents[j]]:
+            inside[j] = True
+    return np.asarray(order)[inside[np.asarray(order)]].astype(np.int64)
 
 
 def compiled_fk(axis_angle: torch.Tensor, offsets: torch.Tensor, root: torch.Tensor,

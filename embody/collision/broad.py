@@ -30,11 +30,34 @@ def _grow(a: np.ndarray, n: int) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def _box_distance(x: float, y: float, z: float, box: np.ndarray) -> float:
+def _box_distance2(x: float, y: float, z: float, box: np.ndarray) -> float:
+    """The squared distance from (x, y, z) to `box` (2,3) (its root: the distance)."""
     gx = max(box[0, 0] - x, 0.0) + max(x - box[1, 0], 0.0)
     gy = max(box[0, 1] - y, 0.0) + max(y - box[1, 1], 0.0)
     gz = max(box[0, 2] - z, 0.0) + max(z - box[1, 2], 0.0)
-    return np.sqrt(gx * gx + gy * gy + gz * gz)
+    return gx * gx + gy * gy + gz * gz
+
+
+#: Relative band around a squared limit within which `_below` takes the root.
+_BAND = 1e-10
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _below(d2: float, limit: float, strict: bool) -> bool:
+    """sqrt(d2) < limit (`strict`) or ≤ limit, the float64 comparison's answer, with the root
+    taken only within a relative 1e-10 of the limit.
+
+    Why: the broad phase compares ~10⁴ chunk-part distances a frame, nearly all far beyond
+    their limit, and the square root was most of a comparison. Outside the band the answer
+    cannot depend on rounding (sqrt and the products round by ~1e-16 relative)."""
+    if limit > 0.0:
+        l2 = limit * limit
+        if d2 > l2 * (1.0 + _BAND):
+            return False
+        if d2 < l2 * (1.0 - _BAND):
+            return True
+    root = np.sqrt(d2)
+    return root < limit if strict else root <= limit
 
 
 @njit(cache=True, nogil=True)
@@ -104,7 +127,7 @@ def broad_phase(blend: np.ndarray, rot: np.ndarray, trans: np.ndarray,
                 if not checked[a_part, b]:
                     continue
                 d0, d1, d2 = cc[h, 0] - pc[b, 0], cc[h, 1] - pc[b, 1], cc[h, 2] - pc[b, 2]
-                if not np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) < cr[h] + part_radius[b] + margin:
+                if not _below(d0 * d0 + d1 * d1 + d2 * d2, cr[h] + part_radius[b] + margin, True):
                     continue
                 # level 2: the chunk's sphere centre in b's frame against b's piece boxes
                 r = rot[t, b]
@@ -116,7 +139,8 @@ def broad_phase(blend: np.ndarray, rot: np.ndarray, trans: np.ndarray,
                 n_close = 0
                 for ks in range(n_k):
                     k = part_pieces[b, ks]
-                    if k >= 0 and _box_distance(q0, q1, q2, piece_box[k]) < cr[h] + margin:
+                    if k >= 0 and _below(_box_distance2(q0, q1, q2, piece_box[k]),
+                                         cr[h] + margin, True):
                         close[n_close] = k
                         n_close += 1
                 if n_close == 0:
@@ -147,9 +171,9 @@ def broad_phase(blend: np.ndarray, rot: np.ndarray, trans: np.ndarray,
                     hit = False
                     for n in range(n_s):
                         if chunk_mask[h, n]:
-                            box[n] = _box_distance(local[n, 0], local[n, 1], local[n, 2],
-                                                   piece_box[k])
-                            hit = hit or box[n] <= margin
+                            box[n] = _box_distance2(local[n, 0], local[n, 1], local[n, 2],
+                                                    piece_box[k])  # squared
+                            hit = hit or _below(box[n], margin, False)
                     if not hit:
                         continue
                     rows = _grow(rows, nr)
@@ -157,7 +181,7 @@ def broad_phase(blend: np.ndarray, rot: np.ndarray, trans: np.ndarray,
                     rows[nr, 3], rows[nr, 4] = b, k
                     nr += 1
                     for n in range(n_s):
-                        if not chunk_mask[h, n] or not box[n] <= wide:
+                        if not chunk_mask[h, n] or not _below(box[n], wide, False):
                             continue
                         # max over a convex piece's planes: a lower bound of the distance outside
                         f = -np.inf
@@ -171,6 +195,19 @@ def broad_phase(blend: np.ndarray, rot: np.ndarray, trans: np.ndarray,
                             pts[npt, 3], pts[npt, 4] = b, k
                             npt += 1
     return rows[:nr], pts[:npt]
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _sort_small(a: np.ndarray, n: int) -> None:
+    """Sort a[:n] in place (insertion sort: a group's few keys; `np.sort` allocated a copy
+    per group, most of `index_rows`' time)."""
+    for i in range(1, n):
+        v = a[i]
+        j = i - 1
+        while j >= 0 and a[j] > v:
+            a[j + 1] = a[j]
+            j -= 1
+        a[j + 1] = v
 
 
 @njit(cache=True, nogil=True)
@@ -218,8 +255,8 @@ def index_rows(t: np.ndarray, h: np.ndarray, n: np.ndarray, b: np.ndarray, size:
                 n_pts += 1
         chunk_first[n_groups] = first[g_first]
         n_groups += 1
-        pairs = np.sort(keys[:n_keys])
-        for kb in pairs:  # (point, part) pairs in increasing (n, b)
+        _sort_small(keys, n_keys)
+        for kb in keys[:n_keys]:  # (point, part) pairs in increasing (n, b)
             pair_id[kb] = n_pairs
             part_first[n_pairs] = pair_row[kb]
             part_point[n_pairs] = point_id[kb // n_parts]

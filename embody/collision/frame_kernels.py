@@ -147,20 +147,24 @@ def _faces_in_box(fmin: np.ndarray, fmax: np.ndarray, f0: int, f1: int, lo: np.n
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _group_filter(s: np.ndarray, n: int, other: np.ndarray, m: int, fgroup: np.ndarray,
-                  checked: np.ndarray, present: np.ndarray) -> int:
+                  checked: np.ndarray, present: np.ndarray, keep: np.ndarray) -> int:
     """Keep (in place, in order) the faces s[:n] whose group is checked against the group of
-    some face other[:m]; returns the count kept."""
+    some face other[:m]; returns the count kept. Which groups pass is settled once per call
+    (`keep`, G×G), not once per face (up to G tests a face; the same faces kept)."""
     present[:] = False
     for k in range(m):
         present[fgroup[other[k]]] = True
-    kept = 0
-    for k in range(n):
-        g = fgroup[s[k]]
+    for g in range(present.shape[0]):
+        keep[g] = False
         for h in range(present.shape[0]):
             if present[h] and checked[g, h]:
-                s[kept] = s[k]
-                kept += 1
+                keep[g] = True
                 break
+    kept = 0
+    for k in range(n):
+        if keep[fgroup[s[k]]]:
+            s[kept] = s[k]
+            kept += 1
     return kept
 
 
@@ -249,6 +253,7 @@ def broad_phase(vertices: np.ndarray, vptr: np.ndarray, verts: np.ndarray, fptr:
     si = np.empty(most, dtype=np.int64)
     sj = np.empty(most, dtype=np.int64)
     present = np.zeros(n_groups, dtype=np.bool_)
+    keep = np.zeros(n_groups, dtype=np.bool_)
     mark = np.zeros(verts.shape[0], dtype=np.int64)
     stamp = 0
     lo = np.empty(3)
@@ -293,8 +298,8 @@ def broad_phase(vertices: np.ndarray, vptr: np.ndarray, verts: np.ndarray, fptr:
                     boxed[c] = t + 1
             ni = _faces_in_box(fmin, fmax, fptr[i], fptr[i + 1], lo, hi, si)
             nj = _faces_in_box(fmin, fmax, fptr[j], fptr[j + 1], lo, hi, sj)
-            ni = _group_filter(si, ni, sj, nj, fgroup, checked, present)
-            nj = _group_filter(sj, nj, si, ni, fgroup, checked, present)
+            ni = _group_filter(si, ni, sj, nj, fgroup, checked, present, keep)
+            nj = _group_filter(sj, nj, si, ni, fgroup, checked, present, keep)
             ni = _within(si, ni, sj, nj, fmin, fmax)
             nj = _within(sj, nj, si, ni, fmin, fmax)
             if ni == 0 or nj == 0:

@@ -184,17 +184,24 @@ def select_inputs(transforms: np.ndarray, rest_shift: np.ndarray, part_joints: n
 @njit(cache=True, nogil=True)
 def _blend(transforms: np.ndarray, rest_inverse: np.ndarray) -> np.ndarray:
     """Skinning transforms (T,J,3,4): each joint's world transform times its inverse rest."""
-    n_t, n_j = transforms.shape[0], transforms.shape[1]
-    out = np.zeros((n_t, n_j, 3, 4))
-    for t in range(n_t):
-        for j in range(n_j):
+    out = np.zeros((transforms.shape[0], transforms.shape[1], 3, 4))
+    blend_at(transforms, rest_inverse, np.arange(transforms.shape[1]), out)
+    return out
+
+
+@njit(cache=True, nogil=True)
+def blend_at(transforms: np.ndarray, rest_inverse: np.ndarray, joints: np.ndarray,
+             out: np.ndarray) -> None:
+    """`_blend` of the given joints only, into `out` (T,J,3,4) (the other joints untouched):
+    the optimiser keeps the skinning transforms of the joints its pose never moves."""
+    for t in range(transforms.shape[0]):
+        for j in joints:
             for a in range(3):
                 for c in range(4):
                     out[t, j, a, c] = (transforms[t, j, a, 0] * rest_inverse[j, 0, c]
                                        + transforms[t, j, a, 1] * rest_inverse[j, 1, c]
                                        + transforms[t, j, a, 2] * rest_inverse[j, 2, c]
                                        + transforms[t, j, a, 3] * rest_inverse[j, 3, c])
-    return out
 
 
 @njit(cache=True, nogil=True)
@@ -221,7 +228,17 @@ def depths(transforms: np.ndarray, rest_inverse: np.ndarray, part_joints: np.nda
            planes: np.ndarray) -> np.ndarray:
     """Signed depth (Q,) of each selected point behind its plane (n, d) in part b's frame:
     −(n·R_bᵀ(p − t_b)) − d, p the linear-blend-skinned point (float64)."""
-    blend = _blend(transforms, rest_inverse)
+    return depths_blended(_blend(transforms, rest_inverse), transforms, part_joints,
+                          chunk_joints, chunk_weights, chunk_points, t, h, n, b, planes)
+
+
+@njit(cache=True, nogil=True)
+def depths_blended(blend: np.ndarray, transforms: np.ndarray, part_joints: np.ndarray,
+                   chunk_joints: np.ndarray, chunk_weights: np.ndarray, chunk_points: np.ndarray,
+                   t: np.ndarray, h: np.ndarray, n: np.ndarray, b: np.ndarray,
+                   planes: np.ndarray) -> np.ndarray:
+    """`depths` from the skinning transforms `blend` (T,J,3,4) of `transforms` (`_blend`,
+    `blend_at`), computed once by a caller that needs them again (`depths_backward_blended`)."""
     out = np.empty(len(t))
     x = np.empty(3)
     for i in range(len(t)):
@@ -244,9 +261,23 @@ def depths_backward(transforms: np.ndarray, rest_inverse: np.ndarray, part_joint
 
     With q = Rᵀx, x = p − t_b, p = Σ_u w_u B_u [v; 1], B_u = A_u[:3] Rinv_u:
     ∂q = −g n, ∂x = R ∂q, ∂R += x ∂qᵀ, ∂t_b −= ∂x, ∂B_u += w_u ∂x [v; 1]ᵀ, ∂A_u = ∂B_u Rinvᵀ."""
-    blend = _blend(transforms, rest_inverse)
+    return depths_backward_blended(_blend(transforms, rest_inverse), transforms, rest_inverse,
+                                   part_joints, chunk_joints, chunk_weights, chunk_points, t, h,
+                                   n, b, planes, grad)
+
+
+@njit(cache=True, nogil=True)
+def depths_backward_blended(blend: np.ndarray, transforms: np.ndarray, rest_inverse: np.ndarray,
+                            part_joints: np.ndarray, chunk_joints: np.ndarray,
+                            chunk_weights: np.ndarray, chunk_points: np.ndarray, t: np.ndarray,
+                            h: np.ndarray, n: np.ndarray, b: np.ndarray, planes: np.ndarray,
+                            grad: np.ndarray) -> np.ndarray:
+    """`depths_backward` from the skinning transforms `blend` (`depths_blended`). Only the
+    (frame, joint) skinning transforms a point reached are taken back through Rinv (the
+    others' gradient is 0: adding it changed no bit)."""
     n_t, n_j = transforms.shape[0], transforms.shape[1]
     g_blend = np.zeros((n_t, n_j, 3, 4))
+    touched = np.zeros((n_t, n_j), dtype=np.bool_)
     out = np.zeros((n_t, n_j, 4, 4))
     x = np.empty(3)
     dq = np.empty(3)
@@ -271,6 +302,7 @@ def depths_backward(transforms: np.ndarray, rest_inverse: np.ndarray, part_joint
             w = chunk_weights[hi, ni, u]
             if w != 0.0:
                 j = chunk_joints[hi, u]
+                touched[ti, j] = True
                 for a in range(3):
                     wa = w * dx[a]
                     g_blend[ti, j, a, 0] += wa * p[0]
@@ -279,6 +311,8 @@ def depths_backward(transforms: np.ndarray, rest_inverse: np.ndarray, part_joint
                     g_blend[ti, j, a, 3] += wa
     for ti in range(n_t):
         for j in range(n_j):
+            if not touched[ti, j]:
+                continue
             for a in range(3):
                 for c in range(4):
                     out[ti, j, a, c] += (g_blend[ti, j, a, 0] * rest_inverse[j, c, 0]

@@ -101,13 +101,48 @@ def _displacement(old: np.ndarray, new: np.ndarray, lever: np.ndarray, part_join
     return out
 
 
+@njit(cache=True, nogil=True)
+def _displacement_at(old: np.ndarray, new: np.ndarray, joints: np.ndarray, lever: np.ndarray,
+                     part_joints: np.ndarray, reach: np.ndarray) -> np.ndarray:
+    """`_displacement` when only `joints` can differ between `old` and `new`: the same
+    values (the other joints' ΔR and Δt are 0, adding 0 to either maximum of non-negative
+    terms), over those joints only and with no gather of the live frames first."""
+    n_t, n_j = old.shape[0], old.shape[1]
+    out = np.empty(n_t)
+    rot = np.zeros(n_j)
+    shift = np.zeros(n_j)
+    for t in range(n_t):
+        point = 0.0
+        for j in joints:
+            r = 0.0
+            for a in range(3):
+                for c in range(3):
+                    d = np.float64(new[t, j, a, c]) - np.float64(old[t, j, a, c])
+                    r += d * d
+            s = 0.0
+            for a in range(3):
+                d = np.float64(new[t, j, a, 3]) - np.float64(old[t, j, a, 3])
+                s += d * d
+            rot[j], shift[j] = np.sqrt(0.5 * r), np.sqrt(s)
+            point = max(point, rot[j] * lever[j] + shift[j])
+        part = 0.0
+        for b in range(len(part_joints)):
+            j = part_joints[b]
+            part = max(part, rot[j] * reach[b] + shift[j])
+        out[t] = point + part + 1e-6
+    return out
+
+
 class Refresh:
     """Candidate rows (`energy.Contacts`) of the live frames, each frame's refreshed only when
     its `displacement` since its rows were found passes `budget`."""
 
     def __init__(self, model: CollisionModel, margin: float, reach: float,
-                 frames: torch.Tensor | None) -> None:
+                 frames: torch.Tensor | None, joints: np.ndarray | None = None) -> None:
         self.model, self.margin = model, margin
+        # the only joints whose transforms can change between calls (None: any): the bound
+        # runs over them alone (the others' ΔR and Δt are 0 and add nothing to its maxima)
+        self.joints = None if joints is None else np.asarray(joints, dtype=np.int64)
         self.budget = 0.5 * (margin - reach)
         self.frames = frames  # the live frames (all when None)
         self.ref: torch.Tensor | None = None  # per frame, the transforms its rows were found at
@@ -128,7 +163,13 @@ class Refresh:
         if self.ref is None or self.arrays is None or self.rows is None:
             stale = live
         else:
-            moved = displacement(self.model, self.margin, self.ref[live], tr[live])
+            if self.joints is None:
+                moved = displacement(self.model, self.margin, self.ref[live], tr[live])
+            else:
+                moved = torch.from_numpy(_displacement_at(
+                    self.ref.numpy(), tr.contiguous().numpy(), self.joints,
+                    joint_levers(self.model), self.model.part_joints,
+                    part_reaches(self.model, self.margin)))[live]
             stale = live[moved > self.budget]
             if len(stale) == 0:
                 return self.rows

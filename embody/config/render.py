@@ -27,11 +27,16 @@ class RenderConfig(Section):
     #: OpenGL backend; osmesa needs `libosmesa6`. egl falls back to osmesa when it fails.
     gl: Literal["egl", "osmesa"] = "egl"
     #: Hide geometry below the torso (legs): signing is upper-body, and it halves render time.
+    #: The reference body's legs (hips down) are left out with the robot's.
     upper_body: bool = True
     #: Robot meshes are decimated on a grid of this cell size (m) for rendering only; 0 keeps
     #: them whole. Software GL's cost follows the triangle count, hardly the pixels: 8 mm (about
     #: 1.5 px at 320×240 and 1.2 m) draws G1's upper body with 48k instead of 470k triangles.
     mesh_cell_m: float = Field(0.008, ge=0.0, le=0.05)
+    #: The robot's meshes outside the hands (torso, head, arms: large and smooth) on a coarser
+    #: grid; null: `mesh_cell_m`. 16 mm draws G1's upper body with 12k instead of 25k
+    #: triangles; the hands (the wrist links and below) keep `mesh_cell_m`.
+    robot_body_cell_m: float | None = Field(0.016, ge=0.0, le=0.05)
     #: The reference body's hands (wrist and finger bones) are decimated the same way (within
     #: each rigid piece and skinning bone, so fingers never merge). 0 keeps them whole.
     reference_cell_m: float = Field(0.006, ge=0.0, le=0.05)
@@ -54,7 +59,12 @@ class RenderConfig(Section):
     #: Animated preview: mp4 needs imageio-ffmpeg (falls back to gif), none disables it.
     preview_format: Literal["mp4", "gif", "webp", "none"] = "mp4"
     #: Preview frames per second of motion (plays in real time); null: the source frame rate.
-    preview_fps: float | None = Field(None, gt=0.0, le=240.0)
+    #: 15 (every 2nd frame of 30 fps sources) halves the preview's drawing and encoding.
+    preview_fps: float | None = Field(15.0, gt=0.0, le=240.0)
+    #: The preview shows only the part of the drawn frame that the bodies reach in the
+    #: sequence (plus a few pixels), at the drawn scale: the framing leaves room for any pose
+    #: (raised hands), which a sequence seldom uses, and drawing and encoding pay per pixel.
+    preview_crop: bool = True
     #: Frames rendered for the preview at most (longer sequences are evenly subsampled, still
     #: playing in real time); at 30 fps the default covers a minute.
     preview_max_frames: int = Field(1800, ge=2, le=100_000)

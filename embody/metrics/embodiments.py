@@ -11,6 +11,9 @@ sternum and belly), with its false 0.0 readings of separated meshes (MuJoCo #338
 
 from __future__ import annotations
 
+import threading
+import weakref
+
 import mujoco
 import numpy as np
 import torch
@@ -83,16 +86,43 @@ class _SubsetSkin:
         return (self.table @ m).reshape(-1, t, 3).transpose(1, 0, 2)
 
 
-def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray,
-                   channels: tuple[str, ...] = CONTACTS) -> np.ndarray:
-    """Closest mesh distances (T, len(channels)) between hands, face and chest (m), from the
-    body's joint transforms (T,J,4,4); `channels` a subset of CONTACTS, in that order."""
+#: Per body, per shape (betas bytes): the contact parts' slices and their `_SubsetSkin`.
+_SKINS: weakref.WeakKeyDictionary[BodyModel, dict[bytes, tuple[dict[str, slice], _SubsetSkin]]] = \
+    weakref.WeakKeyDictionary()
+_SKINS_LOCK = threading.Lock()
+#: Shapes remembered per body (a run has one per sequence at most).
+_SKINS_SIZE = 8
+
+
+def _contact_skin(body: BodyModel, betas: np.ndarray) -> tuple[dict[str, slice], _SubsetSkin]:
+    """The parts' slices of the skinned subset and its `_SubsetSkin`, made once per body and
+    shape. Why: making them (the shaped rest mesh, its joint transforms, the weight table) took
+    ~20 ms, and each sequence asks twice with the same shape (the targets' hand gaps and the
+    metrics step's human track); it is the same table every time."""
+    key = np.asarray(betas, dtype=np.float64).tobytes()
+    with _SKINS_LOCK:
+        made = _SKINS.get(body, {}).get(key)
+    if made is not None:
+        return made
     sets = _vertex_sets(body)
     order = list(sets)
     allv = np.concatenate([sets[k] for k in order])
     bounds = np.cumsum([0] + [len(sets[k]) for k in order])
-    part = {k: slice(bounds[i], bounds[i + 1]) for i, k in enumerate(order)}
-    skin = _SubsetSkin(body, betas, allv)
+    made = ({k: slice(bounds[i], bounds[i + 1]) for i, k in enumerate(order)},
+            _SubsetSkin(body, betas, allv))
+    with _SKINS_LOCK:
+        shapes = _SKINS.setdefault(body, {})
+        shapes[key] = made
+        while len(shapes) > _SKINS_SIZE:
+            shapes.pop(next(iter(shapes)))
+    return made
+
+
+def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray,
+                   channels: tuple[str, ...] = CONTACTS) -> np.ndarray:
+    """Closest mesh distances (T, len(channels)) between hands, face and chest (m), from the
+    body's joint transforms (T,J,4,4); `channels` a subset of CONTACTS, in that order."""
+    part, skin = _contact_skin(body, betas)
     pairs = {"hands": ("left_hand", "right_hand"), "left_face": ("left_hand", "face"),
              "right_face": ("right_hand", "face"), "left_chest": ("left_hand", "chest"),
              "right_chest": ("right_hand", "chest")}
@@ -108,12 +138,18 @@ def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray,
         # Broad phase for the whole chunk at once (the same comparisons the per-frame test made):
         # only hand points inside the other part's box grown by the reach count; a frame with
         # none is at least `_REACH` apart without building a tree.
+        # Points are tested only on frames where the hand's own box meets that grown box (a
+        # point inside it lies in both boxes, so the other frames have none).
         boxes = {p: (verts[:, part[p]].min(1) - _REACH, verts[:, part[p]].max(1) + _REACH)
                  for p in {b for _, _, b in live}}
+        hands = {a: (verts[:, part[a]].min(1), verts[:, part[a]].max(1)) for _, a, _ in live}
         near = {}
         for c, a, b in live:
-            va, (lo, hi) = verts[:, part[a]], boxes[b]
-            near[c] = ((va > lo[:, None]) & (va < hi[:, None])).all(-1)  # (T, hand points)
+            (lo, hi), (h_lo, h_hi) = boxes[b], hands[a]
+            meet = np.flatnonzero(((h_hi > lo) & (h_lo < hi)).all(-1))
+            near[c] = np.zeros((len(verts), part[a].stop - part[a].start), dtype=bool)  # (T, hand points)
+            va = verts[meet, part[a]]
+            near[c][meet] = ((va > lo[meet, None]) & (va < hi[meet, None])).all(-1)
             out[start:start + len(verts), c] = np.where(near[c].any(1), np.nan, _REACH)
         for t, v in enumerate(verts):
             for c, a, b in live:
@@ -199,19 +235,58 @@ class RobotContactGeoms:
                       "right_chest": ("right_hand", "chest")}
 
 
+#: Safety margin (m) of `robot_contacts`' broad phase: a pair whose bounding spheres are more
+#: than `distmax` plus this apart is not measured (MuJoCo would read `distmax` for it).
+_BROAD_MARGIN = 0.01
+
+
+def _contact_geoms(robot: Robot) -> RobotContactGeoms:
+    """`RobotContactGeoms` of `robot`, found once per robot object (~10 ms each time)."""
+    geoms = getattr(robot, "_contact_geoms", None)
+    if geoms is None:
+        geoms = RobotContactGeoms(robot)
+        robot._contact_geoms = geoms  # type: ignore[attr-defined]
+    return geoms
+
+
 def robot_contacts(robot: Robot, q: np.ndarray, distmax: float = 0.1) -> np.ndarray:
     """MuJoCo's closest signed distances (T, len(CONTACTS)) per channel (m; < 0 penetrates),
-    checked by `geom_distance` where MuJoCo claims a touch."""
-    geoms = RobotContactGeoms(robot)
+    checked by `geom_distance` where MuJoCo claims a touch.
+
+    Per frame and channel this is `closest_pair` over the channel's geom pairs, in its order,
+    leaving out the pairs whose bounding spheres (`geom_rbound`) are more than `distmax` +
+    `_BROAD_MARGIN` apart: MuJoCo reads exactly `distmax` for those, which never lowers the
+    least distance, so the result is the same bit for bit (tested against all pairs). Why: of
+    the ~117 pairs a frame, most are hands far from each other and from the face, and each
+    `geom_distance` call is a few microseconds of Python and MuJoCo."""
+    geoms = _contact_geoms(robot)
     m = robot.model
     d = mujoco.MjData(m)
+    q = np.asarray(q, dtype=np.float64)
     out = np.full((len(q), len(CONTACTS)), distmax)
-    for t, qt in enumerate(np.asarray(q, dtype=np.float64)):
+    pairs = [(c, ga, gb) for c, name in enumerate(CONTACTS)
+             for ga in geoms.sets[geoms.pairs[name][0]] for gb in geoms.sets[geoms.pairs[name][1]]]
+    if not pairs or not len(q):
+        return out
+    channel, pa, pb = (np.array(v) for v in zip(*pairs))
+    used = np.unique(np.concatenate([pa, pb]))
+    centres = np.empty((len(q), len(used), 3))
+    for t, qt in enumerate(q):
         d.qpos[:] = robot.qpos(qt)
         mujoco.mj_kinematics(m, d)
-        for c, name in enumerate(CONTACTS):
-            a, b = geoms.pairs[name]
-            out[t, c] = closest_pair(m, d, geoms.sets[a], geoms.sets[b], distmax)[0]
+        centres[t] = d.geom_xpos[used]
+    ia, ib = np.searchsorted(used, pa), np.searchsorted(used, pb)
+    apart = (np.linalg.norm(centres[:, ia] - centres[:, ib], axis=-1)
+             - m.geom_rbound[pa] - m.geom_rbound[pb])
+    near = apart <= distmax + _BROAD_MARGIN  # (T, pairs)
+    fromto = np.zeros(6)
+    for t in np.flatnonzero(near.any(1)):
+        d.qpos[:] = robot.qpos(q[t])
+        mujoco.mj_kinematics(m, d)
+        for p in np.flatnonzero(near[t]):
+            value = geom_distance(m, d, int(pa[p]), int(pb[p]), distmax, fromto)
+            if value < out[t, channel[p]]:
+                out[t, channel[p]] = value
     return out
 
 

@@ -35,23 +35,10 @@ def dtw_distance(a: np.ndarray, b: np.ndarray, *, normalise: bool = True) -> flo
     if a.shape[1] != b.shape[1]:
         raise ValueError(f"frame sizes differ: {a.shape[1]} vs {b.shape[1]}")
     cost = np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(-1))
-    n, m = cost.shape
-    acc = np.full((n + 1, m + 1), np.inf)
-    steps = np.zeros((n + 1, m + 1))
-    acc[0, 0] = 0.0
-    # Cells on one anti-diagonal (i + j = d) depend only on the two before it, so each diagonal
-    # is one vectorised step; ties go to (diagonal, up, left) in that order, as a cell loop would.
-    for d in range(2, n + m + 1):
-        i = np.arange(max(1, d - m), min(n, d - 1) + 1)
-        j = d - i
-        choices = np.stack((acc[i - 1, j - 1], acc[i - 1, j], acc[i, j - 1]))
-        k = np.argmin(choices, axis=0)
-        prev_steps = np.stack((steps[i - 1, j - 1], steps[i - 1, j], steps[i, j - 1]))
-        cols = np.arange(len(i))
-        acc[i, j] = cost[i - 1, j - 1] + choices[k, cols]
-        steps[i, j] = prev_steps[k, cols] + 1
-    total = float(acc[n, m])
-    return total / steps[n, m] if normalise else total
+    from embody.metrics.warping import warping_path  # numba: on first use
+
+    total, steps = warping_path(cost)
+    return float(total) / np.float64(steps) if normalise else float(total)
 
 
 def jerk(x: np.ndarray, fps: float) -> np.ndarray:

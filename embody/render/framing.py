@@ -112,3 +112,33 @@ def project(model: mujoco.MjModel, framing_lookat_world: np.ndarray, distance: f
     x, y, z = rel @ right, rel @ up, rel @ forward
     f = (height / 2) / np.tan(np.radians(model.vis.global_.fovy) / 2)
     return np.stack([width / 2 + f * x / z, height / 2 - f * y / z], axis=1)
+
+
+def pixel_bounds(model: mujoco.MjModel, lookat_world: np.ndarray, distance: float,
+                 azimuth: float, elevation: float, centres_world: np.ndarray,
+                 radii: np.ndarray | float, width: int, height: int,
+                 margin: int = 0) -> tuple[int, int, int, int] | None:
+    """The smallest pixel box (x0, y0, x1, y1; end-exclusive, top row 0) inside the image that
+    holds every sphere (centres (N,3) world, radii (N,) or one radius) as seen by the free
+    camera of `project`, plus `margin` pixels; None when a sphere reaches behind the camera.
+    A point within r of a centre at depth z, (x, y) off the axis, projects within
+    f·r/(z − r)·(1 + |x|/z) pixels of the centre's projection horizontally (likewise
+    vertically), f being the focal length in pixels."""
+    az, el = np.radians(azimuth), np.radians(elevation)
+    forward = np.array([np.cos(el) * np.cos(az), np.cos(el) * np.sin(az), np.sin(el)])
+    eye = np.asarray(lookat_world, dtype=np.float64) - distance * forward
+    centres = np.asarray(centres_world, dtype=np.float64).reshape(-1, 3)
+    radii = np.broadcast_to(np.asarray(radii, dtype=np.float64), (len(centres),))
+    depth = (centres - eye) @ forward
+    if len(centres) == 0 or np.any(depth - radii <= 1e-3):
+        return None
+    f = (height / 2) / np.tan(np.radians(model.vis.global_.fovy) / 2)
+    uv = project(model, lookat_world, distance, azimuth, elevation, centres, width, height)
+    spread = f * radii / (depth - radii)
+    rx = spread * (1 + np.abs(uv[:, 0] - width / 2) / f) + margin
+    ry = spread * (1 + np.abs(uv[:, 1] - height / 2) / f) + margin
+    x0 = int(np.clip(np.floor((uv[:, 0] - rx).min()), 0, width))
+    x1 = int(np.clip(np.ceil((uv[:, 0] + rx).max()), 0, width))
+    y0 = int(np.clip(np.floor((uv[:, 1] - ry).min()), 0, height))
+    y1 = int(np.clip(np.ceil((uv[:, 1] + ry).max()), 0, height))
+    return x0, y0, x1, y1

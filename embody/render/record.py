@@ -50,8 +50,10 @@ def render_sequence(motion, body, fit, robot, q: np.ndarray, keyframes: np.ndarr
     """Render the final trajectory `q` beside the reference body at `keyframes` (pick them with
     `select_keyframes` on the reference wrists, as the critic loop does, or take the loop's).
 
-    The preview's frames (every source frame, first view) are drawn first; the sheet's first
-    view takes its keyframes from them, so only the other views are drawn for the sheet."""
+    The preview's frames (`render.preview_fps`, first view; only the part of the image the
+    bodies reach with `render.preview_crop`) and the keyframes (whole) are drawn in one pass;
+    the sheet's first view takes its keyframes from it, so only the other views are drawn for
+    the sheet."""
     keys = np.asarray(keyframes)
     q = np.asarray(q)
     renderer = open_renderer(robot, body, fit, cfg)
@@ -61,8 +63,7 @@ def render_sequence(motion, body, fit, robot, q: np.ndarray, keyframes: np.ndarr
             path, drawn = stream_preview(renderer, cfg, motion, q, Path(tmp) / "preview", keys)
             if path is not None:
                 preview, suffix = path.read_bytes(), path.suffix
-        comp = render_comparison(renderer, cfg, keys, motion.fps, q,
-                                 reference_verts=renderer.skin(motion, keys), drawn=drawn)
+        comp = render_comparison(renderer, cfg, keys, motion.fps, q, drawn=drawn, motion=motion)
         sheet = comp.sheet_png(title)
     finally:
         renderer.close()

@@ -1,7 +1,10 @@
 """Offscreen MuJoCo rendering of the robot and of the reference body from the same cameras.
 
-Two models share one GL context: a private copy of the robot model, and a one-mesh model of the
-reference body whose vertices are rewritten and re-uploaded every frame (`mjr_uploadMesh`).
+Two models share one GL context: a private copy of the robot model, and a model of the reference
+body. The body is a MuJoCo skin on one mocap body per bone when its skinning is linear blend
+skinning (`bind_reference_skin`): a frame is then only bone poses, MuJoCo skins and re-uploads the
+vertex buffer itself, ~3× cheaper on software GL than rewriting a mesh and rebuilding its display
+list (`mjr_uploadMesh`), which stays the path for vertices given directly.
 Both are placed in the robot torso frame's world pose at the T-pose and seen through identical
 free cameras, so reference and robot line up pixel for pixel; the framing fits both bodies
 (`embody.render.framing`). Shadows, reflections and skybox are off and (by default) the legs are
@@ -18,6 +21,7 @@ drawn). Reading back colour only (no depth buffer) saves most of the read-back t
 from __future__ import annotations
 
 import copy
+import hashlib
 import threading
 from typing import Protocol
 
@@ -25,7 +29,7 @@ import numpy as np
 import scipy.sparse
 
 from embody.config.render import RenderConfig
-from embody.render.framing import Framing, fit_camera, robot_points
+from embody.render.framing import Framing, fit_camera, pixel_bounds, robot_points
 from embody.render.gl import create_context
 
 import mujoco  # noqa: E402  (after embody.render.gl has set MUJOCO_GL)
@@ -34,10 +38,23 @@ _OFF_FLAGS = (mujoco.mjtRndFlag.mjRND_SHADOW, mujoco.mjtRndFlag.mjRND_REFLECTION
               mujoco.mjtRndFlag.mjRND_SKYBOX, mujoco.mjtRndFlag.mjRND_FOG,
               mujoco.mjtRndFlag.mjRND_HAZE)
 _HIDDEN_GROUP = 5
+_MESH = mujoco.mjtGeom.mjGEOM_MESH
+#: Robot links whose subtrees (the hands) keep the fine `mesh_cell_m`; `robot_body_cell_m`
+#: elsewhere.
+_FINE_LINKS = ("left_wrist", "right_wrist")
+#: Shadows are off, but every `MjrContext` allocates its shadow map: at MuJoCo's default 4096²
+#: that costs ~30 ms a context on software GL, at this size nothing.
+_SHADOW_SIZE = 64
 #: Robot models prepared for drawing (decimated, recoloured), per process: preparing G1's takes
 #: about half a second and every sequence's renderer needs the same one. Read-only once built.
 _PREPARED: dict[tuple, tuple[mujoco.MjModel, mujoco.MjModel]] = {}
 _PREPARED_LOCK = threading.Lock()
+#: `cluster_faces` results by content (`_clustered`), per process.
+_CLUSTERED: dict[str, tuple[np.ndarray, np.ndarray]] = {}
+
+
+#: Part of a drawn image: x0, y0, x1, y1 in pixels (top row 0), end-exclusive.
+Crop = tuple[int, int, int, int]
 
 
 class RenderableRobot(Protocol):
@@ -112,6 +129,30 @@ def cluster_faces(vertices: np.ndarray, faces: np.ndarray, cell: float | np.ndar
     return keep, np.searchsorted(keep, rep)
 
 
+def _clustered(vertices: np.ndarray, faces: np.ndarray, cell: float | np.ndarray,
+               groups: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """`cluster_faces`, remembered per process by the inputs' content: every sequence of a run
+    draws the same fitted body (~35 ms a renderer otherwise); each caller gets its own copies."""
+    arrays = [np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64),
+              np.asarray(cell, dtype=np.float64)]
+    if groups is not None:
+        arrays.append(np.asarray(groups, dtype=np.int64))
+    digest = hashlib.blake2b(digest_size=16)
+    for a in arrays:
+        digest.update(repr(a.shape).encode())
+        digest.update(np.ascontiguousarray(a).tobytes())
+    key = digest.hexdigest()
+    with _PREPARED_LOCK:
+        hit = _CLUSTERED.get(key)
+    if hit is None:
+        hit = cluster_faces(vertices, faces, cell, groups)
+        with _PREPARED_LOCK:
+            if len(_CLUSTERED) >= 8:
+                _CLUSTERED.clear()
+            _CLUSTERED[key] = hit
+    return hit[0].copy(), hit[1].copy()
+
+
 def cluster_mesh(model: mujoco.MjModel, mesh: int, cell: float) -> None:
     """Decimate one mesh in place by vertex clustering on a `cell`-sized grid.
 
@@ -172,15 +213,14 @@ class SceneRenderer:
             self._robot_ctx = self._context(self._model)
             self._scene = mujoco.MjvScene(self._model, maxgeom=self._model.ngeom + 100)
             self._mesh: _MeshModel | None = None
+            self._skin: _SkinModel | None = None
             if faces is not None and rest_vertices is not None:
                 cells = cfg.reference_cell_m if reference_cells is None else reference_cells
-                keep, kept_faces = cluster_faces(rest_vertices, faces, cells, reference_groups)
+                keep, kept_faces = _clustered(rest_vertices, faces, cells, reference_groups)
                 self.reference_keep = keep
                 self._reference_count = len(rest_vertices)
-                self._mesh = _MeshModel(kept_faces, np.asarray(rest_vertices)[keep], cfg,
-                                        self._model.vis.global_.fovy, self.size)
-                self._mesh_ctx = self._context(self._mesh.model)
-                self._mesh_scene = mujoco.MjvScene(self._mesh.model, maxgeom=16)
+                self._kept_faces = kept_faces
+                self._kept_rest = np.asarray(rest_vertices)[keep]
         except Exception:
             self.close()
             raise
@@ -190,12 +230,14 @@ class SceneRenderer:
         #: Background painted in GL (`_fill_background_gl`): None until the first image checks it.
         self._gl_fill: bool | None = None
         self._pixels = np.empty((self.size[1], self.size[0], 3), dtype=np.uint8)  # read-back
+        self._crop_pixels: dict[tuple[int, int], np.ndarray] = {}  # read-back per crop size
 
     # --- setup ----------------------------------------------------------------------------
 
     def _robot_model(self, model: mujoco.MjModel, torso_body: str) -> mujoco.MjModel:
         cfg = self.cfg
         key = (id(model), torso_body, self.size, cfg.upper_body, cfg.mesh_cell_m,
+               cfg.robot_body_cell_m,
                tuple(cfg.robot_rgba))
         with _PREPARED_LOCK:
             source, prepared = _PREPARED.get(key, (None, None))
@@ -213,12 +255,24 @@ class SceneRenderer:
         model.vis.global_.offwidth = max(model.vis.global_.offwidth, self.size[0])
         model.vis.global_.offheight = max(model.vis.global_.offheight, self.size[1])
         model.vis.quality.offsamples = 0  # supersampled instead (see the module docstring)
+        model.vis.quality.shadowsize = _SHADOW_SIZE
         if self.cfg.upper_body:
             upper = _subtree_mask(model, model.body(torso_body).id)
             model.geom_group[~upper] = _HIDDEN_GROUP
-        if self.cfg.mesh_cell_m > 0:
-            for mesh in range(model.nmesh):
-                cluster_mesh(model, mesh, self.cfg.mesh_cell_m)
+        cells = np.full(model.nmesh, self.cfg.mesh_cell_m)
+        if self.cfg.robot_body_cell_m is not None:  # coarser outside the hands
+            links = getattr(getattr(self.robot, "spec", None), "links", {}) or {}
+            hands = np.zeros(model.ngeom, dtype=bool)
+            for name in _FINE_LINKS:
+                if name in links:
+                    hands |= _subtree_mask(model, model.body(links[name].body).id)
+            if hands.any():
+                mesh = model.geom_type == _MESH
+                body_meshes = np.setdiff1d(model.geom_dataid[~hands & mesh],
+                                           model.geom_dataid[hands & mesh])
+                cells[body_meshes[body_meshes >= 0]] = self.cfg.robot_body_cell_m
+        for mesh in np.flatnonzero(cells > 0):
+            cluster_mesh(model, int(mesh), float(cells[mesh]))
         model.geom_matid[:] = -1  # one light material instead of the robot's dark ones
         model.geom_rgba[:] = self.cfg.robot_rgba
         model.vis.headlight.ambient[:] = 0.45
@@ -268,18 +322,24 @@ class SceneRenderer:
 
     # --- rendering ------------------------------------------------------------------------
 
-    def _draw(self, model, data, scene, ctx, cam, into: np.ndarray | None = None) -> np.ndarray:
-        """One image (H,W,3), top row first; written into `into` when given (no extra copy)."""
+    def _draw(self, model, data, scene, ctx, cam, into: np.ndarray | None = None,
+              crop: Crop | None = None) -> np.ndarray:
+        """One image (H,W,3), top row first; written into `into` when given (no extra copy).
+        With `crop` (x0, y0, x1, y1; drawn pixels, top row 0) only that part of the image is
+        drawn, through the matching off-centre frustum: the same pixels as cutting it out of
+        the whole image, at the cost of the smaller one."""
         mujoco.mjv_updateScene(model, data, self._option, None, cam,
                                mujoco.mjtCatBit.mjCAT_ALL, scene)
         for flag in _OFF_FLAGS:
             scene.flags[flag] = 0
-        out = self._pixels
+        rect, out = self._rect, self._pixels
+        if crop is not None:
+            rect, out = self._crop_view(scene, crop)
         # each MjrContext owns a framebuffer; bind this one's (the last created is bound)
         mujoco.mjr_setBuffer(mujoco.mjtFramebuffer.mjFB_OFFSCREEN, ctx)
-        mujoco.mjr_render(self._rect, scene, ctx)
+        mujoco.mjr_render(rect, scene, ctx)
         filled = self._gl_fill is not False and _fill_background_gl(self._background)
-        mujoco.mjr_readPixels(out, None, self._rect, ctx)
+        mujoco.mjr_readPixels(out, None, rect, ctx)
         flat = out.reshape(-1, 3)
         if self._gl_fill is None:  # first image: check that the GL fill left no clear colour
             self._gl_fill = bool(filled) and not _black(flat).any()
@@ -290,23 +350,74 @@ class SceneRenderer:
         into[...] = out[::-1]
         return into
 
+    def _crop_view(self, scene: mujoco.MjvScene, crop: Crop) -> tuple[mujoco.MjrRect, np.ndarray]:
+        """Narrow the scene's cameras to `crop`; the viewport and read-back buffer for it."""
+        x0, y0, x1, y1 = crop
+        w, h = self.size
+        if not (0 <= x0 < x1 <= w and 0 <= y0 < y1 <= h):
+            raise ValueError(f"crop {crop} is not inside the drawn image {self.size}")
+        for cam in scene.camera:
+            top = cam.frustum_top
+            half = top * w / h  # MuJoCo's half-width from the viewport's aspect
+            left, right = -half + 2 * half * x0 / w, -half + 2 * half * x1 / w
+            cam.frustum_center, cam.frustum_width = (left + right) / 2, (right - left) / 2
+            cam.frustum_top, cam.frustum_bottom = top - 2 * top * y0 / h, top - 2 * top * y1 / h
+        size = (x1 - x0, y1 - y0)
+        if size not in self._crop_pixels:
+            self._crop_pixels[size] = np.empty((size[1], size[0], 3), np.uint8)
+        return mujoco.MjrRect(0, 0, *size), self._crop_pixels[size]
+
     def _finish(self, frames: list[np.ndarray], full: bool, out: np.ndarray | None) -> np.ndarray:
         if out is not None:
             return out
         images = np.stack(frames) if frames else np.zeros((0, self.size[1], self.size[0], 3), np.uint8)
         return images if full else downsample(images, self.cfg.supersample)
 
-    def _target(self, out: np.ndarray | None, n: int, full: bool) -> None:
-        if out is not None and (not full or out.shape != (n, self.size[1], self.size[0], 3)):
-            raise ValueError(f"out must be ({n}, {self.size[1]}, {self.size[0]}, 3) with full=True")
+    def _target(self, out: np.ndarray | None, n: int, full: bool, crop: Crop | None = None) -> None:
+        w, h = self.size if crop is None else (crop[2] - crop[0], crop[3] - crop[1])
+        if crop is not None and not full:
+            raise ValueError("a crop is drawn as drawn: full=True")
+        if out is not None and (not full or out.shape != (n, h, w, 3)):
+            raise ValueError(f"out must be ({n}, {h}, {w}, 3) with full=True")
+
+    def pixel_bounds(self, centres_world: np.ndarray, radii: np.ndarray | float, view: str,
+                     margin: int = 0) -> Crop | None:
+        """Pixel box of the drawn image (`self.size`) holding these world-frame spheres in
+        `view` (`framing.pixel_bounds`)."""
+        cam = self.camera(view)
+        return pixel_bounds(self._model, np.array(cam.lookat), cam.distance, cam.azimuth,
+                            cam.elevation, centres_world, radii, *self.size, margin=margin)
+
+    def reference_spheres(self, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Spheres (centres (N,B,3) world, radii (B,)) holding the bound skin posed by joint
+        transforms (N,J,4,4), one per bone (`_SkinModel.bone_spheres`)."""
+        if self._skin is None:
+            raise ValueError("no reference skin bound (bind_reference_skin)")
+        return self._skin.bone_spheres(np.asarray(transforms, dtype=np.float64))
+
+    def robot_spheres(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Bounding spheres of the drawn robot geoms at configurations q (N,n): centres (N,G,3)
+        and radii (G,), world frame (each geom's bounding box about its centre)."""
+        visible = np.flatnonzero(self._model.geom_group < 3)  # what `self._option` draws
+        box = self._model.geom_aabb[visible]
+        radii = np.linalg.norm(box[:, 3:], axis=1)
+        centres = np.empty((len(np.atleast_2d(q)), len(visible), 3))
+        data = mujoco.MjData(self._model)
+        for i, qi in enumerate(np.atleast_2d(q)):
+            data.qpos[:] = self.robot.qpos(np.asarray(qi, dtype=np.float64))
+            mujoco.mj_kinematics(self._model, data)
+            rot = data.geom_xmat[visible].reshape(-1, 3, 3)
+            centres[i] = data.geom_xpos[visible] + np.einsum("gab,gb->ga", rot, box[:, :3])
+        return centres, radii
 
     def robot_frames(self, q: np.ndarray, view: str = "front", full: bool = False,
-                     out: np.ndarray | None = None) -> np.ndarray:
+                     out: np.ndarray | None = None, crop: Crop | None = None) -> np.ndarray:
         """Images (N,H,W,3) of joint configurations q (N,n) in the robot's joint order; at the
         configured size, or as drawn (`self.size`, supersampled) with `full`, then written into
-        `out` when given (e.g. one half of the preview's side-by-side frames)."""
+        `out` when given (e.g. one half of the preview's side-by-side frames); only the `crop`
+        of the drawn image when given (`_draw`)."""
         q = np.atleast_2d(q)
-        self._target(out, len(q), full)
+        self._target(out, len(q), full, crop)
         self._ctx.make_current()
         cam = self.camera(view)
         frames = []
@@ -314,15 +425,16 @@ class SceneRenderer:
             self._data.qpos[:] = self.robot.qpos(np.asarray(qi, dtype=np.float64))
             mujoco.mj_kinematics(self._model, self._data)
             frames.append(self._draw(self._model, self._data, self._scene, self._robot_ctx, cam,
-                                     None if out is None else out[i]))
+                                     None if out is None else out[i], crop))
         return self._finish(frames, full, out)
 
     def reference_frames(self, vertices: np.ndarray, view: str = "front",
-                         full: bool = False, out: np.ndarray | None = None) -> np.ndarray:
+                         full: bool = False, out: np.ndarray | None = None,
+                         crop: Crop | None = None) -> np.ndarray:
         """Images (N,H,W,3) of reference meshes given as (N,V,3) vertices in the torso frame:
-        every vertex of the mesh, or only the drawn ones (`reference_keep`); `full` and `out`
-        as in `robot_frames`."""
-        if self._mesh is None:
+        every vertex of the mesh, or only the drawn ones (`reference_keep`); `full`, `out` and
+        `crop` as in `robot_frames`."""
+        if self.reference_keep is None:
             raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
         vertices = np.asarray(vertices)
         if vertices.shape[1] != len(self.reference_keep):
@@ -330,15 +442,66 @@ class SceneRenderer:
                 raise ValueError(f"reference vertices: expected {self._reference_count} or "
                                  f"{len(self.reference_keep)} per frame, got {vertices.shape[1]}")
             vertices = vertices[:, self.reference_keep]
-        self._target(out, len(vertices), full)
+        self._target(out, len(vertices), full, crop)
         self._ctx.make_current()
+        if self._mesh is None:  # built on first use: the posed path (a bound skin) needs none
+            self._mesh = _MeshModel(self._kept_faces, self._kept_rest, self.cfg,
+                                    self._model.vis.global_.fovy, self.size)
+            self._mesh_ctx = self._context(self._mesh.model)
+            self._mesh_scene = mujoco.MjvScene(self._mesh.model, maxgeom=16)
         cam = self.camera(view)
         rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
         frames = []
         for i, verts in enumerate(np.asarray(vertices, dtype=np.float64)):
             self._mesh.set_vertices(verts @ rot.T + pos, self._mesh_ctx)
             frames.append(self._draw(self._mesh.model, self._mesh.data, self._mesh_scene,
-                                     self._mesh_ctx, cam, None if out is None else out[i]))
+                                     self._mesh_ctx, cam, None if out is None else out[i], crop))
+        return self._finish(frames, full, out)
+
+    def bind_reference_skin(self, rest_vertices: np.ndarray, weights: np.ndarray,
+                            bind: np.ndarray, scale: float, rotation: np.ndarray,
+                            offset: np.ndarray) -> None:
+        """Draw the reference body as a MuJoCo skin from bone poses (`reference_pose_frames`).
+        `rest_vertices` (K,3) and `weights` (K,J) of the drawn vertices (`reference_keep`) and
+        the bind joints (J,3), all in the body frame, which maps into the torso frame as
+        p ↦ scale · rotation @ p + offset (a similarity: `rotation` proper)."""
+        if self.reference_keep is None:
+            raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
+        rotation = np.asarray(rotation, dtype=np.float64)
+        if not (scale > 0 and rotation.shape == (3, 3)
+                and np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6)
+                and np.linalg.det(rotation) > 0):
+            raise ValueError("the body-to-torso map must be a positive scale times a rotation")
+        rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
+        self._ctx.make_current()
+        self._skin = _SkinModel(self._kept_faces, rest_vertices, weights, bind, scale,
+                                rot @ rotation, rot @ np.asarray(offset, np.float64) + pos,
+                                self.cfg, self._model.vis.global_.fovy, self.size)
+        self._skin_ctx = self._context(self._skin.model)
+        self._skin_scene = mujoco.MjvScene(self._skin.model, maxgeom=16)
+
+    @property
+    def posed(self) -> bool:
+        """Whether the reference body can be drawn from bone poses (`bind_reference_skin`)."""
+        return self._skin is not None
+
+    def reference_pose_frames(self, transforms: np.ndarray, view: str = "front",
+                              full: bool = False, out: np.ndarray | None = None,
+                              crop: Crop | None = None) -> np.ndarray:
+        """Images (N,H,W,3) of the reference body posed by its joints' transforms (N,J,4,4)
+        in the body frame (`BodyModel.joint_transforms`); `full`, `out` and `crop` as in
+        `robot_frames`."""
+        if self._skin is None:
+            raise ValueError("no reference skin bound (bind_reference_skin)")
+        transforms = np.asarray(transforms, dtype=np.float64)
+        self._target(out, len(transforms), full, crop)
+        self._ctx.make_current()
+        cam = self.camera(view)
+        frames = []
+        for i, pose in enumerate(self._skin.bone_poses(transforms)):
+            self._skin.set_pose(*pose)
+            frames.append(self._draw(self._skin.model, self._skin.data, self._skin_scene,
+                                     self._skin_ctx, cam, None if out is None else out[i], crop))
         return self._finish(frames, full, out)
 
     def close(self) -> None:
@@ -406,13 +569,7 @@ class _MeshModel:
 
     def __init__(self, faces: np.ndarray, rest_vertices: np.ndarray, cfg: RenderConfig,
                  fovy: float, size: tuple[int, int]) -> None:
-        spec = mujoco.MjSpec()
-        spec.visual.global_.offwidth, spec.visual.global_.offheight = size
-        spec.visual.quality.offsamples = 0
-        spec.visual.global_.fovy = fovy
-        spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
-        spec.visual.headlight.ambient = [0.1, 0.1, 0.1]
-        spec.worldbody.add_light(pos=[1, 0, 3.5], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+        spec = _lit_spec(cfg, fovy, size)
         mesh = spec.add_mesh(name="reference")
         mesh.uservert = np.asarray(rest_vertices, dtype=np.float64).ravel().tolist()
         mesh.userface = np.asarray(faces, dtype=np.int64).ravel().tolist()
@@ -460,3 +617,74 @@ class _MeshModel:
         else:
             self.model.mesh_normal[self._nadr + self._face_normal.ravel()] = normals[f.ravel()]
         mujoco.mjr_uploadMesh(self.model, ctx, self.mesh_id)
+
+
+def _lit_spec(cfg: RenderConfig, fovy: float, size: tuple[int, int]) -> mujoco.MjSpec:
+    """An empty model with the reference body's camera, buffer size and lights."""
+    spec = mujoco.MjSpec()
+    spec.visual.global_.offwidth, spec.visual.global_.offheight = size
+    spec.visual.quality.offsamples = 0
+    spec.visual.quality.shadowsize = _SHADOW_SIZE
+    spec.visual.global_.fovy = fovy
+    spec.visual.headlight.diffuse = [0.6, 0.6, 0.6]
+    spec.visual.headlight.ambient = [0.1, 0.1, 0.1]
+    spec.worldbody.add_light(pos=[1, 0, 3.5], dir=[0, 0, -1], type=mujoco.mjtLightType.mjLIGHT_DIRECTIONAL)
+    return spec
+
+
+class _SkinModel:
+    """The reference body as a MuJoCo skin: one mocap body per bone that moves any drawn vertex,
+    bound at the rest joints; MuJoCo blends the vertices and their normals each frame.
+
+    Bone j maps a rest vertex v (body frame) to R_j (v − b_j) + t_j; with the body→world map
+    p ↦ s·A p + c that is (A R_j)(s v − s b_j) + (s A t_j + c): the skin holds s·v, bind s·b_j,
+    and each mocap body gets the rotation A R_j at s A t_j + c."""
+
+    def __init__(self, faces: np.ndarray, rest_vertices: np.ndarray, weights: np.ndarray,
+                 bind: np.ndarray, scale: float, rotation: np.ndarray, offset: np.ndarray,
+                 cfg: RenderConfig, fovy: float, size: tuple[int, int]) -> None:
+        weights = np.asarray(weights, dtype=np.float64)
+        self.bones = np.flatnonzero((weights > 0).any(axis=0))
+        self.scale, self.rotation, self.offset = float(scale), rotation, offset
+        spec = _lit_spec(cfg, fovy, size)
+        for j in self.bones:
+            spec.worldbody.add_body(name=f"bone{j}", mocap=True)
+        skin = spec.add_skin(name="reference")
+        skin.vert = (self.scale * np.asarray(rest_vertices, np.float64)).ravel().tolist()
+        skin.face = np.asarray(faces, dtype=np.int64).ravel().tolist()
+        skin.rgba = list(cfg.reference_rgba)
+        skin.bodyname = [f"bone{j}" for j in self.bones]
+        skin.bindpos = (self.scale * np.asarray(bind, np.float64)[self.bones]).ravel().tolist()
+        skin.bindquat = np.tile([1.0, 0.0, 0.0, 0.0], len(self.bones)).tolist()
+        skin.vertid = [np.flatnonzero(weights[:, j] > 0).tolist() for j in self.bones]
+        skin.vertweight = [weights[weights[:, j] > 0, j].tolist() for j in self.bones]
+        self.model = spec.compile()
+        self.data = mujoco.MjData(self.model)
+        offsets = np.linalg.norm(np.asarray(rest_vertices, np.float64)[:, None]
+                                 - np.asarray(bind, np.float64)[self.bones], axis=2)  # (K,B)
+        self.radii = self.scale * np.where(weights[:, self.bones] > 0, offsets, 0.0).max(axis=0)
+
+    def bone_poses(self, transforms: np.ndarray):
+        """Per frame (mocap positions (B,3), quaternions (B,4)) of joint transforms (N,J,4,4)."""
+        tf = transforms[:, self.bones]
+        rot = np.einsum("ab,tjbc->tjac", self.rotation, tf[..., :3, :3])
+        pos = np.einsum("ab,tjb->tja", self.scale * self.rotation, tf[..., :3, 3]) + self.offset
+        quat = np.empty(rot.shape[:2] + (4,))
+        for t in range(len(rot)):
+            for j in range(rot.shape[1]):
+                mujoco.mju_mat2Quat(quat[t, j], rot[t, j].ravel())
+        return zip(pos, quat)
+
+    def bone_spheres(self, transforms: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Per bone, a sphere about its posed joint (N,B,3) of radius (B,) the farthest scaled
+        rest offset of a vertex it moves: bone j alone would put each of its vertices inside
+        its sphere, and a blended vertex is a convex combination of such positions, so its
+        image lies in the box of the spheres' images."""
+        pos = (np.einsum("ab,tjb->tja", self.scale * self.rotation,
+                         transforms[:, self.bones][..., :3, 3]) + self.offset)
+        return pos, self.radii
+
+    def set_pose(self, pos: np.ndarray, quat: np.ndarray) -> None:
+        self.data.mocap_pos[:] = pos
+        self.data.mocap_quat[:] = quat
+        mujoco.mj_kinematics(self.model, self.data)
