@@ -23,7 +23,7 @@ import numpy as np
 
 CHEAP = {"collision": {"enabled": False}, "ik": {"iterations": 1, "shape_iterations": 10}}
 #: The IK-only change: a different smoothness weight.
-IK_CHANGE = {**CHEAP, "ik": {**CHEAP["ik"], "w_smooth": 0.02}}
+IK_CHANGE = {**CHEAP, "ik": {**CHEAP["ik"], "w_smooth": 0.06}}
 
 
 def write_dataset(folder: Path, n: int, frames: int) -> Path:

@@ -387,10 +387,7 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 # v16: the contact phase's proxy rows at the samples packed per frame (`Residuals._sample_rows`)
 #      and its proxy block cut to the proxy frames' width (`Residuals._exact_rows`): the same
 #      Gauss-Newton blocks to round-off, solutions within ~6e-13 rad (s13-ikevals).
-# v17: the wrist task 4× heavier against the regularisers (`ik.w_wrist_pos` 1 → 4, `w_wrist_rot`
-#      0.02 → 0.08, `w_smooth` 0.02 → 0.06; hand points and their touch rotation ×2, hand
-#      clearance 20 → 40, `contact_stall` 6 → 12): other solves (s14-ikwrist).
-RETARGET = Step("retarget", "17", ("body", "robot", "ik"), _retarget, _ik_solution,
+RETARGET = Step("retarget", "16", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -408,8 +405,7 @@ RETARGET = Step("retarget", "17", ("body", "robot", "ik"), _retarget, _ik_soluti
 # v16: retarget v14's targets.
 # v17: the compiled sphere/hull proxy rows (retarget v15) in every round's solve.
 # v18: the contact phase's narrower proxy blocks (retarget v16) in every round's solve.
-# v19: the heavier wrist task (retarget v17) in every round's solve.
-REFINE = Step("refine", "19", ("body", "robot", "ik", "render", "critic"), _refine,
+REFINE = Step("refine", "18", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.

@@ -148,11 +148,8 @@ def _swap(robot):
     """Left hand above the right for 6 frames, then below it for 6: q and its targets."""
     from tests.test_retarget_ik import _targets_from_q
 
-    # the arm poses this scene was built with (wrist weight 1, before s14-ikwrist's default of 4):
-    # their straight-line interpolation puts the hands inside each other
-    built = IKConfig(w_wrist_pos=1.0, w_wrist_rot=0.02, w_smooth=0.02)
-    above = _pose(robot, [0.30, 0.0, 0.20], [0.30, 0.0, 0.0], built)
-    below = _pose(robot, [0.30, 0.0, 0.0], [0.30, 0.0, 0.20], built)
+    above = _pose(robot, [0.30, 0.0, 0.20], [0.30, 0.0, 0.0], IKConfig())
+    below = _pose(robot, [0.30, 0.0, 0.0], [0.30, 0.0, 0.20], IKConfig())
     q = np.concatenate([np.tile(above, (6, 1)), np.tile(below, (6, 1))])
     return q, _targets_from_q(robot, q)
 

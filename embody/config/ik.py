@@ -18,14 +18,9 @@ class IKConfig(Section):
     #: Also fit one global scale (robots are ~0.7× a human: betas alone cannot get there).
     shape_fit_scale: bool = True
     # --- IK costs (targets in metres / radians, torso frame) ---
-    #: 4, not 1: against the regularisers below (smoothness, torso, elbow, posture, the collision
-    #: and velocity hinges) the wrist task was the weak one; on benchmarks/ik_vs_mink.py ×4 with
-    #: w_smooth 0.02 → 0.06 takes the wrist error from 4.12 to 3.44 mm (mink's feasible frames
-    #: 1.13 → 0.79, rotation 1.37 → 1.09°) at lower jerk (1086 → 970), still 0 contacts
-    #: (benchmarks/ik_wrist_sources.py; docs/performance.md, 2026-11-27 s14-ikwrist).
-    w_wrist_pos: float = Field(4.0, ge=0)
-    #: Wrist orientation error (rad², rotation vector) against position (m²): 0.02 of `w_wrist_pos`.
-    w_wrist_rot: float = Field(0.08, ge=0)
+    w_wrist_pos: float = Field(1.0, ge=0)
+    #: Wrist orientation error (rad², rotation vector) against position (m²).
+    w_wrist_rot: float = Field(0.02, ge=0)
     w_elbow_pos: float = Field(0.01, ge=0)
     #: Torso orientation (spine3 → torso link): a leaning signer gives a leaning robot within its
     #: waist limits, so chest-anchored targets (below) stay where the chest is.
@@ -33,7 +28,7 @@ class IKConfig(Section):
     w_head_rot: float = Field(0.0, ge=0)
     #: Second differences of q (rad²): smoothness over the whole sequence. Redundant motion
     #: (elbow swivel, waist) is smoothed for free; tracking barely pays at this weight.
-    w_smooth: float = Field(0.06, ge=0)
+    w_smooth: float = Field(0.02, ge=0)
     #: Third differences of q (rad², jerk, what the jerk metric measures): frequency-aware
     #: smoothness, penalising slow signing motion less than Δ² does for the same jerk. Off by
     #: default: on benchmarks/ik_vs_mink.py's 4 sequences w_smooth 0 + w_jerk 0.05 halves the jerk
@@ -71,12 +66,10 @@ class IKConfig(Section):
     #: Position residual on the anchored robot hand points (palm centre, finger tips;
     #: embody/retarget/hand_points.py), times each point's anchoring weight: the point that carries
     #: the sign (a fingertip at the chin) lands on the robot's landmark, not only the wrist. 0: off.
-    #: (80 and 4 below, 40 and 2 before the wrist weighed 4: on benchmarks/fidelity.py ×4, the
-    #: balance they were tuned at, sent synth seq 14 into a basin 10 cm off its landmark.)
-    w_hand_points: float = Field(80.0, ge=0)
+    w_hand_points: float = Field(40.0, ge=0)
     #: Its weight where a point is anchored but not touching (within `anchor_far`, beyond
     #: `touch_radius`): the wrist target already carries the location there.
-    w_hand_points_near: float = Field(4.0, ge=0)
+    w_hand_points_near: float = Field(2.0, ge=0)
     #: A hand point within this many body scales of a landmark touches it: full `w_hand_points`,
     #: and the wrist pose terms released by `touch_release` (smoothstep to 0 at this distance).
     touch_radius: float = Field(0.2, gt=0.0, le=1.0)
@@ -93,15 +86,11 @@ class IKConfig(Section):
     touch_release: float = Field(1.0, ge=0.0, le=1.0)
     #: Wrist orientation weight where a hand point touches (instead of `w_wrist_rot`): the
     #: anchored points would otherwise twist the palm (palm orientation is part of the sign).
-    #: (1.0: 0.5 before the wrist weighed 4, scaled like the hand points.)
-    w_wrist_rot_touch: float = Field(1.0, ge=0)
+    w_wrist_rot_touch: float = Field(0.5, ge=0)
     #: Hinge keeping the robot's hands apart where the human's are apart, at hand scale
     #: (embody/retarget/hand_clearance.py): G1's Dex3 hands are 1.4 human hands long on an arm
     #: span 0.76 of the human's, so without it hands passing near each other touch. 0: off.
-    #: (40, 20 before the wrist weighed 4: at 20 the hand passing the face in
-    #: tests/test_hand_clearance.py brushed it on 4 of 30 frames; 80, the old balance with the
-    #: wrist, failed benchmarks/fidelity.py's opposite-shoulder hold and location agreement.)
-    w_hand_clearance: float = Field(40.0, ge=0)
+    w_hand_clearance: float = Field(20.0, ge=0)
     #: The human's hands touch within this gap (m; the fidelity measure's `contact_eps`): no
     #: clearance is asked for there, the collision margin makes the touch.
     hand_contact_eps: float = Field(0.015, gt=0.0, le=0.1)
@@ -184,10 +173,8 @@ class IKConfig(Section):
     #: checked frames and samples has not improved by `contact_stall_mm` over the last
     #: `contact_stall` evaluations: a contact the window cannot route round (interlocked fingers,
     #: benchmark seq 0: stuck at 12 mm for 20 evaluations and a second round) is the repair's,
-    #: and its rounds were 38 % of our IK CPU time on benchmarks/ik_vs_mink.py. 0: off. 12, not 6,
-    #: since the wrist weighs 4 (s14-ikwrist): a pass pushed apart against the heavier wrist moves
-    #: slower and 6 gave up on tests/test_ik_exact_contacts.py's swap (it never fires on the benchmark).
-    contact_stall: int = Field(12, ge=0, le=10_000)
+    #: and its rounds were 38 % of our IK CPU time on benchmarks/ik_vs_mink.py. 0: off.
+    contact_stall: int = Field(6, ge=0, le=10_000)
     contact_stall_mm: float = Field(0.5, ge=0, le=100)
     #: The contact phase's samples between frames also get the proxies' rows (hinged at
     #: `contact_sample_margin`), not only MuJoCo's: MuJoCo's rows exist only for pairs already
