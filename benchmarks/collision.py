@@ -108,15 +108,20 @@ def _clear_runs(e: np.ndarray) -> list[tuple[int, int]]:
     return runs
 
 
+def _stride_energies(m: Motion, body, cfg: CollisionConfig) -> np.ndarray:
+    """Per-frame collision energy on the `vertex_stride` subsample (the paper's measure)."""
+    model = collision_model(body, m.betas, vertex_stride=cfg.vertex_stride)
+    with torch.no_grad():
+        return frame_energies(model, body.joint_transforms(
+            torch.as_tensor(m.pose, dtype=torch.float32),
+            torch.as_tensor(m.betas, dtype=torch.float32)), cfg.tolerance).numpy()
+
+
 def warm_up(path: Path, body, cfg: CollisionConfig, frames: int = 30) -> None:
     """Run `mitigate` once, untimed, on `frames` frames around the first sequence's most
     colliding one: loads the compiled kernels (numba's cache) before any timed run."""
     m = load(path)
-    model = collision_model(body, m.betas, vertex_stride=cfg.vertex_stride)
-    with torch.no_grad():
-        e = frame_energies(model, body.joint_transforms(
-            torch.as_tensor(m.pose, dtype=torch.float32),
-            torch.as_tensor(m.betas, dtype=torch.float32)), cfg.tolerance).numpy()
+    e = _stride_energies(m, body, cfg)
     a = max(0, min(int(np.argmax(e)) - frames // 2, len(m.pose) - frames))
     mitigate(Motion(pose=m.pose[a:a + frames], transl=m.transl[a:a + frames], betas=m.betas,
                     fps=m.fps), body, cfg)
@@ -129,11 +134,7 @@ def long_sequence(paths: list[Path], body, cfg: CollisionConfig, fade: int = 8) 
     pieces = []
     for i, p in enumerate(paths):
         m = load(p)
-        model = collision_model(body, m.betas, vertex_stride=cfg.vertex_stride)
-        with torch.no_grad():
-            e = frame_energies(model, body.joint_transforms(
-                torch.as_tensor(m.pose, dtype=torch.float32),
-                torch.as_tensor(m.betas, dtype=torch.float32)), cfg.tolerance).numpy()
+        e = _stride_energies(m, body, cfg)
         runs = _clear_runs(e)
         if runs:
             a, b = max(runs, key=lambda r: r[1] - r[0])

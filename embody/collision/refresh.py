@@ -75,30 +75,9 @@ def displacement(model: CollisionModel, margin: float, old: torch.Tensor,
 @njit(cache=True, nogil=True)
 def _displacement(old: np.ndarray, new: np.ndarray, lever: np.ndarray, part_joints: np.ndarray,
                   reach: np.ndarray) -> np.ndarray:
-    n_t, n_j = old.shape[0], old.shape[1]
-    out = np.empty(n_t)
-    rot = np.empty(n_j)
-    shift = np.empty(n_j)
-    for t in range(n_t):
-        point = 0.0
-        for j in range(n_j):
-            r = 0.0
-            for a in range(3):
-                for c in range(3):
-                    d = np.float64(new[t, j, a, c]) - np.float64(old[t, j, a, c])
-                    r += d * d
-            s = 0.0
-            for a in range(3):
-                d = np.float64(new[t, j, a, 3]) - np.float64(old[t, j, a, 3])
-                s += d * d
-            rot[j], shift[j] = np.sqrt(0.5 * r), np.sqrt(s)
-            point = max(point, rot[j] * lever[j] + shift[j])
-        part = 0.0
-        for b in range(len(part_joints)):
-            j = part_joints[b]
-            part = max(part, rot[j] * reach[b] + shift[j])
-        out[t] = point + part + 1e-6
-    return out
+    """Per frame, a bound on how far any model point moved between the transforms `old` and
+    `new` (every joint may differ)."""
+    return _displacement_at(old, new, np.arange(old.shape[1]), lever, part_joints, reach)
 
 
 @njit(cache=True, nogil=True)
