@@ -13,6 +13,8 @@ shared by CPU-only and GPU machines should name `cpu` or `cuda` explicitly.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Literal
 
 import torch
@@ -35,3 +37,16 @@ def torch_device(spec: str, key: str = "device") -> torch.device:
                                    f"(torch {torch.__version__}); use 'auto' or 'cpu'")
         return torch.device("cuda")
     raise ConfigError(key, f"unknown device {spec!r}; expected cpu, cuda or auto")
+
+
+@contextmanager
+def torch_threads(n: int) -> Iterator[None]:
+    """Torch intra-op threads at `n` inside the block, then as before (also when it raises).
+    The setting is torch's process-wide one: the collision optimiser, the metrics step and a
+    run with several workers (`flows.threads`) each hold it for their duration."""
+    before = torch.get_num_threads()
+    torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(before)

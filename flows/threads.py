@@ -9,7 +9,7 @@ ops (the IK's chain FK, the human FK), where a second OpenMP thread per worker o
 waits (the IK solve of 4 default sequences: 3.4-3.8 CPU-s and 9-10 s wall per sequence with 2
 torch threads, 0.30 CPU-s and ~1 s with 1, the same bits; s14-metrics, 2026-11-27). So while a
 run has more than one worker, BLAS and torch run single-threaded in its process (`threadpoolctl`,
-`torch.set_num_threads`; the previous settings come back when the run ends). Dask workers get the
+`embody.device.torch_threads`; the previous settings come back when the run ends). Dask workers get the
 same in `flows.preload`.
 """
 
@@ -30,11 +30,6 @@ def worker_threads(workers: int) -> Iterator[None]:
     if workers <= 1:
         yield
         return
-    import torch
-    before = torch.get_num_threads()
-    with threadpool_limits(limits=1, user_api="blas"):
-        torch.set_num_threads(1)
-        try:
-            yield
-        finally:
-            torch.set_num_threads(before)
+    from embody.device import torch_threads
+    with threadpool_limits(limits=1, user_api="blas"), torch_threads(1):
+        yield

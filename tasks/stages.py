@@ -9,8 +9,6 @@ from __future__ import annotations
 import hashlib
 import threading
 from collections import OrderedDict
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -272,29 +270,17 @@ def _control_counts(ik: Any, q_control: np.ndarray) -> dict[str, float] | None:
     return {k: float(ik.metrics[f"control_{k}"]) for k in names}
 
 
-@contextmanager
-def _one_torch_thread() -> Iterator[None]:
-    """Torch intra-op threads at 1 for one step, then as before (as `collision.threads` does for
-    the optimiser). Why: the metrics step's torch work (the IK baseline's chain FK, the human's
-    FK) is many small ops, where a second OpenMP thread only adds barrier waits: with 2 threads
-    the step took 4.6 CPU-s per sequence at load 4, with 1 thread 0.67, the same bits (the run's
-    parallelism is its workers). The setting is torch's process-wide one, like the optimiser's."""
-    import torch
-    before = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
-
-
 def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     """Smoothness, MuJoCo-verified validity and sign fidelity of the final joint trajectory (the
     refined one when the critic ran). Validity is measured on the exact control-rate array
     `embody export` writes (stored here as `q_control`); the source-rate counters go under
     `source_*`. Every number the report's tables and the export read. Torch on one thread
-    (`_one_torch_thread`)."""
-    with _one_torch_thread():
+    (`torch_threads(1)`, as `collision.threads` for the optimiser): the step's torch work (the IK
+    baseline's chain FK, the human's FK) is many small ops, where a second OpenMP thread only
+    adds barrier waits (2 threads: 4.6 CPU-s per sequence at load 4, 1 thread: 0.67, the same
+    bits)."""
+    from embody.device import torch_threads
+    with torch_threads(1):
         return _measure(ctx, inputs)
 
 

@@ -53,21 +53,22 @@ def test_several_workers_get_one_torch_thread_and_the_setting_returns():
         torch.set_num_threads(before)
 
 
-def test_metrics_step_runs_torch_on_one_thread_and_gives_the_setting_back():
-    """The metrics step's torch work (many small ops) runs on one intra-op thread; the setting
-    before it comes back afterwards, also when the step fails."""
+def test_torch_threads_sets_the_count_and_gives_the_setting_back():
+    """`torch_threads` (the metrics step's and the collision optimiser's one intra-op thread)
+    sets the count inside the block; the setting before it comes back afterwards, also when the
+    step fails."""
     import pytest
     import torch
 
-    from embody.tasks.stages import _one_torch_thread
+    from embody.device import torch_threads
 
     before = torch.get_num_threads()
     torch.set_num_threads(2)
     try:
-        with _one_torch_thread():
+        with torch_threads(1):
             assert torch.get_num_threads() == 1
         assert torch.get_num_threads() == 2
-        with pytest.raises(RuntimeError), _one_torch_thread():
+        with pytest.raises(RuntimeError), torch_threads(1):
             raise RuntimeError("a failing step")
         assert torch.get_num_threads() == 2
     finally:

@@ -32,8 +32,6 @@ before/after counts go into the metrics.
 from __future__ import annotations
 
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -51,7 +49,7 @@ from embody.collision.objective import Objective
 from embody.collision.refresh import Refresh
 from embody.collision.solve import solve
 from embody.config.collision import CollisionConfig
-from embody.device import torch_device
+from embody.device import torch_device, torch_threads
 from embody.motion import Motion
 
 
@@ -136,22 +134,11 @@ def _second_diff(x: torch.Tensor) -> torch.Tensor:
     return x[2:] - 2.0 * x[1:-1] + x[:-2]
 
 
-@contextmanager
-def _threads(n: int) -> Iterator[None]:
-    """Torch intra-op threads for the duration of one optimisation (process-wide setting)."""
-    before = torch.get_num_threads()
-    torch.set_num_threads(n)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(before)
-
-
 def mitigate(motion: Motion, body: BodyModel,
              cfg: CollisionConfig | None = None) -> CollisionResult:
     """Reduce self-collision of `motion` by moving only the masked joints (Eq. 2–3)."""
     cfg = cfg or CollisionConfig()
-    with _threads(cfg.threads):
+    with torch_threads(cfg.threads):
         return _mitigate(motion, body, cfg)
 
 
