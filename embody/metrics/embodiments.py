@@ -269,21 +269,14 @@ def robot_contacts(robot: Robot, q: np.ndarray, distmax: float = 0.1) -> np.ndar
     if not pairs or not len(q):
         return out
     channel, pa, pb = (np.array(v) for v in zip(*pairs))
-    used = np.unique(np.concatenate([pa, pb]))
-    centres = np.empty((len(q), len(used), 3))
+    radii = m.geom_rbound[pa] + m.geom_rbound[pb]
+    fromto = np.zeros(6)
     for t, qt in enumerate(q):
         d.qpos[:] = robot.qpos(qt)
         mujoco.mj_kinematics(m, d)
-        centres[t] = d.geom_xpos[used]
-    ia, ib = np.searchsorted(used, pa), np.searchsorted(used, pb)
-    apart = (np.linalg.norm(centres[:, ia] - centres[:, ib], axis=-1)
-             - m.geom_rbound[pa] - m.geom_rbound[pb])
-    near = apart <= distmax + _BROAD_MARGIN  # (T, pairs)
-    fromto = np.zeros(6)
-    for t in np.flatnonzero(near.any(1)):
-        d.qpos[:] = robot.qpos(q[t])
-        mujoco.mj_kinematics(m, d)
-        for p in np.flatnonzero(near[t]):
+        centres = d.geom_xpos
+        apart = np.linalg.norm(centres[pa] - centres[pb], axis=-1) - radii
+        for p in np.flatnonzero(apart <= distmax + _BROAD_MARGIN):
             value = geom_distance(m, d, int(pa[p]), int(pb[p]), distmax, fromto)
             if value < out[t, channel[p]]:
                 out[t, channel[p]] = value
