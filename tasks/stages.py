@@ -391,7 +391,9 @@ RETARGET = Step("retarget", "16", ("body", "robot", "ik"), _retarget, _ik_soluti
 # v16: retarget v14's targets.
 # v17: the compiled sphere/hull proxy rows (retarget v15) in every round's solve.
 # v18: the contact phase's narrower proxy blocks (retarget v16) in every round's solve.
-REFINE = Step("refine", "18", ("body", "robot", "ik", "render", "critic"), _refine,
+# v19: the critic's sheets draw the reference as the render step does (render v4's bound skin),
+#      not from skinned vertices: the same picture up to edge pixels.
+REFINE = Step("refine", "19", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.

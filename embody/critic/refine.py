@@ -170,13 +170,11 @@ class _Renders:
         return self._renderer
 
     def comparison(self, q: np.ndarray):
-        from embody.render.compare import reference_vertices, render_comparison
+        from embody.render.compare import render_comparison
 
-        verts = None
-        if self._reference is None:
-            verts = reference_vertices(self.motion, self.body, self.fit, self.keyframes)
+        # the reference drawn as the render step draws it (`draw_reference`: the bound skin)
         comp = render_comparison(self.renderer, self.cfg, self.keyframes, self.motion.fps, q,
-                                 self._reference, verts)
+                                 self._reference, motion=self.motion)
         self._reference = comp.reference
         return comp
 
