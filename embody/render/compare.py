@@ -18,7 +18,7 @@ from embody.body.base import BodyModel
 from embody.config.render import RenderConfig
 from embody.motion import Motion
 from embody.render.preview import PreviewWriter
-from embody.render.scene import Crop, SceneRenderer, downsample
+from embody.render.scene import Crop, SceneRenderer, downsample, is_similarity
 from embody.render.sheet import comparison_sheet, png_bytes
 
 #: Frames skinned at once for the preview (bounds memory on long sequences).
@@ -149,7 +149,7 @@ def open_renderer(robot, body: BodyModel, fit, cfg: RenderConfig) -> SceneRender
                              reference_groups=bones, reference_cells=reference_cells(body, cfg))
     try:
         skin = renderer.skin = ReferenceSkin(body, fit, renderer.reference_keep, reach, reach_verts)
-        if skin.exact and _similarity(fit.scale, fit.rotation):
+        if skin.exact and is_similarity(fit.scale, fit.rotation):
             # linear blend skinning, mapped rigidly and scaled: MuJoCo can skin the drawn mesh
             with torch.no_grad():
                 bind = body.rest_joints(betas).cpu().numpy()
@@ -160,13 +160,6 @@ def open_renderer(robot, body: BodyModel, fit, cfg: RenderConfig) -> SceneRender
         renderer.close()
         raise
     return renderer
-
-
-def _similarity(scale: float, rotation: np.ndarray) -> bool:
-    """Is p ↦ scale · rotation @ p a positive scale times a proper rotation?"""
-    r = np.asarray(rotation, dtype=np.float64)
-    return bool(scale > 0 and r.shape == (3, 3) and np.allclose(r @ r.T, np.eye(3), atol=1e-6)
-                and np.linalg.det(r) > 0)
 
 
 def reach_poses() -> torch.Tensor:

@@ -129,6 +129,14 @@ def cluster_faces(vertices: np.ndarray, faces: np.ndarray, cell: float | np.ndar
     return keep, np.searchsorted(keep, rep)
 
 
+def is_similarity(scale: float, rotation: np.ndarray) -> bool:
+    """Is p ↦ scale · rotation @ p a positive scale times a proper rotation (what a bound skin
+    can draw: `SceneRenderer.bind_reference_skin`)?"""
+    r = np.asarray(rotation, dtype=np.float64)
+    return bool(scale > 0 and r.shape == (3, 3) and np.allclose(r @ r.T, np.eye(3), atol=1e-6)
+                and np.linalg.det(r) > 0)
+
+
 def _clustered(vertices: np.ndarray, faces: np.ndarray, cell: float | np.ndarray,
                groups: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
     """`cluster_faces`, remembered per process by the inputs' content: every sequence of a run
@@ -468,9 +476,7 @@ class SceneRenderer:
         if self.reference_keep is None:
             raise ValueError("SceneRenderer was built without a reference mesh (faces, rest_vertices)")
         rotation = np.asarray(rotation, dtype=np.float64)
-        if not (scale > 0 and rotation.shape == (3, 3)
-                and np.allclose(rotation @ rotation.T, np.eye(3), atol=1e-6)
-                and np.linalg.det(rotation) > 0):
+        if not is_similarity(scale, rotation):
             raise ValueError("the body-to-torso map must be a positive scale times a rotation")
         rot, pos = self.world_from_torso[:3, :3], self.world_from_torso[:3, 3]
         self._ctx.make_current()
