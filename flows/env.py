@@ -59,11 +59,11 @@ def on_sigterm() -> None:
         pass
 
 
-def register_server(pid: int | None = None) -> Path | None:
+def register_server(pid: int | None = None, home: str | Path | None = None) -> Path | None:
     """Write the pidfile of this process's ephemeral Prefect server `pid` (default: one Prefect
-    started itself; None when there is none, e.g. with a real `PREFECT_API_URL`); removed again
-    at exit."""
-    home = os.environ.get("PREFECT_HOME")
+    started itself; None when there is none, e.g. with a real `PREFECT_API_URL`) under `home`
+    (default `$PREFECT_HOME`); removed again at exit."""
+    home = home or os.environ.get("PREFECT_HOME")
     if pid is None:
         pid = _prefect_started_server()
     if not home or pid is None:

@@ -143,7 +143,7 @@ class EphemeralServer:
              "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port",
              str(self.port), "--log-level", "error", "--lifespan", "on"],
             env={**os.environ, "PREFECT_HOME": str(self.home), **_CHILD_ENV})
-        self._pidfile = register_server(self.proc.pid)
+        self._pidfile = register_server(self.proc.pid, self.home)
 
     def wait(self) -> str:
         """Block until the server answers its health check; returns the API URL."""
