@@ -413,8 +413,11 @@ def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
     steps = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
 
     def warm() -> None:
-        import prefect.flow_engine  # noqa: F401  (the flow call's own imports, done meanwhile)
+        # what a flow's first call imports (~1.3 s here), done while the server boots
+        import fastapi.encoders  # noqa: F401  (Prefect's parameter serialisation)
+        import prefect.flow_engine  # noqa: F401
         import prefect.task_engine  # noqa: F401
+        import prefect.utilities.visualization  # noqa: F401
         prefect_flow()
         if cfg.run.runner != "threads":  # other runners' workers are other processes
             return

@@ -123,15 +123,20 @@ class EphemeralServer:
         self.proc: subprocess.Popen | None = None
         self.seeded = False
         self._pidfile: Path | None = None
+        self._booting: threading.Thread | None = None
+        self._error: str | None = None
 
     @property
     def api_url(self) -> str:
         return f"http://127.0.0.1:{self.port}/api"
 
     def start(self) -> None:
-        """Spawn the child (returns at once; `wait` waits for its health check)."""
+        """Spawn the child and watch it boot in a thread (returns at once; `wait` joins)."""
         self.seeded = seed_database(self.home)
         self._spawn()
+        self._booting = threading.Thread(target=self._boot, name="prefect-server-boot",
+                                         daemon=True)
+        self._booting.start()
 
     def _spawn(self) -> None:
         spec = find_spec("prefect")  # where it is, without importing it here
@@ -146,7 +151,17 @@ class EphemeralServer:
         self._pidfile = register_server(self.proc.pid, self.home)
 
     def wait(self) -> str:
-        """Block until the server answers its health check; returns the API URL."""
+        """Block until the server is up; returns the API URL (RuntimeError if it never is)."""
+        if self._booting is not None:
+            self._booting.join()
+        if self._error is not None:
+            raise RuntimeError(self._error)
+        return self.api_url
+
+    def _boot(self) -> None:
+        """Poll the health check (respawning if uvicorn lost its port), then save the database
+        template and send the first reads, whose one-off server-side costs (database session,
+        ORM) would otherwise delay the flow's first request."""
         deadline = time.monotonic() + self.startup_timeout_s
         retries = 2
         while time.monotonic() < deadline:
@@ -157,20 +172,29 @@ class EphemeralServer:
                     retries -= 1
                     self._spawn()
                     continue
-                raise RuntimeError(f"the Prefect server (PREFECT_HOME={self.home}) exited with "
-                                   f"code {code} while starting")
-            try:
-                with urllib.request.urlopen(f"{self.api_url}/health", timeout=2) as reply:
-                    if reply.status == 200:
-                        if not self.seeded:
-                            save_template(self.home)
-                        return self.api_url
-            except (urllib.error.URLError, OSError):
-                pass
+                self._error = (f"the Prefect server (PREFECT_HOME={self.home}) exited with code "
+                               f"{code} while starting")
+                return
+            if self._get("health"):
+                if not self.seeded:
+                    save_template(self.home)
+                for path in ("flow_runs/filter", "task_runs/filter"):
+                    self._get(path, body=b"{}")
+                return
             time.sleep(0.05)
         self.stop()
-        raise RuntimeError(f"the Prefect server did not start within {self.startup_timeout_s:.0f}"
-                           " s (PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS)")
+        self._error = (f"the Prefect server did not start within {self.startup_timeout_s:.0f} s "
+                       "(PREFECT_SERVER_EPHEMERAL_STARTUP_TIMEOUT_SECONDS)")
+
+    def _get(self, path: str, body: bytes | None = None) -> bool:
+        """True when `path` answers 200 (a POST with a JSON `body`)."""
+        request = urllib.request.Request(f"{self.api_url}/{path}", data=body,
+                                         headers={"Content-Type": "application/json"})
+        try:
+            with urllib.request.urlopen(request, timeout=5) as reply:
+                return reply.status == 200
+        except (urllib.error.URLError, OSError):
+            return False
 
     def alive(self) -> bool:
         return self.proc is not None and self.proc.poll() is None
@@ -205,13 +229,17 @@ def _configured_api() -> str | None:
 @contextmanager
 def _api_url(url: str) -> Iterator[None]:
     """`PREFECT_API_URL` for the block: in the environment (child processes, a Prefect not yet
-    imported) and in Prefect's settings context when it is."""
+    imported) and in Prefect's settings context when it is. Flow-run heartbeats are off: they
+    let a server tell a crashed run, and this server ends with its run's process (their thread
+    also held up each flow's end by up to a second)."""
     old = os.environ.get("PREFECT_API_URL")
     os.environ["PREFECT_API_URL"] = url
     try:
         if "prefect.settings" in sys.modules:
-            from prefect.settings import PREFECT_API_URL, temporary_settings
-            with temporary_settings(updates={PREFECT_API_URL: url}):
+            from prefect import settings
+            with settings.temporary_settings(updates={
+                    settings.PREFECT_API_URL: url,
+                    settings.PREFECT_FLOWS_HEARTBEAT_FREQUENCY: None}):
                 yield
         else:
             yield
