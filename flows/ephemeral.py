@@ -39,8 +39,8 @@ from embody.cache import cache_dir
 from embody.flows.env import register_server
 from embody.flows.server import free_port
 
-__all__ = ["EphemeralServer", "database_template", "prefect_api", "save_template",
-           "seed_database"]
+__all__ = ["EphemeralServer", "database_template", "prefect_api", "running_server",
+           "save_template", "seed_database"]
 
 _DB = "prefect.db"
 #: Settings that move Prefect's database elsewhere: then there is no SQLite file to seed.
@@ -213,6 +213,11 @@ class EphemeralServer:
 
 _SERVER: EphemeralServer | None = None
 _LOCK = threading.Lock()
+
+
+def running_server() -> EphemeralServer | None:
+    """This process's ephemeral server, if `prefect_api` started one."""
+    return _SERVER
 
 
 def _configured_api() -> str | None:
