@@ -428,7 +428,7 @@ def default_pipeline(critic: bool = False, render: bool = False) -> Pipeline:
 
 
 #: What each step imports and builds on its first call in a process, by step name.
-_WARM_MODULES = {"collide": ("embody.collision.windows",),
+_WARM_MODULES = {"collide": ("embody.collision.windows", "embody.body.sparse_skin"),
                  "shape_fit": ("embody.retarget",),
                  "retarget": ("embody.retarget.windows", "embody.retarget.ik"),
                  "refine": ("embody.critic", "embody.critic.refine"),
@@ -439,14 +439,17 @@ _WARM_MODULES = {"collide": ("embody.collision.windows",),
 
 
 def warm(ctx: Context, pipeline: Pipeline) -> None:
-    """Import what `pipeline`'s steps import and build the models they share (body, robot,
-    critic), so a thread runner's workers start computing at once instead of each importing
-    and loading the same (the flow calls this while Prefect's server boots: `flows.ephemeral`)."""
+    """Import what `pipeline`'s steps import, load their cached compiled kernels and build the
+    models they share (body, robot, critic), so a thread runner's workers start computing at
+    once instead of each importing and loading the same (the flow calls this while Prefect's server boots: `flows.ephemeral`)."""
     import importlib
+
+    from embody.jit_cache import load_cached_kernels
     names = set(pipeline.names)
     for name in pipeline.names:
         for module in _WARM_MODULES.get(name, ()):
             importlib.import_module(module)
+    load_cached_kernels()
     if names & {"collide", "shape_fit", "refine", "render", "metrics"}:
         ctx.body
     if names & {"shape_fit", "retarget", "refine", "render", "metrics"}:
