@@ -10,7 +10,9 @@ that computed it (recorded by `tasks.execute`; GL raster threads and the x264 ch
 and `outside_steps_s` the worker-seconds spent outside any step's computation (Prefect task
 runs, store reads/writes, the driver, workers idle at the tail). `cpu_s_per_seq` (this process and its finished
 children) and the load average at the end are printed too: on a shared machine compare runs made
-back to back or side by side, never against a figure from another day.
+back to back or side by side, never against a figure from another day. The store is new, so
+Prefect's database is too: it is copied from the machine's migrated template when there is one
+(`prefect_db=seeded`, `flows/ephemeral.py`), else migrated (`prefect_db=migrated`, ~4.8 s more).
 
     python benchmarks/pipeline.py [--limit N] [--workers 2] [--out DIR]
 """
@@ -31,6 +33,14 @@ STEPS = ("collide", "retarget", "refine", "render", "metrics")
 def _cpu() -> float:
     t = os.times()
     return t.user + t.system + t.children_user + t.children_system
+
+
+def _prefect_db() -> str:
+    """How the run's Prefect database began: copied from the migrated template (`seeded`), or
+    migrated by the server (`migrated`, a machine's first run; it then saves the template)."""
+    from embody.flows.ephemeral import running_server
+    server = running_server()
+    return "external" if server is None else ("seeded" if server.seeded else "migrated")
 
 
 def main() -> None:
@@ -70,7 +80,7 @@ def main() -> None:
     overhead = args.workers * wall - sum(per_step.values())
     m = max(n, 1)
     print(f"sequences={n} ok={summary['ok']} failed={summary['failed']} workers={args.workers} "
-          f"flow_s={wall:.1f} report_s={summary['report_s']:.1f}")
+          f"flow_s={wall:.1f} report_s={summary['report_s']:.1f} prefect_db={_prefect_db()}")
     print("  step        wall s total  wall s/seq  worker-thread CPU s/seq")
     for step, secs in sorted(per_step.items()):
         print(f"  {step:10s} {secs:10.2f} {secs / m:10.2f} {cpu_step[step] / m:10.2f}")

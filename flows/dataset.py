@@ -94,8 +94,9 @@ class _Driver:
     """
 
     def __init__(self, pipeline: Pipeline, ctx: Context, manifest: Manifest, progress: Progress,
-                 max_inflight: int) -> None:
+                 max_inflight: int, workers: int = 1) -> None:
         self.pipeline, self.ctx, self.manifest, self.progress = pipeline, ctx, manifest, progress
+        self.workers = workers
         self.steps = pipeline.per_sequence
         self.max_inflight = max_inflight
         self.events: queue.Queue = queue.Queue()
@@ -168,9 +169,30 @@ class _Driver:
         if hits is not None:
             self._complete(b, i, hits)
             return
+        half = self._split(b, records)
+        if half is not None:  # the other half goes on as a batch of its own
+            self.ready.append((len(self.batches) - 1, i, half))
+            records = self.batches[b]
         from embody.tasks.steps import batch_task  # Prefect: imported once a task is needed
         fut = batch_task(step, b).submit(step, self.ctx, records, self._shared_keys())
         self._watch(fut, ("batch", b, i))
+
+    def _split(self, b: int, records: list[dict[str, Any]]) -> list[dict[str, Any]] | None:
+        """At the run's tail (every batch started) a worker would idle while another works
+        through a whole batch, step after step: split the batch in two instead. Returns the
+        second half, appended to `batches`; `batches[b]` becomes the first half."""
+        busy = self.outstanding + len(self.ready) + 1  # this batch's task included
+        ok = [r for r in records if r["status"] == "ok"]
+        if self.next_batch < len(self.batches) or busy >= self.workers or len(ok) < 2:
+            return None
+        keep = ok[: len(ok) // 2]
+        first = [r for r in records if r["status"] != "ok"] + keep
+        second = ok[len(ok) // 2:]
+        self.batches[b] = first
+        self.batches.append(second)
+        self.next_batch = len(self.batches)
+        self.inflight += 1
+        return second
 
     def _complete(self, b: int, i: int, records: list[dict[str, Any]]) -> None:
         name = self.steps[i].name
@@ -345,7 +367,8 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     size = min(cfg.run.batch_size, max(1, -(-len(refs) // (2 * cfg.run.workers))))
     batches = [[new_record(r) for r in refs[i:i + size]] for i in range(0, len(refs), size)]
     bar = Progress([s.name for s in pipeline.per_sequence], len(refs), enabled=progress)
-    driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers)
+    driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers,
+                     workers=cfg.run.workers)
     with worker_threads(cfg.run.workers):
         driver.run(batches)
     return finish_run(store, run, manifest, cfg, dataset=dataset, split=split, t0=t0,
@@ -382,7 +405,28 @@ def __getattr__(name: str) -> Any:
 
 def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
              pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
-    """Run `dataset_flow` with the task runner `cfg.run` asks for."""
-    runner = make_task_runner(cfg.run)
-    return prefect_flow().with_options(task_runner=runner)(
-        str(dataset), split, cfg.model_dump(mode="json"), pipeline, progress)
+    """Run `dataset_flow` with the task runner `cfg.run` asks for, against the configured
+    Prefect API or this process's ephemeral server (`flows.ephemeral`), which boots while the
+    steps' imports and models are loaded here (the thread runner's workers share them)."""
+    from embody.flows.ephemeral import prefect_api
+
+    steps = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
+
+    def warm() -> None:
+        # what a flow's first call imports (~1.3 s here), done while the server boots
+        import fastapi.encoders  # noqa: F401  (Prefect's parameter serialisation)
+        import prefect.flow_engine  # noqa: F401
+        import prefect.task_engine  # noqa: F401
+        import prefect.utilities.visualization  # noqa: F401
+        prefect_flow()
+        if cfg.run.runner != "threads":  # other runners' workers are other processes
+            return
+        from embody.tasks.stages import warm as warm_steps
+        try:
+            warm_steps(Context(cfg=cfg, store_root=str(cfg.run.store), run=""), steps)
+        except Exception:  # a bad model is each sequence's error, reported by its step
+            pass
+
+    with prefect_api(warm=warm):
+        return prefect_flow().with_options(task_runner=make_task_runner(cfg.run))(
+            str(dataset), split, cfg.model_dump(mode="json"), pipeline, progress)

@@ -59,27 +59,35 @@ def on_sigterm() -> None:
         pass
 
 
-def register_server() -> Path | None:
-    """Write the pidfile of this process's ephemeral Prefect server (None when there is none,
-    e.g. with a real `PREFECT_API_URL`); removed again at exit."""
-    home = os.environ.get("PREFECT_HOME")
-    try:
-        from prefect.server.api.server import SubprocessASGIServer
-    except ImportError:
-        return None
-    procs = [s.server_process for s in list(SubprocessASGIServer._instances.values())
-             if getattr(s, "server_process", None) is not None]
-    procs = [p for p in procs if p.poll() is None]
-    if not home or not procs:
+def register_server(pid: int | None = None, home: str | Path | None = None) -> Path | None:
+    """Write the pidfile of this process's ephemeral Prefect server `pid` (default: one Prefect
+    started itself; None when there is none, e.g. with a real `PREFECT_API_URL`) under `home`
+    (default `$PREFECT_HOME`); removed again at exit."""
+    home = home or os.environ.get("PREFECT_HOME")
+    if pid is None:
+        pid = _prefect_started_server()
+    if not home or pid is None:
         return None
     folder = Path(home).expanduser() / _PIDS
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{procs[0].pid}.json"
-    path.write_text(json.dumps({"server": procs[0].pid, "owner": os.getpid(),
+    path = folder / f"{pid}.json"
+    path.write_text(json.dumps({"server": pid, "owner": os.getpid(),
                                 "home": str(Path(home).expanduser().resolve()),
                                 "time": time.time()}))
     atexit.register(lambda: path.unlink(missing_ok=True))
     return path
+
+
+def _prefect_started_server() -> int | None:
+    """The pid of an ephemeral server Prefect started itself in this process (a flow called
+    without `flows.ephemeral.prefect_api`), if its server module is loaded at all."""
+    module = sys.modules.get("prefect.server.api.server")
+    if module is None:
+        return None
+    procs = [s.server_process for s in list(module.SubprocessASGIServer._instances.values())
+             if getattr(s, "server_process", None) is not None]
+    procs = [p for p in procs if p.poll() is None]
+    return procs[0].pid if procs else None
 
 
 def _is_prefect_server(pid: int, home: Path) -> bool:

@@ -18,7 +18,7 @@ import numpy as np
 from embody.motion import Motion
 from embody.tasks.pipeline import Context, Pipeline, Step
 
-__all__ = ["Metrics", "default_pipeline", "SOURCE", "COLLIDE", "SHAPE_FIT", "RETARGET",
+__all__ = ["Metrics", "default_pipeline", "warm", "SOURCE", "COLLIDE", "SHAPE_FIT", "RETARGET",
            "REFINE", "RENDER", "METRICS"]
 
 
@@ -425,3 +425,34 @@ def default_pipeline(critic: bool = False, render: bool = False) -> Pipeline:
         steps.append(RENDER_REFINED if critic else RENDER)
     steps.append(METRICS_REFINED if critic else METRICS)
     return Pipeline(SOURCE, tuple(steps))
+
+
+#: What each step imports and builds on its first call in a process, by step name.
+_WARM_MODULES = {"collide": ("embody.collision.windows", "embody.body.sparse_skin"),
+                 "shape_fit": ("embody.retarget",),
+                 "retarget": ("embody.retarget.windows", "embody.retarget.ik"),
+                 "refine": ("embody.critic", "embody.critic.refine"),
+                 "render": ("embody.render", "embody.render.record"),
+                 "metrics": ("embody.metrics", "embody.metrics.fidelity",
+                             "embody.metrics.embodiments", "embody.retarget.control",
+                             "embody.retarget.validation")}
+
+
+def warm(ctx: Context, pipeline: Pipeline) -> None:
+    """Import what `pipeline`'s steps import, load their cached compiled kernels and build the
+    models they share (body, robot, critic), so a thread runner's workers start computing at
+    once instead of each importing and loading the same (the flow calls this while Prefect's server boots: `flows.ephemeral`)."""
+    import importlib
+
+    from embody.jit_cache import load_cached_kernels
+    names = set(pipeline.names)
+    for name in pipeline.names:
+        for module in _WARM_MODULES.get(name, ()):
+            importlib.import_module(module)
+    load_cached_kernels()
+    if names & {"collide", "shape_fit", "refine", "render", "metrics"}:
+        ctx.body
+    if names & {"shape_fit", "retarget", "refine", "render", "metrics"}:
+        ctx.robot
+    if "refine" in names:
+        ctx.critic

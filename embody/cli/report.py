@@ -51,7 +51,7 @@ def run_ablation(store_root: str, run: str, say: Any = None) -> dict[str, Any]:
     dataset, split = manifest.data.get("dataset"), manifest.data.get("split")
     if not dataset:
         raise InputError(manifest.path, "dataset", "the run does not record its dataset")
-    say("starting Prefect (a local server: ~10 s) for the Table II settings")
+    say("starting Prefect (a local server: ~3 s) for the Table II settings")
     from embody.flows.dataset import run_flow
     from embody.tasks.pipeline import Pipeline
     from embody.tasks.stages import COLLIDE as COLLIDE_STEP, SOURCE

@@ -143,7 +143,7 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
     try:
         summary = run_cached(path, cfg, split=split, progress=progress)
         if summary is None:
-            say("starting Prefect (a local server: ~10 s) and the pipeline")
+            say("starting Prefect (a local server: ~3 s) and the pipeline")
             from embody.flows.dataset import run_flow
 
             summary = run_flow(path, cfg, split=split, progress=progress)

@@ -25,6 +25,7 @@ import torch
 from scipy.spatial import ConvexHull, HalfspaceIntersection, QhullError
 
 from embody.body.base import BodyModel, ConvexPiece
+from embody.cache import cache_dir
 from embody.body.parts import dominant_parts
 
 #: Bump when the construction changes, so stale disk caches are ignored.
@@ -73,10 +74,6 @@ class PartVolumes:
         return pd.DataFrame({"part": self.part_names, "pieces": counts,
                              "hull_volume_cm3": self.hull_volume * 1e6,
                              "overfill_pct": self.overfill * 100.0})
-
-
-def cache_dir() -> Path:
-    return Path(os.environ.get("EMBODY_CACHE", Path.home() / ".cache" / "embody"))
 
 
 def rest_frames(body: BodyModel, betas: np.ndarray) -> np.ndarray:

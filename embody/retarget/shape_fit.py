@@ -14,13 +14,13 @@ import hashlib
 import json
 import os
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import torch
 
 from embody.body.base import BodyModel
+from embody.cache import cache_dir
 from embody.config.ik import IKConfig
 from embody.retarget.frames import BODY_TO_ROBOT
 from embody.robot import Robot
@@ -68,10 +68,6 @@ class ShapeFit:
                    joint_names=list(attrs["joint_names"]),
                    residual_mm=np.asarray(arrays["residual_mm"], dtype=np.float64),
                    robot=attrs["robot"], body=attrs["body"])
-
-
-def cache_dir() -> Path:
-    return Path(os.environ.get("EMBODY_CACHE", Path.home() / ".cache" / "embody"))
 
 
 def _key(robot: Robot, body: BodyModel, cfg: IKConfig) -> str:
