@@ -197,7 +197,7 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     Each row is measured on its exported array (the control-rate `q_control`; the final row's is
     `final_control`, the array stored and exported), against the human track resampled to the same
     times (`resample_track`): the robot a user receives, not the source-rate solve."""
-    from embody.metrics.embodiments import human_track, robot_track
+    from embody.metrics.embodiments import human_track, scored_robot_track
     from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with, resample_track
     from embody.retarget import solve
     from embody.retarget.ik import same_problem
@@ -224,7 +224,7 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
         # a row equal to an earlier one (the critic kept the IK solution) is not scored twice
         same = next((r for p, r in scored if p.shape == q.shape and np.array_equal(p, q)), None)
         if same is None:
-            robot = robot_track(ctx.robot, q, ik.control_rate_hz)
+            robot = scored_robot_track(ctx.robot, q, ik.control_rate_hz, human, cfg.fidelity)
             same = compare_with(human, robot, cfg.fidelity)
         per_frame, metrics = same
         scored.append((q, same))
