@@ -11,8 +11,10 @@ sternum and belly), with its false 0.0 readings of separated meshes (MuJoCo #338
 
 from __future__ import annotations
 
+import hashlib
 import threading
 import weakref
+from collections import OrderedDict
 from dataclasses import replace
 from typing import TYPE_CHECKING
 
@@ -123,10 +125,52 @@ def _contact_skin(body: BodyModel, betas: np.ndarray) -> tuple[dict[str, slice],
     return made
 
 
+#: Per body: the latest sequences' `human_contacts` (every channel), by transforms and shape.
+_CONTACTS_MEMO: weakref.WeakKeyDictionary[BodyModel, OrderedDict[bytes, np.ndarray]] = \
+    weakref.WeakKeyDictionary()
+_CONTACTS_LOCK = threading.Lock()
+#: Sequences remembered per body: more than a run keeps in flight (the retarget step's targets
+#: ask first, the same sequence's metrics step later, other batches' steps in between).
+_CONTACTS_SIZE = 64
+
+
 def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray,
                    channels: tuple[str, ...] = CONTACTS) -> np.ndarray:
     """Closest mesh distances (T, len(channels)) between hands, face and chest (m), from the
-    body's joint transforms (T,J,4,4); `channels` a subset of CONTACTS, in that order."""
+    body's joint transforms (T,J,4,4); `channels` a subset of CONTACTS, in that order.
+
+    Remembered per body, transforms and shape (each channel is measured on its own, so any
+    subset or order is columns of the same table): the retarget step's hand gaps and the metrics
+    step's human track ask for the same sequence's (`rootless_transforms`), ~0.1 CPU-s each."""
+    t = np.ascontiguousarray(transforms, dtype=np.float64)
+    b = np.asarray(betas, dtype=np.float64)
+    key = hashlib.blake2b(t.tobytes() + str(t.shape).encode() + b.tobytes(), digest_size=16).digest()
+    with _CONTACTS_LOCK:
+        full = _CONTACTS_MEMO.get(body, {}).get(key)
+    if full is None:
+        full = _human_contacts(body, t, b)
+        with _CONTACTS_LOCK:
+            memo = _CONTACTS_MEMO.setdefault(body, OrderedDict())
+            memo[key] = full
+            while len(memo) > _CONTACTS_SIZE:
+                memo.popitem(last=False)
+    return full[:, [CONTACTS.index(c) for c in channels]]  # a copy (fancy indexing)
+
+
+def rootless_transforms(motion: Motion, body: BodyModel) -> np.ndarray:
+    """The human's joint transforms (T,J,4,4) on its own shape, relative to its pelvis (root
+    rotation and translation left out): where the targets see it, and where the contacts are
+    measured (mesh distances do not change with the root)."""
+    pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
+    pose[:, 0] = 0.0
+    betas = np.asarray(motion.betas, dtype=np.float64)
+    with torch.no_grad():
+        return body.joint_transforms(pose, torch.as_tensor(betas)).numpy()
+
+
+def _human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray,
+                    channels: tuple[str, ...] = CONTACTS) -> np.ndarray:
+    """`human_contacts`' measure."""
     part, skin = _contact_skin(body, betas)
     pairs = {"hands": ("left_hand", "right_hand"), "left_face": ("left_hand", "face"),
              "right_face": ("right_hand", "face"), "left_chest": ("left_hand", "chest"),
@@ -188,7 +232,7 @@ def human_track(motion: Motion, body: BodyModel, with_contacts: bool = True) -> 
     a = BODY_TO_FLU
     spine = transforms[:, body.joint_index("spine3"), :3, :3]
     torso = a @ spine @ a.T
-    contact = human_contacts(body, transforms, betas) if with_contacts else None
+    contact = human_contacts(body, rootless_transforms(motion, body), betas) if with_contacts else None
     return Track(names=tuple(LANDMARKS), points=points @ a.T, normals=normals @ a.T, torso=torso,
                  scale=lm.scale, rest=rest[0] @ a.T, contact=contact, fps=float(motion.fps))
 
