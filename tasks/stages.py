@@ -213,7 +213,9 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
         same = same_problem(plain_targets, _targets(ctx, motion, inputs["shape_fit"], cfg.ik))
         base = ik if same else solve(ctx.robot, plain_targets, plain)
         rows["ik"] = base.q_control
-        out.update({f"fidelity.ik.{k}": v for k, v in validation_counts(ctx.robot, base.q, ik.fps).items()})
+        # the solve counted MuJoCo contacts of its own q: not counted twice
+        out.update({f"fidelity.ik.{k}": v for k, v in validation_counts(
+            ctx.robot, base.q, ik.fps, base.frame_metrics.get("self_contacts")).items()})
         out["fidelity.ik.mean_jerk"] = base.metrics["jerk"]
     rows["preserving" if cfg.ik.location_preserving else "ik"] = np.asarray(ik.q_control)
     # the final row is the array stored and exported
