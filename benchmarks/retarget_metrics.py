@@ -5,8 +5,8 @@ synthetic set in `--store`, then, `--repeat` times and in this thread, runs the 
 (when the default config has the critic) and metrics steps' own functions on each sequence, in run
 order, as a worker of a multi-worker run does (`flows.threads.worker_threads`: one torch thread,
 single-threaded BLAS), publishing each result so the next step reads it from the store. Each
-repeat starts with an empty targets memo (`stages._TARGETS`), so the retarget step builds its
-targets and the metrics step finds them, as in a run. Reports each step's CPU seconds per
+repeat starts with empty memos (`stages._TARGETS`, `embodiments._CONTACTS_MEMO`), so the
+retarget step builds its targets and the metrics step finds them, as in a run. Reports each step's CPU seconds per
 sequence (`time.thread_time` around the step's function only: the figure a run's computation log
 holds) and one digest of every array and attrs of the retarget and metrics results, so two
 checkouts can be compared (`PYTHONPATH=<checkout>`, same store):
@@ -40,6 +40,7 @@ def main() -> None:
     from embody.flows.env import configure
     from embody.flows.threads import worker_threads
     from embody.io import load_dataset
+    from embody.metrics import embodiments
     from embody.store.artifacts import array_digest, jsonable
     from embody.synth import default_dataset
     from embody.tasks import stages
@@ -73,6 +74,7 @@ def main() -> None:
                 prof = cProfile.Profile(time.thread_time)
             with stages._TARGETS_LOCK:
                 stages._TARGETS.clear()
+            embodiments.__dict__.get("_CONTACTS_MEMO", {}).clear()  # the human contacts' memo too
             spent = {s.name: 0.0 for s in timed}
             for i, rec in enumerate(records):
                 keys = dict(rec["keys"])
