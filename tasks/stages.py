@@ -197,7 +197,7 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     Each row is measured on its exported array (the control-rate `q_control`; the final row's is
     `final_control`, the array stored and exported), against the human track resampled to the same
     times (`resample_track`): the robot a user receives, not the source-rate solve."""
-    from embody.metrics.embodiments import human_track, robot_track
+    from embody.metrics.embodiments import human_track, scored_robot_track
     from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with, resample_track
     from embody.retarget import solve
     from embody.retarget.ik import same_problem
@@ -213,7 +213,9 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
         same = same_problem(plain_targets, _targets(ctx, motion, inputs["shape_fit"], cfg.ik))
         base = ik if same else solve(ctx.robot, plain_targets, plain)
         rows["ik"] = base.q_control
-        out.update({f"fidelity.ik.{k}": v for k, v in validation_counts(ctx.robot, base.q, ik.fps).items()})
+        # the solve counted MuJoCo contacts of its own q: not counted twice
+        out.update({f"fidelity.ik.{k}": v for k, v in validation_counts(
+            ctx.robot, base.q, ik.fps, base.frame_metrics.get("self_contacts")).items()})
         out["fidelity.ik.mean_jerk"] = base.metrics["jerk"]
     rows["preserving" if cfg.ik.location_preserving else "ik"] = np.asarray(ik.q_control)
     # the final row is the array stored and exported
@@ -224,7 +226,7 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
         # a row equal to an earlier one (the critic kept the IK solution) is not scored twice
         same = next((r for p, r in scored if p.shape == q.shape and np.array_equal(p, q)), None)
         if same is None:
-            robot = robot_track(ctx.robot, q, ik.control_rate_hz)
+            robot = scored_robot_track(ctx.robot, q, ik.control_rate_hz, human, cfg.fidelity)
             same = compare_with(human, robot, cfg.fidelity)
         per_frame, metrics = same
         scored.append((q, same))
@@ -409,9 +411,12 @@ RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _rend
 # v6: location agreement with ties (and the exact figure), contact events; IK-only baseline reuse.
 # v7: robot contacts: MuJoCo's false 0.0 distances of separated meshes recomputed (convex_distance).
 # v8: the human contacts from the float64 subset skinning (retarget v14).
-METRICS = Step("metrics", "8", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+# v9: the human contacts measured relative to the pelvis (`embodiments.rootless_transforms`, shared
+#     with the targets' hand gaps, s15-speed): the same on the synthetic set (no root motion), within
+#     ~1e-7 m where the root moves (the body's float32 rest shape).
+METRICS = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "8", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 

@@ -247,3 +247,38 @@ def test_human_contacts_remember_each_shape_exactly():
     # the shape matters to the skin, so serving a's skin for b would be seen above
     subset = emb._contact_skin(body, a)[1]
     assert not np.array_equal(subset(tr_b), emb._contact_skin(body, b)[1](tr_b))
+
+
+def test_human_contacts_remembered_per_sequence_and_root_free():
+    """A remembered table serves any channel subset, in the order asked, bit for bit as a fresh
+    measure; the human track measures relative to the pelvis, which moves no mesh distance
+    (beyond rounding)."""
+    import torch
+
+    from embody.body import load_body_model
+    from embody.metrics import embodiments as emb
+    from embody.synth import generate_sequence
+
+    body = load_body_model()
+    m = generate_sequence(0, 7)
+    m.pose[:, 0] = np.array([0.3, -0.5, 0.2])  # a root rotation and translation to leave out
+    m.transl[:] = np.array([0.1, 0.9, -0.4])
+    betas = np.asarray(m.betas, dtype=np.float64)
+    rel = emb.rootless_transforms(m, body)
+    fresh = emb._human_contacts(body, rel, betas)
+    emb._CONTACTS_MEMO.clear()
+    channels = ("right_face", "hands")
+    first = emb.human_contacts(body, rel, betas, channels)
+    again = emb.human_contacts(body, rel.copy(), betas, channels)
+    want = fresh[:, [CONTACTS.index(c) for c in channels]]
+    assert np.array_equal(first, want) and np.array_equal(again, want)
+    again[:] = -1.0  # the caller's copy: the remembered table is not changed
+    assert np.array_equal(emb.human_contacts(body, rel, betas), fresh)
+    track = emb.human_track(m, body)
+    assert np.array_equal(track.contact, fresh)
+    with torch.no_grad():
+        rooted = body.joint_transforms(torch.as_tensor(m.pose, dtype=torch.float64), torch.as_tensor(betas),
+                                       torch.as_tensor(m.transl, dtype=torch.float64)).numpy()
+    # the same distances up to the body model's float32 rest shape (~2e-8 m here)
+    np.testing.assert_allclose(emb._human_contacts(body, rooted, betas), fresh, rtol=0, atol=1e-7)
+    assert (fresh < emb._REACH).any()  # some contact in range: the comparison says something

@@ -89,3 +89,14 @@ def test_jerk_term_lowers_jerk_of_a_noisy_target(robot):
     smooth = solve(robot, targets, base.model_copy(update={"w_jerk": 0.05}))
     assert smooth.metrics["jerk"] < 0.7 * plain.metrics["jerk"]
     assert smooth.metrics["wrist_pos_err_mm"] < 10.0  # still tracks (noise is 4 mm per axis)
+
+
+def test_cross_is_numpys_cross_bit_for_bit():
+    """The IK's Jacobian levers use `jacobians.cross`: np.cross's values exactly, broadcast alike."""
+    from embody.retarget.jacobians import cross
+    rng = np.random.default_rng(3)
+    for sa, sb in [((7, 3), (7, 3)), ((5, 1, 4, 3), (5, 6, 1, 3)), ((3,), (9, 2, 3))]:
+        a, b = rng.normal(size=sa) * 10.0, rng.normal(size=sb)
+        got, want = cross(a, b), np.cross(a, b)
+        assert got.shape == want.shape and np.array_equal(got, want)
+    assert not np.array_equal(cross(a, b), cross(b, a))  # its order matters, as np.cross's

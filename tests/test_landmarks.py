@@ -42,6 +42,27 @@ def test_body_landmarks_on_the_mesh(which, request):
     assert lm.scale > 0
 
 
+@pytest.mark.parametrize("which", ["mannequin", "smplx_body"])
+def test_landmark_positions_equal_the_dense_blend_bit_for_bit(which, request):
+    """`LandmarkSet.positions` sums only the joints that skin each landmark: the same bits as
+    the dense blend over every joint (the pipeline's digests rely on it)."""
+    from embody.body.landmarks import body_landmarks
+    body = request.getfixturevalue(which)
+    rng = np.random.default_rng(4)
+    betas = rng.normal(size=10) * 0.5
+    lm = body_landmarks(body, betas)
+    assert (np.count_nonzero(lm.weight, axis=1) > 1).any() or which == "mannequin"
+    with torch.no_grad():
+        t = body.joint_transforms(torch.as_tensor(rng.normal(size=(40, 55, 3)) * 0.4),
+                                  torch.as_tensor(betas), torch.as_tensor(rng.normal(size=(40, 3)))).numpy()
+    points, normals = lm.positions(t)
+    per_joint = t[:, None, :, :3, 3] + np.einsum("tjab,kjb->tkja", t[..., :3, :3], lm.offset)
+    assert np.array_equal(points, np.einsum("tkja,kj->tka", per_joint, lm.weight))
+    assert np.array_equal(normals, np.einsum("tkab,kb->tka", t[:, lm.normal_joint][..., :3, :3],
+                                             lm.normal_local))
+    assert lm.positions(t[:0])[0].shape == (0, len(lm.names), 3)
+
+
 def test_mannequin_landmarks_follow_the_pose_and_read_right(mannequin):
     rng = np.random.default_rng(1)
     pose = rng.normal(size=(3, 55, 3)) * 0.3

@@ -11,8 +11,12 @@ sternum and belly), with its false 0.0 readings of separated meshes (MuJoCo #338
 
 from __future__ import annotations
 
+import hashlib
 import threading
 import weakref
+from collections import OrderedDict
+from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import mujoco
 import numpy as np
@@ -22,9 +26,12 @@ from scipy.spatial import cKDTree
 from embody.body.base import BodyModel
 from embody.body.landmarks import LANDMARKS, body_landmarks
 from embody.metrics.convex_distance import geom_distance
-from embody.metrics.fidelity import CONTACTS, SIDES, Track
+from embody.metrics.fidelity import CONTACTS, SIDES, Track, robot_contact_eps
 from embody.motion import Motion
 from embody.robot import Robot
+
+if TYPE_CHECKING:
+    from embody.config.fidelity import FidelityConfig
 
 #: Body (x=left, y=up, z=forward) → (forward, left, up).
 BODY_TO_FLU = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
@@ -118,10 +125,52 @@ def _contact_skin(body: BodyModel, betas: np.ndarray) -> tuple[dict[str, slice],
     return made
 
 
+#: Per body: the latest sequences' `human_contacts` (every channel), by transforms and shape.
+_CONTACTS_MEMO: weakref.WeakKeyDictionary[BodyModel, OrderedDict[bytes, np.ndarray]] = \
+    weakref.WeakKeyDictionary()
+_CONTACTS_LOCK = threading.Lock()
+#: Sequences remembered per body: more than a run keeps in flight (the retarget step's targets
+#: ask first, the same sequence's metrics step later, other batches' steps in between).
+_CONTACTS_SIZE = 64
+
+
 def human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray,
                    channels: tuple[str, ...] = CONTACTS) -> np.ndarray:
     """Closest mesh distances (T, len(channels)) between hands, face and chest (m), from the
-    body's joint transforms (T,J,4,4); `channels` a subset of CONTACTS, in that order."""
+    body's joint transforms (T,J,4,4); `channels` a subset of CONTACTS, in that order.
+
+    Remembered per body, transforms and shape (each channel is measured on its own, so any
+    subset or order is columns of the same table): the retarget step's hand gaps and the metrics
+    step's human track ask for the same sequence's (`rootless_transforms`), ~0.1 CPU-s each."""
+    t = np.ascontiguousarray(transforms, dtype=np.float64)
+    b = np.asarray(betas, dtype=np.float64)
+    key = hashlib.blake2b(t.tobytes() + str(t.shape).encode() + b.tobytes(), digest_size=16).digest()
+    with _CONTACTS_LOCK:
+        full = _CONTACTS_MEMO.get(body, {}).get(key)
+    if full is None:
+        full = _human_contacts(body, t, b)
+        with _CONTACTS_LOCK:
+            memo = _CONTACTS_MEMO.setdefault(body, OrderedDict())
+            memo[key] = full
+            while len(memo) > _CONTACTS_SIZE:
+                memo.popitem(last=False)
+    return full[:, [CONTACTS.index(c) for c in channels]]  # a copy (fancy indexing)
+
+
+def rootless_transforms(motion: Motion, body: BodyModel) -> np.ndarray:
+    """The human's joint transforms (T,J,4,4) on its own shape, relative to its pelvis (root
+    rotation and translation left out): where the targets see it, and where the contacts are
+    measured (mesh distances do not change with the root)."""
+    pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
+    pose[:, 0] = 0.0
+    betas = np.asarray(motion.betas, dtype=np.float64)
+    with torch.no_grad():
+        return body.joint_transforms(pose, torch.as_tensor(betas)).numpy()
+
+
+def _human_contacts(body: BodyModel, transforms: np.ndarray, betas: np.ndarray,
+                    channels: tuple[str, ...] = CONTACTS) -> np.ndarray:
+    """`human_contacts`' measure."""
     part, skin = _contact_skin(body, betas)
     pairs = {"hands": ("left_hand", "right_hand"), "left_face": ("left_hand", "face"),
              "right_face": ("right_hand", "face"), "left_chest": ("left_hand", "chest"),
@@ -183,7 +232,7 @@ def human_track(motion: Motion, body: BodyModel, with_contacts: bool = True) -> 
     a = BODY_TO_FLU
     spine = transforms[:, body.joint_index("spine3"), :3, :3]
     torso = a @ spine @ a.T
-    contact = human_contacts(body, transforms, betas) if with_contacts else None
+    contact = human_contacts(body, rootless_transforms(motion, body), betas) if with_contacts else None
     return Track(names=tuple(LANDMARKS), points=points @ a.T, normals=normals @ a.T, torso=torso,
                  scale=lm.scale, rest=rest[0] @ a.T, contact=contact, fps=float(motion.fps))
 
@@ -307,3 +356,22 @@ def robot_track(robot: Robot, q: np.ndarray, fps: float, with_contacts: bool = T
     torso = rot[:, fk.index[robot.spec.torso_body]]
     return Track(names=tuple(names), points=points, normals=normals, torso=torso, scale=robot.body_scale,
                  rest=rest[0], contact=robot_contacts(robot, q) if with_contacts else None, fps=fps)
+
+
+#: How far past the robot's contact ε `scored_robot_track` measures (m): any reach above ε gives
+#: the same contact masks; this keeps the pairs it measures near that ε.
+_SCORE_REACH = 0.005
+
+
+def scored_robot_track(robot: Robot, q: np.ndarray, fps: float, human: Track,
+                       cfg: FidelityConfig) -> Track:
+    """`robot_track` with its contacts measured only as far as `compare_with` (a
+    `FidelityConfig` `cfg`, against `human`) reads them: it reads a robot distance only against
+    the robot's contact ε (and the penetration tolerance below 0), so every distance beyond
+    ε + `_SCORE_REACH` reads as that (`robot_contacts`' `distmax`, at most its default 0.1):
+    the same masks, hence the same scores. Why: the broad phase then drops the pairs 2-11 cm
+    apart, most of those the default 0.1 m measured (~0.1 CPU-s of a sequence's metrics)."""
+    track = robot_track(robot, q, fps, with_contacts=False)
+    eps = cfg.robot_contact_eps if cfg.robot_contact_eps is not None else \
+        robot_contact_eps(human, track, cfg.contact_eps)
+    return replace(track, contact=robot_contacts(robot, np.atleast_2d(q), min(0.1, eps + _SCORE_REACH)))

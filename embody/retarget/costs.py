@@ -25,7 +25,7 @@ from embody.config.ik import IKConfig
 from embody.retarget.exact_contacts import ExactContacts
 from embody.retarget.hand_clearance import hand_clearance_term
 from embody.retarget.hand_points import hand_point_term
-from embody.retarget.jacobians import normal_jacobian
+from embody.retarget.jacobians import cross, normal_jacobian
 from embody.retarget.proxy_hulls import Contacts, HullTables, hull_contacts, plane_table
 from embody.retarget.targets import Targets
 from embody.robot import Robot
@@ -64,7 +64,7 @@ class ResidualTerm:
 
 def point_jacobian(z: np.ndarray, o: np.ndarray, p: np.ndarray, moves: np.ndarray) -> np.ndarray:
     """∂p/∂q (T,P,3,J) of points p (T,P,3) rigidly attached to bodies moved per `moves` (J,P)."""
-    return np.cross(z[:, None], p[:, :, None] - o[:, None]).transpose(0, 1, 3, 2) * moves.T[None, :, None]
+    return cross(z[:, None], p[:, :, None] - o[:, None]).transpose(0, 1, 3, 2) * moves.T[None, :, None]
 
 
 def extra_terms(robot: Robot, targets: Targets, cfg: IKConfig) -> list[ResidualTerm]:
@@ -392,7 +392,7 @@ class Residuals:
                 out = np.zeros((t, len(i) + hgap.shape[1], n_ik))
             ms = self.mask[:, sb]  # (J,N)
             if len(i):
-                lever = lambda p: np.cross(z[:, None], p[:, :, None] - o[:, None])  # noqa: E731  (T,P,J,3)
+                lever = lambda p: cross(z[:, None], p[:, :, None] - o[:, None])  # noqa: E731  (T,P,J,3)
                 u = diff / np.maximum(dist, 1e-12)[..., None]
                 dclear = (np.einsum("tpa,tpja->tpj", u, lever(centres[:, i])) * ms[:, i].T
                           - np.einsum("tpa,tpja->tpj", u, lever(centres[:, k])) * ms[:, k].T)

@@ -28,6 +28,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from embody.retarget.jacobians import cross
 from embody.robot import Robot
 
 
@@ -58,7 +59,7 @@ class HandPointTerm:
         r = ((p - a) * self.sw[..., None]).reshape(len(p), -1)
 
         def jacobian(z: np.ndarray, o: np.ndarray, mask: np.ndarray) -> np.ndarray:
-            lever = lambda x: np.cross(z[:, None], x[:, :, None] - o[:, None])  # noqa: E731 (T,P,J,3)
+            lever = lambda x: cross(z[:, None], x[:, :, None] - o[:, None])  # noqa: E731 (T,P,J,3)
             jac = lever(p) * mask[:, b].T[None, :, :, None] - lever(a) * mask[:, tb][None, None, :, None]
             jac = jac * self.sw[..., None, None]
             return jac.transpose(0, 1, 3, 2).reshape(len(p), -1, z.shape[1])

@@ -260,12 +260,9 @@ def _human(motion: Motion, body: BodyModel) -> Human:
     """The human on its own shape, relative to its pelvis (root rotation removed, as the targets
     are): joint transforms (T,J,4,4), its betas and its landmark table. `build_targets` makes it
     once and hands it to the anchoring, the thumb fold and the hand gaps."""
-    pose = torch.as_tensor(motion.pose, dtype=torch.float64).clone()
-    pose[:, 0] = 0.0
+    from embody.metrics.embodiments import rootless_transforms
     betas = np.asarray(motion.betas, dtype=np.float64)
-    with torch.no_grad():
-        tr = body.joint_transforms(pose, torch.as_tensor(betas)).numpy()
-    return tr, betas, body_landmarks(body, betas)
+    return rootless_transforms(motion, body), betas, body_landmarks(body, betas)
 
 
 def palm_rest(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig,
