@@ -67,7 +67,7 @@ class MannequinBody(BodyModel):
         self._hulls: OrderedDict[bytes, list[ConvexPiece]] = OrderedDict()
         self._constants: dict[tuple[torch.dtype, torch.device], tuple[torch.Tensor, ...]] = {}
         #: The skin weights' nonzeros for `vertices_array` (`sparse_skin.sparse_weights`).
-        self._sparse: tuple[np.ndarray, np.ndarray] | None = None
+        self._sparse: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
     # -- shape --------------------------------------------------------------------------------
     def _shaped(self, key: bytes) -> tuple[np.ndarray, np.ndarray]:

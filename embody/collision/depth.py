@@ -452,6 +452,10 @@ class _Flat:
     allowed: np.ndarray     # (C,G): group g is checked against some face group of component c
     pairs: np.ndarray       # (P,2) component pairs holding a checked pair of groups
     skins: tuple[int, ...]  # the non-solid components
+    slot_ptr: np.ndarray    # (C+1,) component c's face groups are slots slot_ptr[c]:slot_ptr[c+1]
+    slot_group: np.ndarray  # (S,) a slot's face group
+    slot_vptr: np.ndarray   # (S+1,) a slot's vertices (global ids, of its group's faces) are
+    slot_verts: np.ndarray  #        slot_verts[slot_vptr[s]:slot_vptr[s+1]]
 
     @classmethod
     def of(cls, mesh: DepthMesh) -> "_Flat":
@@ -465,6 +469,8 @@ class _Flat:
             for k, c in enumerate(comps):
                 allowed[k] = checked[:, np.unique(c.face_group)].any(1)
             cat = lambda xs, dtype=np.int64: np.ascontiguousarray(np.concatenate(xs), dtype=dtype)
+            slots = [(g, np.unique(c.vertices[c.faces[c.face_group == g]]))
+                     for c in comps for g in np.unique(c.face_group)]
             cache.append(cls(
                 vptr=size([c.vertices for c in comps]),
                 verts=cat([c.vertices for c in comps]),
@@ -481,7 +487,11 @@ class _Flat:
                 solid=np.array([c.solid for c in comps], dtype=np.bool_),
                 checked=checked, allowed=allowed,
                 pairs=np.array(_checked_comp_pairs(mesh), dtype=np.int64).reshape(-1, 2),
-                skins=tuple(k for k, c in enumerate(comps) if not c.solid)))
+                skins=tuple(k for k, c in enumerate(comps) if not c.solid),
+                slot_ptr=size([np.unique(c.face_group) for c in comps]),
+                slot_group=np.array([g for g, _ in slots], dtype=np.int64),
+                slot_vptr=size([v for _, v in slots]),
+                slot_verts=cat([v for _, v in slots])))
         return cache[0]
 
 
@@ -493,7 +503,7 @@ def frame_depths(mesh: DepthMesh, vertices: np.ndarray) -> np.ndarray:
     f = _Flat.of(mesh)
     jf, ja, js, sptr, seeds, sf, sc = frame_kernels.broad_phase(
         vertices, f.vptr, f.verts, f.fptr, f.faces, f.gfaces, f.fgroup, f.solid, f.checked,
-        f.pairs)
+        f.pairs, f.slot_ptr, f.slot_group, f.slot_vptr, f.slot_verts)
     cos, cptr = frame_kernels.corner_cosines(vertices, f.fptr, f.gfaces, sf, sc)
     best = frame_kernels.floods(
         vertices, f.vptr, f.verts, f.vgroup, f.fptr, f.faces, f.gfaces, f.fgroup, f.eof,

@@ -230,10 +230,33 @@ def _projection(vt: np.ndarray, verts: np.ndarray, v0: int, v1: int, mark: np.nd
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _slots_meet(sbox: np.ndarray, slot_group: np.ndarray, checked: np.ndarray, a0: int,
+                a1: int, b0: int, b1: int) -> bool:
+    """Whether a slot of a0..a1-1 and one of b0..b1-1 are a checked pair of groups whose
+    boxes meet (inclusive, as `crossing_pairs`)."""
+    for qa in range(a0, a1):
+        for qb in range(b0, b1):
+            if not checked[slot_group[qa], slot_group[qb]]:
+                continue
+            if (sbox[qa, 0, 0] <= sbox[qb, 1, 0] and sbox[qb, 0, 0] <= sbox[qa, 1, 0]
+                    and sbox[qa, 0, 1] <= sbox[qb, 1, 1] and sbox[qb, 0, 1] <= sbox[qa, 1, 1]
+                    and sbox[qa, 0, 2] <= sbox[qb, 1, 2] and sbox[qb, 0, 2] <= sbox[qa, 1, 2]):
+                return True
+    return False
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def broad_phase(vertices: np.ndarray, vptr: np.ndarray, verts: np.ndarray, fptr: np.ndarray,
                 faces: np.ndarray, gfaces: np.ndarray, fgroup: np.ndarray, solid: np.ndarray,
-                checked: np.ndarray, pairs: np.ndarray):
+                checked: np.ndarray, pairs: np.ndarray, slot_ptr: np.ndarray,
+                slot_group: np.ndarray, slot_vptr: np.ndarray, slot_verts: np.ndarray):
     """Flood jobs and the surfaces they need, for frames `vertices` (T,V,3).
+
+    A pair of components whose boxes meet goes on only if the boxes of two of their face
+    groups that are a checked pair meet (`slot_*`: per component its face groups' vertices;
+    the union of a component's slot boxes is its box): a checked crossing needs two faces of
+    such groups whose boxes meet (`crossing_pairs` sweeps the same inclusive boxes), each box
+    inside its group's, so a pair this skips has no checked crossing and gave no job.
 
     Returns (job_frame, job_flooded, job_surface, seed_ptr, seeds (component-local vertex
     ids), surface_frame, surface_component); a job floods component `job_flooded` of its
@@ -266,21 +289,30 @@ def broad_phase(vertices: np.ndarray, vptr: np.ndarray, verts: np.ndarray, fptr:
     surf_frame, surf_comp = [0], [0]
     surf_frame.pop()
     surf_comp.pop()
+    sbox = np.empty((slot_group.shape[0], 2, 3))
     for t in range(n_frames):
         vt = vertices[t]
-        for c in range(n_comp):
-            g = verts[vptr[c]]
+        for q in range(slot_group.shape[0]):
+            g = slot_verts[slot_vptr[q]]
             for a in range(3):
-                box[c, 0, a] = vt[g, a]
-                box[c, 1, a] = vt[g, a]
-            for u in range(vptr[c] + 1, vptr[c + 1]):
-                g = verts[u]
+                sbox[q, 0, a] = vt[g, a]
+                sbox[q, 1, a] = vt[g, a]
+            for u in range(slot_vptr[q] + 1, slot_vptr[q + 1]):
+                g = slot_verts[u]
                 for a in range(3):
                     x = vt[g, a]
-                    if x < box[c, 0, a]:
-                        box[c, 0, a] = x
-                    if x > box[c, 1, a]:
-                        box[c, 1, a] = x
+                    if x < sbox[q, 0, a]:
+                        sbox[q, 0, a] = x
+                    if x > sbox[q, 1, a]:
+                        sbox[q, 1, a] = x
+        for c in range(n_comp):
+            for a in range(3):
+                box[c, 0, a] = sbox[slot_ptr[c], 0, a]
+                box[c, 1, a] = sbox[slot_ptr[c], 1, a]
+            for q in range(slot_ptr[c] + 1, slot_ptr[c + 1]):
+                for a in range(3):
+                    box[c, 0, a] = min(box[c, 0, a], sbox[q, 0, a])
+                    box[c, 1, a] = max(box[c, 1, a], sbox[q, 1, a])
             surface[c] = -1
         for p in range(pairs.shape[0]):
             i, j = pairs[p, 0], pairs[p, 1]
@@ -290,7 +322,8 @@ def broad_phase(vertices: np.ndarray, vptr: np.ndarray, verts: np.ndarray, fptr:
                 hi[a] = min(box[i, 1, a], box[j, 1, a])
                 if lo[a] > hi[a]:
                     apart = True
-            if apart:
+            if apart or not _slots_meet(sbox, slot_group, checked, slot_ptr[i],
+                                        slot_ptr[i + 1], slot_ptr[j], slot_ptr[j + 1]):
                 continue
             for c in (i, j):
                 if boxed[c] != t + 1:
