@@ -3,7 +3,8 @@
 Renders the first N sequences of the default synthetic set (the source motion as reference, the
 robot signing it: IK on the source motion, not timed; `--tpose`: a slowly waving T-pose, as
 before the preview was cropped to what the bodies reach) exactly as the pipeline's render step
-does, and reports wall and CPU seconds per sequence (CPU time, encoder included, is the steadier
+does, and reports wall and CPU seconds per sequence (CPU time of every thread of the process,
+llvmpipe's included, plus the x264 encoder child's, `render_child_cpu_s` alone: the steadier
 figure on a shared machine; `render_cpu_s_warm` leaves out the first sequence, which also
 prepares the robot model once a process), the CPU milliseconds per drawn image (reference and
 robot of every preview frame and first-view keyframe, plus the other views' keyframes; the
@@ -43,9 +44,16 @@ def _preview_shape(blob: bytes, suffix: str) -> tuple[int, int, int]:
 
 
 def _cpu() -> float:
-    """CPU seconds of this process and its finished children (the ffmpeg encoder)."""
+    """CPU seconds of this process (all its threads: llvmpipe's too) and its finished
+    children (the ffmpeg encoder)."""
     t = os.times()
     return t.user + t.system + t.children_user + t.children_system
+
+
+def _child_cpu() -> float:
+    """CPU seconds of this process's finished children (the ffmpeg encoder) alone."""
+    t = os.times()
+    return t.children_user + t.children_system
 
 
 def phases(motion, body, fit, robot, q: np.ndarray, keys: np.ndarray, cfg) -> dict[str, float]:
@@ -123,7 +131,7 @@ def main() -> None:
     from embody.render import select_keyframes
     from embody.retarget import build_targets
     from embody.retarget.windows import solve_windowed
-    walls, cpus, drawn = [], [], []
+    walls, cpus, children, drawn = [], [], [], []
     for motion in motions:
         t = motion.num_frames
         if args.tpose:
@@ -134,10 +142,11 @@ def main() -> None:
             targets = build_targets(motion, body, fit, robot, cfg.ik)
             q = solve_windowed(robot, targets, cfg.ik).q
             keys = select_keyframes(targets.wrist_pos, cfg.render.keyframes)
-        w0, c0 = time.perf_counter(), _cpu()
+        w0, c0, k0 = time.perf_counter(), _cpu(), _child_cpu()
         out = render_sequence(motion, body, fit, robot, q, keys, cfg.render, "bench")
         walls.append(time.perf_counter() - w0)
         cpus.append(_cpu() - c0)
+        children.append(_child_cpu() - k0)
         shape = _preview_shape(out.preview, out.preview_suffix) if out.preview else (0, 0, 0)
         # images drawn: reference + robot per preview frame or keyframe (first view), and per
         # keyframe of the other views
@@ -146,6 +155,7 @@ def main() -> None:
         drawn.append(2 * len(np.union1d(shown, keys)) * (len(cfg.render.views) > 0)
                      + 2 * len(keys) * (len(cfg.render.views) - 1))
         print(f"frames={t} fps={motion.fps:g} wall_s={walls[-1]:.2f} cpu_s={cpus[-1]:.2f} "
+              f"child_cpu_s={children[-1]:.2f} "
               f"cpu_ms_per_image={1000 * cpus[-1] / drawn[-1]:.1f} "
               f"preview_frames={shape[0]} preview_hw={shape[1]}x{shape[2]} "
               f"preview_kb={len(out.preview or b'') / 1024:.0f} sheet_kb={len(out.sheet_png) / 1024:.0f}")
@@ -156,7 +166,7 @@ def main() -> None:
     # the first sequence also prepares the robot model and compiles GL state, once a process
     warm = np.mean(cpus[1:]) if len(cpus) > 1 else cpus[0]
     print(f"RESULT render_s={np.mean(walls):.2f} render_cpu_s={np.mean(cpus):.2f} "
-          f"render_cpu_s_warm={warm:.2f} "
+          f"render_cpu_s_warm={warm:.2f} render_child_cpu_s={np.mean(children):.2f} "
           f"cpu_ms_per_image={1000 * np.sum(cpus) / np.sum(drawn):.1f} "
           f"preview_frames={shape[0]} preview_height={shape[1]} preview_width={shape[2]} "
           f"sequences={len(motions)}")
