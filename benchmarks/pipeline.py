@@ -35,6 +35,18 @@ def _cpu() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
+def _server_cpu() -> float:
+    """CPU seconds of this process's Prefect server child so far (Linux; 0 without one): it
+    shares the cores with the workers but is not in `cpu_s_per_seq` (a child still running)."""
+    from embody.flows.ephemeral import running_server
+    server = running_server()
+    try:
+        fields = Path(f"/proc/{server.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+    except (AttributeError, OSError):
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def _prefect_db() -> str:
     """How the run's Prefect database began: copied from the migrated template (`seeded`), or
     migrated by the server (`migrated`, a machine's first run; it then saves the template)."""
@@ -69,6 +81,7 @@ def main() -> None:
     summary = run_flow(data, cfg)
     wall = time.perf_counter() - t0 - summary["report_s"]
     cpu = _cpu() - c0
+    server_cpu = _server_cpu()  # its boot included: it started inside run_flow
     n = summary["ok"] + summary["failed"]
     per_step: dict[str, float] = defaultdict(float)
     cpu_step: dict[str, float] = defaultdict(float)
@@ -90,6 +103,7 @@ def main() -> None:
                                + [f"{s}_cpu_s={cpu_step.get(s, 0.0) / m:.2f}" for s in STEPS]
                                + [f"outside_steps_s={overhead / m:.2f}",
                                   f"cpu_s_per_seq={cpu / m:.2f}",
+                                  f"server_cpu_s_per_seq={server_cpu / m:.2f}",
                                   f"load1={os.getloadavg()[0]:.1f}"]))
 
 

@@ -106,6 +106,8 @@ class _Driver:
         self.parked: list[tuple[int, int, list[dict[str, Any]]]] = []
         self.computed: dict[str, int] = {s.name: 0 for s in self.steps + pipeline.shared}
         self.batches: list[list[dict[str, Any]]] = []
+        #: The step each batch was last submitted to (a finished batch: past the last).
+        self.step_of: dict[int, int] = {}
         self.next_batch = self.inflight = 0
         self._saved = time.monotonic()
         self._save_every = _SAVE_EVERY_S
@@ -169,7 +171,7 @@ class _Driver:
         if hits is not None:
             self._complete(b, i, hits)
             return
-        half = self._split(b, records)
+        half = self._split(b, i, records)
         if half is not None:  # the other half goes on as a batch of its own
             self.ready.append((len(self.batches) - 1, i, half))
             records = self.batches[b]
@@ -177,19 +179,27 @@ class _Driver:
         fut = batch_task(step, b).submit(step, self.ctx, records, self._shared_keys())
         self._watch(fut, ("batch", b, i))
 
-    def _split(self, b: int, records: list[dict[str, Any]]) -> list[dict[str, Any]] | None:
-        """At the run's tail (every batch started) a worker would idle while another works
-        through a whole batch, step after step: split the batch in two instead. Returns the
-        second half, appended to `batches`; `batches[b]` becomes the first half."""
-        busy = self.outstanding + len(self.ready) + 1  # this batch's task included
+    def _split(self, b: int, i: int, records: list[dict[str, Any]]
+               ) -> list[dict[str, Any]] | None:
+        """At the run's tail (every batch started), split a batch in two when a worker would
+        idle or when the batch lags (another batch is past step `i` already): otherwise the
+        last batch runs its steps one sequence after another on one worker while the others
+        wait (the default run's last render batch: ~3-5 s with one of two workers idle).
+        Returns the second half, appended to `batches`; `batches[b]` becomes the first half."""
+        self.step_of[b] = i
         ok = [r for r in records if r["status"] == "ok"]
-        if self.next_batch < len(self.batches) or busy >= self.workers or len(ok) < 2:
+        if self.workers < 2 or len(ok) < 2 or self.next_batch < len(self.batches):
+            return None
+        busy = self.outstanding + len(self.ready) + 1  # this batch's task included
+        lags = any(step > i for other, step in self.step_of.items() if other != b)
+        if busy >= self.workers and not lags:
             return None
         keep = ok[: len(ok) // 2]
         first = [r for r in records if r["status"] != "ok"] + keep
         second = ok[len(ok) // 2:]
         self.batches[b] = first
         self.batches.append(second)
+        self.step_of[len(self.batches) - 1] = i
         self.next_batch = len(self.batches)
         self.inflight += 1
         return second
@@ -211,6 +221,7 @@ class _Driver:
             return
         for rec in records:
             self.manifest.finish_sequence(rec["id"])
+        self.step_of[b] = len(self.steps)  # done: every other batch lags behind it
         self.inflight -= 1
         self._fill()
         self._save()
