@@ -169,6 +169,11 @@ class ArtifactStore:
         doc = json.loads((self.path(step, key) / "zarr.json").read_text())
         return doc.get("attributes", {}).get("embody", {})
 
+    def attrs(self, step: str, key: str) -> dict[str, Any]:
+        """The stage's own attrs (what `read` returns as `attrs`), without opening the arrays."""
+        doc = json.loads((self.path(step, key) / "zarr.json").read_text())
+        return doc.get("attributes", {}).get("result", {})
+
     def intact(self, step: str, key: str) -> bool:
         """Cheap check (stat only) that every chunk file written is still there, same size.
 

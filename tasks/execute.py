@@ -14,6 +14,7 @@ from typing import Any
 from embody.store.artifacts import CorruptArtifact, jsonable
 from embody.store.keys import files_key
 from embody.tasks.pipeline import Context, Step
+from embody.tasks.recent import forget, recall, remember
 
 __all__ = ["InjectedFailure", "cached", "new_record", "record_key", "run_batch", "run_shared",
            "source_key"]
@@ -91,11 +92,14 @@ def _compute(step: Step, ctx: Context, key: str, inputs: dict[str, Any], input_k
     # less sensitive than wall time to other jobs on a shared machine
     cpu_s = time.thread_time() - c0
     metrics = jsonable(step.metrics(result))
-    published = store.publish(step.name, key, result.to_arrays(), result.to_attrs(), {
+    arrays = result.to_arrays()
+    published = store.publish(step.name, key, arrays, result.to_attrs(), {
         "inputs": input_keys, "config": step.config(ctx.cfg), "version": step.version,
         "timings": {"compute_s": compute_s}, "run": ctx.run, "sequence": seq_id, "metrics": metrics})
     store.record(step.name, key, sequence=seq_id, run=ctx.run, compute_s=compute_s,
                  cpu_s=cpu_s, published=published, reason=reason)
+    if published:  # what another writer published first is read from the store
+        remember(ctx.session, step.name, key, arrays)
     return metrics
 
 
@@ -111,6 +115,10 @@ def _load_inputs(step: Step, ctx: Context, input_keys: dict[str, str],
     store, out = ctx.store, {}
     for s in step.inputs:
         key = input_keys[s.name]
+        arrays = recall(ctx.session, s.name, key)
+        if arrays is not None:  # published by this worker in this run
+            out[s.name] = s.load(arrays, store.attrs(s.name, key))
+            continue
         try:
             art = store.read(s.name, key)
         except CorruptArtifact as exc:
@@ -154,6 +162,7 @@ def run_batch(step: Step, ctx: Context, records: list[dict[str, Any]],
             reason = "miss"
             if store.has(step.name, key) and not store.intact(step.name, key):
                 store.remove(step.name, key)  # damaged: recompute it like a miss
+                forget(ctx.session, step.name, key)
                 rec.setdefault("recovered", []).append(
                     _recovered(step.name, key, "chunk files missing or truncated"))
                 reason = "corrupt"

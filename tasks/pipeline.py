@@ -8,6 +8,7 @@ two callables: `compute(ctx, inputs) -> result` (one library call) and `load(arr
 from __future__ import annotations
 
 import threading
+import uuid
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Mapping
@@ -101,6 +102,9 @@ class Context:
     cfg: Config
     store_root: str
     run: str
+    #: This run of the flow (not its name: a rerun is another session); scopes what a worker
+    #: keeps of its own results in memory (`tasks.recent`).
+    session: str = field(default_factory=lambda: uuid.uuid4().hex)
 
     def __post_init__(self) -> None:
         # The memo of `key` is no dataclass field, so Prefect's walk of a task's parameters
