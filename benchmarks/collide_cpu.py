@@ -15,46 +15,22 @@ PYTHONPATH back to back (alternating). One untimed sequence loads the compiled k
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import time
-from pathlib import Path
 
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from embody.body import MannequinBody
-from embody.collision import depth, optimize, part_volumes
+from _collide_cpu import prepare, time_judge
 from embody.collision.windows import mitigate_windowed
-from embody.config.collision import CollisionConfig
 from embody.device import torch_threads
 from embody.io import load
-from embody.synth import default_dataset
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--data", default=str(ROOT / "data"))
-    ap.add_argument("--n", type=int, default=24)
-    args = ap.parse_args()
-    paths = sorted(default_dataset(args.data).glob("seq_*.npz"))[: args.n]
-    body, cfg = MannequinBody(), CollisionConfig()
     with threadpool_limits(1), torch_threads(1):
-        part_volumes(body)
-        mitigate_windowed(load(paths[0]), body, cfg)  # warm-up, untimed
-        depth._memo.clear()
-        judge_cpu = [0.0]
-        mesh_depths = optimize._mesh_depths
-
-        def timed(*a, **k):
-            c = time.process_time()
-            out = mesh_depths(*a, **k)
-            judge_cpu[0] += time.process_time() - c
-            return out
-
-        optimize._mesh_depths = timed
+        paths, body, cfg = prepare(mitigate_windowed, __doc__.splitlines()[0])
+        judge_cpu = time_judge("_mesh_depths")
         motions = [load(p) for p in paths]
         digest = hashlib.sha256()
         cpu = 0.0

@@ -14,44 +14,21 @@ line.
 
 from __future__ import annotations
 
-import argparse
 import hashlib
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from embody.body import MannequinBody
-from embody.collision import depth, mitigate, optimize, part_volumes
-from embody.config.collision import CollisionConfig
+from _collide_cpu import prepare, time_judge
+from embody.collision import mitigate
 from embody.io import load
-from embody.synth import default_dataset
-
-ROOT = Path(__file__).resolve().parents[1]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--data", default=str(ROOT / "data"))
-    ap.add_argument("--n", type=int, default=24)
-    args = ap.parse_args()
     torch.set_num_threads(1)
-    paths = sorted(default_dataset(args.data).glob("seq_*.npz"))[: args.n]
-    body, cfg = MannequinBody(), CollisionConfig()
-    part_volumes(body)
-    mitigate(load(paths[0]), body, cfg)  # warm-up: compiled kernels loaded, untimed
-    depth._memo.clear()
-    judge_cpu = [0.0]
-    depths = optimize._depths
-
-    def timed_depths(*a, **k):
-        c = time.process_time()
-        out = depths(*a, **k)
-        judge_cpu[0] += time.process_time() - c
-        return out
-
-    optimize._depths = timed_depths
+    paths, body, cfg = prepare(mitigate, __doc__.splitlines()[0])
+    judge_cpu = time_judge("_depths")
     cpu, wall, steps = [], [], 0
     digest = hashlib.sha256()
     for p in paths:

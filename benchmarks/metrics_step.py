@@ -14,41 +14,20 @@ outputs can be compared (`PYTHONPATH=<checkout>`, same store):
 
 from __future__ import annotations
 
-import argparse
 import cProfile
 import hashlib
 import json
 import time
-from pathlib import Path
+from _step_bench import step_bench
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--store", type=Path, required=True, help="Store folder (kept; reused).")
-    parser.add_argument("--n", type=int, default=4)
-    parser.add_argument("--repeat", type=int, default=2)
-    parser.add_argument("--pstats", type=Path, default=None)
-    parser.add_argument("--digests", action="store_true", help="Print every array's digest.")
-    args = parser.parse_args()
+    args, ctx, pipeline, shared, records = step_bench(__doc__.splitlines()[0], "metrics-step", 4)
 
-    from embody.config import Config
-    from embody.flows.env import configure
-    from embody.io import load_dataset
     from embody.store.artifacts import array_digest, jsonable
-    from embody.synth import default_dataset
     from embody.tasks import stages
-    from embody.tasks.execute import _input_keys, _load_inputs, new_record, run_batch, run_shared
-    from embody.tasks.pipeline import Context
+    from embody.tasks.execute import _input_keys, _load_inputs, run_batch
 
-    store = args.store
-    configure(store)
-    cfg = Config.model_validate({"run": {"store": str(store), "name": "metrics-step"}})
-    refs = list(load_dataset(default_dataset(store / "data")))[: args.n]
-    ctx = Context(cfg=cfg, store_root=str(store), run="metrics-step")
-    pipeline = stages.default_pipeline(critic=cfg.run.critic, render=False)
-    ctx.body, ctx.robot, ctx.critic  # noqa: B018  (per-process resources, built before timing)
-    shared = {s.name: run_shared(s, ctx, {})["key"] for s in pipeline.shared}
-    records = [new_record(r) for r in refs]
     step = pipeline.per_sequence[-1]
     assert step.name == "metrics"
     for s in pipeline.per_sequence[:-1]:
@@ -58,7 +37,7 @@ def main() -> None:
         if rec["status"] != "ok":
             raise SystemExit(f"{rec['id']}: {rec['error']}")
         got = _load_inputs(step, ctx, _input_keys(step, rec["keys"], shared))
-        stages._targets(ctx, got["collide"].motion, got["shape_fit"], cfg.ik)  # as the retarget step left it
+        stages._targets(ctx, got["collide"].motion, got["shape_fit"], ctx.cfg.ik)  # as the retarget step left it
         inputs.append((rec["id"], got))
 
     primed = dict(stages._TARGETS)  # the retarget step's targets only: the baseline's are rebuilt

@@ -4,7 +4,7 @@ Computes (or reads) the collide and shape_fit steps for the first N sequences of
 synthetic set in `--store`, then, `--repeat` times and in this thread, runs the retarget, refine
 (when the default config has the critic) and metrics steps' own functions on each sequence, in run
 order, as a worker of a multi-worker run does (`flows.threads.worker_threads`: one torch thread,
-single-threaded BLAS), publishing each result so the next step reads it from the store. Each
+single-threaded BLAS), publishing each result so the next step reads it as in a run (`tasks.recent`). Each
 repeat starts with empty memos (`stages._TARGETS`, `embodiments._CONTACTS_MEMO`), so the
 retarget step builds its targets and the metrics step finds them, as in a run. Reports each step's CPU seconds per
 sequence (`time.thread_time` around the step's function only: the figure a run's computation log
@@ -13,48 +13,29 @@ checkouts can be compared (`PYTHONPATH=<checkout>`, same store):
 
     python benchmarks/retarget_metrics.py --store DIR [--n 8] [--repeat 2] [--pstats out.pstats]
 
-The first repeat includes each step's first call in this process (imports, numba cache loads,
-the robot's kinematic chain): `first_*` figures are that repeat's first sequence.
+The first repeat includes each step's first call in this process (imports, numba cache loads; the
+body and robot models are built before timing): `first_*` figures are that repeat's first sequence.
 """
 
 from __future__ import annotations
 
-import argparse
 import cProfile
 import hashlib
 import json
 import time
-from pathlib import Path
+from _step_bench import step_bench
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--store", type=Path, required=True, help="Store folder (kept; reused).")
-    parser.add_argument("--n", type=int, default=8)
-    parser.add_argument("--repeat", type=int, default=2)
-    parser.add_argument("--pstats", type=Path, default=None, help="cProfile of the last repeat.")
-    parser.add_argument("--digests", action="store_true", help="Print every array's digest.")
-    args = parser.parse_args()
+    args, ctx, pipeline, shared, records = step_bench(__doc__.splitlines()[0],
+                                                      "retarget-metrics", 8)
 
-    from embody.config import Config
-    from embody.flows.env import configure
     from embody.flows.threads import worker_threads
-    from embody.io import load_dataset
     from embody.metrics import embodiments
     from embody.store.artifacts import array_digest, jsonable
-    from embody.synth import default_dataset
     from embody.tasks import stages
-    from embody.tasks.execute import _load_inputs, new_record, record_key, run_batch, run_shared
-    from embody.tasks.pipeline import Context
+    from embody.tasks.execute import _load_inputs, record_key, run_batch
 
-    store = args.store
-    configure(store)
-    cfg = Config.model_validate({"run": {"store": str(store), "name": "retarget-metrics"}})
-    refs = list(load_dataset(default_dataset(store / "data")))[: args.n]
-    ctx = Context(cfg=cfg, store_root=str(store), run="retarget-metrics")
-    pipeline = stages.default_pipeline(critic=cfg.run.critic, render=False)
-    shared = {s.name: run_shared(s, ctx, {})["key"] for s in pipeline.shared}
-    records = [new_record(r) for r in refs]
     timed = [s for s in pipeline.per_sequence if s.name in ("retarget", "refine", "metrics")]
     for s in pipeline.per_sequence:
         if s in timed:
