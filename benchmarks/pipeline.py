@@ -14,7 +14,7 @@ back to back or side by side, never against a figure from another day. The store
 Prefect's database is too: it is copied from the machine's migrated template when there is one
 (`prefect_db=seeded`, `flows/ephemeral.py`), else migrated (`prefect_db=migrated`, ~4.8 s more).
 
-    python benchmarks/pipeline.py [--limit N] [--workers 2] [--out DIR]
+    python benchmarks/pipeline.py [--limit N] [--workers 2] [--runner threads] [--out DIR]
 """
 
 from __future__ import annotations
@@ -59,6 +59,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--limit", type=int, default=None, help="Only the first N sequences.")
     parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--runner", default="threads", choices=("threads", "processes", "dask"))
     parser.add_argument("--out", type=Path, default=None, help="Work folder (default: a temp dir).")
     args = parser.parse_args()
     work = args.out or Path(tempfile.mkdtemp(prefix="embody-pipeline-"))
@@ -76,7 +77,8 @@ def main() -> None:
     configure(store_dir)
     data = default_dataset(store_dir / "data")
     cfg = Config.model_validate({"run": {"store": str(store_dir), "workers": args.workers,
-                                         "limit": args.limit, "name": "bench-pipeline"}})
+                                         "runner": args.runner, "limit": args.limit,
+                                         "name": "bench-pipeline"}})
     t0, c0 = time.perf_counter(), _cpu()
     summary = run_flow(data, cfg)
     wall = time.perf_counter() - t0 - summary["report_s"]
