@@ -461,3 +461,13 @@ def warm(ctx: Context, pipeline: Pipeline) -> None:
         ctx.robot
     if "refine" in names:
         ctx.critic
+    if "collide" in names:  # the judge's mesh groups (per body)
+        from embody.collision.depth import depth_mesh
+        depth_mesh(ctx.body, ctx.cfg.collision.allow_pairs)
+    if "retarget" in names:  # the robot's proxies and hand-clearance tables (per robot)
+        from types import SimpleNamespace
+
+        from embody.retarget.hand_clearance import CHANNELS, hand_clearance_term
+        from embody.robot.proxies import robot_proxies
+        robot_proxies(ctx.robot)
+        hand_clearance_term(ctx.robot, SimpleNamespace(hand_gap=np.ones((1, len(CHANNELS)))), 1.0)
