@@ -13,6 +13,7 @@ import torch
 
 from embody.errors import ConfigError
 from embody.robot.chain import ChainFK
+from embody.robot.compiled import compiled_model
 from embody.robot.fk import BodyFK
 from embody.robot.kinematics import Kinematics, check_joint_pivots
 from embody.robot.spec import RobotSpec
@@ -175,7 +176,7 @@ class Robot:
 def build_robot(name: str, spec: RobotSpec, mjcf_path: Path, where: str) -> Robot:
     """Assemble a Robot from its spec and MJCF; every inconsistency is a ConfigError at `where`."""
     try:
-        model = mujoco.MjModel.from_xml_path(str(mjcf_path))
+        model = compiled_model(mjcf_path)
     except ValueError as exc:
         raise ConfigError(f"{where}:mjcf", f"MuJoCo cannot load {mjcf_path}: {exc}") from None
     check_joint_pivots(model, f"{where}:mjcf")
