@@ -153,7 +153,9 @@ def test_a_corrupt_input_is_recomputed_and_reported(tmp_path):
         data[-3] ^= 0x55
         chunk.write_bytes(bytes(data))
     store.remove("metrics", keys["metrics"])
-    again = _chain(ctx, refs, (SOURCE, COLLIDE, METRICS))
+    # the next run (a new session: what a run published, it reads from memory, `tasks.recent`)
+    again = _chain(Context(cfg=Config(), store_root=str(tmp_path / "store"), run="r"), refs,
+                   (SOURCE, COLLIDE, METRICS))
     assert again[0]["status"] == "ok", again[0]["error"]
     assert again[0]["metrics"]["metrics"]["total"] == pytest.approx(truth)
     recovered = " ".join(again[0]["recovered"])
