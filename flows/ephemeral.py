@@ -55,8 +55,9 @@ def database_template() -> Path:
     return cache_dir() / "prefect" / f"prefect-{version('prefect')}.db"
 
 
-def _sqlite_home(home: Path) -> bool:
-    return not any(os.environ.get(name) for name in _DB_SETTINGS) and bool(home)
+def _sqlite() -> bool:
+    """Prefect keeps its database in `PREFECT_HOME`'s SQLite file (no other database set)."""
+    return not any(os.environ.get(name) for name in _DB_SETTINGS)
 
 
 def seed_database(home: str | Path) -> bool:
@@ -65,7 +66,7 @@ def seed_database(home: str | Path) -> bool:
     The server still runs its migrations at start, which find nothing to do."""
     home, template = Path(home), database_template()
     target = home / _DB
-    if not _sqlite_home(home) or target.exists() or not template.is_file():
+    if not _sqlite() or target.exists() or not template.is_file():
         return False
     home.mkdir(parents=True, exist_ok=True)
     tmp = home / f".{_DB}.{os.getpid()}.tmp"
@@ -83,7 +84,7 @@ def save_template(home: str | Path) -> bool:
     SQLite's backup API copies a consistent snapshot while the server has it open; every table
     but Alembic's version row is then emptied, so no run's records travel to another store."""
     source, template = Path(home) / _DB, database_template()
-    if not _sqlite_home(Path(home)) or template.is_file() or not source.is_file():
+    if not _sqlite() or template.is_file() or not source.is_file():
         return False
     template.parent.mkdir(parents=True, exist_ok=True)
     tmp = template.with_name(f".{template.name}.{os.getpid()}.tmp")

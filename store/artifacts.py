@@ -166,13 +166,16 @@ class ArtifactStore:
 
     def info(self, step: str, key: str) -> dict[str, Any]:
         """The bookkeeping attrs of an artifact, read without opening its arrays."""
-        doc = json.loads((self.path(step, key) / "zarr.json").read_text())
-        return doc.get("attributes", {}).get("embody", {})
+        return self._attributes(step, key).get("embody", {})
 
     def attrs(self, step: str, key: str) -> dict[str, Any]:
         """The stage's own attrs (what `read` returns as `attrs`), without opening the arrays."""
+        return self._attributes(step, key).get("result", {})
+
+    def _attributes(self, step: str, key: str) -> dict[str, Any]:
+        """The group attributes in the artifact's `zarr.json` (bookkeeping and the stage's)."""
         doc = json.loads((self.path(step, key) / "zarr.json").read_text())
-        return doc.get("attributes", {}).get("result", {})
+        return doc.get("attributes", {})
 
     def intact(self, step: str, key: str) -> bool:
         """Cheap check (stat only) that every chunk file written is still there, same size.

@@ -445,8 +445,9 @@ _WARM_MODULES = {"collide": ("embody.collision.windows", "embody.body.sparse_ski
 
 def warm(ctx: Context, pipeline: Pipeline) -> None:
     """Import what `pipeline`'s steps import, load their cached compiled kernels and build the
-    models they share (body, robot, critic), so a thread runner's workers start computing at
-    once instead of each importing and loading the same (the flow calls this while Prefect's server boots: `flows.ephemeral`)."""
+    models they share (body, robot, critic: those whose config section a step reads), so a
+    thread runner's workers start computing at once instead of each importing and loading the
+    same (the flow calls this while Prefect's server boots: `flows.ephemeral`)."""
     import importlib
 
     from embody.jit_cache import load_cached_kernels
@@ -455,12 +456,10 @@ def warm(ctx: Context, pipeline: Pipeline) -> None:
         for module in _WARM_MODULES.get(name, ()):
             importlib.import_module(module)
     load_cached_kernels()
-    if names & {"collide", "shape_fit", "refine", "render", "metrics"}:
-        ctx.body
-    if names & {"shape_fit", "retarget", "refine", "render", "metrics"}:
-        ctx.robot
-    if "refine" in names:
-        ctx.critic
+    sections = {section for step in pipeline.steps for section in step.sections}
+    for model in ("body", "robot", "critic"):
+        if model in sections:
+            getattr(ctx, model)
     if "collide" in names:  # the judge's mesh groups (per body)
         from embody.collision.depth import depth_mesh
         depth_mesh(ctx.body, ctx.cfg.collision.allow_pairs)

@@ -5,8 +5,11 @@ thread per worker only waited)."""
 import threading
 
 import numpy as np
+import pytest
+import torch
 from threadpoolctl import threadpool_info, threadpool_limits
 
+from embody.device import torch_threads
 from embody.flows.threads import worker_threads
 
 
@@ -34,42 +37,33 @@ def test_several_workers_get_one_blas_thread_and_the_setting_returns():
             assert all(n == 2 for n in _blas_threads())
 
 
-def test_several_workers_get_one_torch_thread_and_the_setting_returns():
-    import pytest
-    import torch
-
+@pytest.fixture
+def two_torch_threads():
+    """Torch at two intra-op threads for the test, then as before."""
     before = torch.get_num_threads()
     torch.set_num_threads(2)
-    try:
-        with worker_threads(2):
-            assert torch.get_num_threads() == 1
-        assert torch.get_num_threads() == 2
-        with worker_threads(1):
-            assert torch.get_num_threads() == 2
-        with pytest.raises(RuntimeError), worker_threads(3):
-            raise RuntimeError("a failing run")
-        assert torch.get_num_threads() == 2
-    finally:
-        torch.set_num_threads(before)
+    yield
+    torch.set_num_threads(before)
 
 
-def test_torch_threads_sets_the_count_and_gives_the_setting_back():
+def test_several_workers_get_one_torch_thread_and_the_setting_returns(two_torch_threads):
+    with worker_threads(2):
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == 2
+    with worker_threads(1):
+        assert torch.get_num_threads() == 2
+    with pytest.raises(RuntimeError), worker_threads(3):
+        raise RuntimeError("a failing run")
+    assert torch.get_num_threads() == 2
+
+
+def test_torch_threads_sets_the_count_and_gives_the_setting_back(two_torch_threads):
     """`torch_threads` (the metrics step's and the collision optimiser's one intra-op thread)
     sets the count inside the block; the setting before it comes back afterwards, also when the
     step fails."""
-    import pytest
-    import torch
-
-    from embody.device import torch_threads
-
-    before = torch.get_num_threads()
-    torch.set_num_threads(2)
-    try:
-        with torch_threads(1):
-            assert torch.get_num_threads() == 1
-        assert torch.get_num_threads() == 2
-        with pytest.raises(RuntimeError), torch_threads(1):
-            raise RuntimeError("a failing step")
-        assert torch.get_num_threads() == 2
-    finally:
-        torch.set_num_threads(before)
+    with torch_threads(1):
+        assert torch.get_num_threads() == 1
+    assert torch.get_num_threads() == 2
+    with pytest.raises(RuntimeError), torch_threads(1):
+        raise RuntimeError("a failing step")
+    assert torch.get_num_threads() == 2
