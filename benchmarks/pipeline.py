@@ -8,13 +8,14 @@ figures are the summed compute seconds of that step divided by the same number, 
 they add up to about N × seconds_per_seq; `<step>_cpu_s` is the CPU time of the worker thread
 that computed it (recorded by `tasks.execute`; GL raster threads and the x264 child excluded),
 and `outside_steps_s` the worker-seconds spent outside any step's computation (Prefect task
-runs, store reads/writes, the driver, workers idle at the tail). `cpu_s_per_seq` (this process and its finished
-children) and the load average at the end are printed too: on a shared machine compare runs made
+runs, store reads/writes, the driver, workers idle at the tail). `cpu_s_per_seq` (this process, its finished
+children and its worker processes, `embody.tasks.workers`) and the load average at the end are printed too: on a shared machine compare runs made
 back to back or side by side, never against a figure from another day. The store is new, so
 Prefect's database is too: it is copied from the machine's migrated template when there is one
 (`prefect_db=seeded`, `flows/ephemeral.py`), else migrated (`prefect_db=migrated`, ~4.8 s more).
 
-    python benchmarks/pipeline.py [--limit N] [--workers 2] [--runner threads] [--out DIR]
+    python benchmarks/pipeline.py [--limit N] [--workers 2] [--runner threads]
+                                [--worker-processes on|off] [--out DIR]
 """
 
 from __future__ import annotations
@@ -60,6 +61,9 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=None, help="Only the first N sequences.")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--runner", default="threads", choices=("threads", "processes", "dask"))
+    parser.add_argument("--worker-processes", choices=("on", "off"), default="on",
+                        help="run.worker_processes: the thread runner's workers compute in "
+                             "processes of their own (default) or in the threads.")
     parser.add_argument("--out", type=Path, default=None, help="Work folder (default: a temp dir).")
     args = parser.parse_args()
     work = args.out or Path(tempfile.mkdtemp(prefix="embody-pipeline-"))
@@ -73,21 +77,27 @@ def main() -> None:
     from embody.flows.dataset import run_flow
     from embody.flows.env import configure
     from embody.store import ArtifactStore
+    from embody.tasks.workers import cpu_seconds as worker_cpu
 
     configure(store_dir)
     data = default_dataset(store_dir / "data")
     cfg = Config.model_validate({"run": {"store": str(store_dir), "workers": args.workers,
                                          "runner": args.runner, "limit": args.limit,
+                                         "worker_processes": args.worker_processes == "on",
                                          "name": "bench-pipeline"}})
-    t0, c0 = time.perf_counter(), _cpu()
+    t0, c0, epoch0 = time.perf_counter(), _cpu() + worker_cpu(), time.time()
     summary = run_flow(data, cfg)
     wall = time.perf_counter() - t0 - summary["report_s"]
-    cpu = _cpu() - c0
+    cpu = _cpu() + worker_cpu() - c0  # the worker processes' CPU included
     server_cpu = _server_cpu()  # its boot included: it started inside run_flow
     n = summary["ok"] + summary["failed"]
     per_step: dict[str, float] = defaultdict(float)
     cpu_step: dict[str, float] = defaultdict(float)
-    for row in ArtifactStore(store_dir).computations():
+    rows = ArtifactStore(store_dir).computations()
+    # the flow's start to its first step computation: server boot, warm-up, Prefect's first calls
+    startup = min((r["time"] - float(r.get("compute_s", 0.0)) for r in rows), default=epoch0)
+    startup -= epoch0
+    for row in rows:
         per_step[row["step"]] += float(row.get("compute_s", 0.0))
         cpu_step[row["step"]] += float(row.get("cpu_s", 0.0))
     # what the workers spent outside step computations: Prefect task runs, store reads and
@@ -99,11 +109,13 @@ def main() -> None:
     print("  step        wall s total  wall s/seq  worker-thread CPU s/seq")
     for step, secs in sorted(per_step.items()):
         print(f"  {step:10s} {secs:10.2f} {secs / m:10.2f} {cpu_step[step] / m:10.2f}")
-    print(f"  outside steps (worker-seconds) {overhead:.1f} total, {overhead / m:.2f} s/seq")
+    print(f"  outside steps (worker-seconds) {overhead:.1f} total, {overhead / m:.2f} s/seq; "
+          f"first step computation {startup:.1f} s after the flow's start")
     print("RESULT " + " ".join([f"seconds_per_seq={wall / m:.2f}"]
                                + [f"{s}_s={per_step.get(s, 0.0) / m:.2f}" for s in STEPS]
                                + [f"{s}_cpu_s={cpu_step.get(s, 0.0) / m:.2f}" for s in STEPS]
                                + [f"outside_steps_s={overhead / m:.2f}",
+                                  f"startup_s={startup:.1f}",
                                   f"cpu_s_per_seq={cpu / m:.2f}",
                                   f"server_cpu_s_per_seq={server_cpu / m:.2f}",
                                   f"load1={os.getloadavg()[0]:.1f}"]))

@@ -8,6 +8,7 @@ Shared steps (the shape fit) run once; steps that need them wait until they are 
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import functools
 import queue
@@ -380,7 +381,12 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     bar = Progress([s.name for s in pipeline.per_sequence], len(refs), enabled=progress)
     driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers,
                      workers=cfg.run.workers)
-    with worker_threads(cfg.run.workers):
+    from embody.tasks.workers import usable, worker_pool
+    if usable(cfg.run.workers, cfg.run.runner, cfg.run.worker_processes):
+        pool = worker_pool(ctx, pipeline, cfg.run.workers)
+    else:
+        pool = contextlib.nullcontext(False)
+    with worker_threads(cfg.run.workers), pool:
         driver.run(batches)
     return finish_run(store, run, manifest, cfg, dataset=dataset, split=split, t0=t0,
                       computed=driver.computed,
@@ -433,8 +439,13 @@ def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
         if cfg.run.runner != "threads":  # other runners' workers are other processes
             return
         from embody.tasks.stages import warm as warm_steps
+        from embody.tasks.workers import prewarm, usable
+        ctx = Context(cfg=cfg, store_root=str(cfg.run.store), run="")
+        if (usable(cfg.run.workers, cfg.run.runner, cfg.run.worker_processes)
+                and prewarm(ctx, steps)):
+            return  # the worker processes' zygote warms itself (`tasks.workers`)
         try:
-            warm_steps(Context(cfg=cfg, store_root=str(cfg.run.store), run=""), steps)
+            warm_steps(ctx, steps)
         except Exception:  # a bad model is each sequence's error, reported by its step
             pass
 

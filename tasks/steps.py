@@ -12,7 +12,7 @@ from typing import Any
 from prefect import Task, task
 from prefect.cache_policies import NO_CACHE
 
-from embody.tasks.execute import run_batch, run_shared
+from embody.tasks import workers
 from embody.tasks.pipeline import Context, Step
 
 __all__ = ["batch_task", "shared_task"]
@@ -23,12 +23,12 @@ _OPTIONS = dict(persist_result=False, cache_policy=NO_CACHE, retries=0, log_prin
 @task(name="step", **_OPTIONS)
 def _batch(step: Step, ctx: Context, records: list[dict[str, Any]],
            shared: dict[str, str]) -> list[dict[str, Any]]:
-    return run_batch(step, ctx, records, shared)
+    return workers.batch(step, ctx, records, shared)
 
 
 @task(name="shared-step", **_OPTIONS)
 def _shared(step: Step, ctx: Context, shared: dict[str, str]) -> dict[str, Any]:
-    return run_shared(step, ctx, shared)
+    return workers.shared(step, ctx, shared)
 
 
 def batch_task(step: Step, batch: int) -> Task:

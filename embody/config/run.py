@@ -16,6 +16,10 @@ class RunConfig(Section):
     name: str | None = Field(None, min_length=1, pattern=r"^[A-Za-z0-9_.-]+$")
     workers: int = Field(2, ge=1, le=256)
     runner: Literal["threads", "processes", "dask"] = "threads"
+    #: With the thread runner and several workers, each worker thread computes in a process of
+    #: its own, forked from one warmed process (`embody.tasks.workers`), so the workers never
+    #: share a GIL; false computes in the threads.
+    worker_processes: bool = True
     dask_address: str | None = None
     #: Sequences per task submission: 20k sequences become 20k/batch_size task runs per step.
     batch_size: int = Field(8, ge=1, le=10_000)

@@ -1,0 +1,155 @@
+"""The thread runner's workers computing in processes of their own (`embody.tasks.workers`):
+the same artifacts as in-thread, each worker in one forked process, the driver's environment
+and working directory in them, a worker that dies failing only its batch, and the fallback to
+in-thread computing for pipelines that do not pickle."""
+
+from __future__ import annotations
+
+import os
+import signal
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from embody.config import Config
+from embody.store import ArtifactStore, Manifest
+from embody.tasks.pipeline import Pipeline, Step
+from embody.tasks.stages import SOURCE
+from embody.tasks.workers import cpu_seconds, usable
+
+N_SEQ = 8
+
+
+@dataclass
+class Toy:
+    x: np.ndarray
+    metrics: dict
+
+    def to_arrays(self):
+        return {"x": self.x}
+
+    def to_attrs(self):
+        return {"metrics": self.metrics}
+
+    @classmethod
+    def from_arrays(cls, arrays, attrs):
+        return cls(np.asarray(arrays["x"]), dict(attrs["metrics"]))
+
+
+def _where(ctx, inputs):
+    """Smooths the pose and says which process computed it, with what environment."""
+    kill = os.environ.get("TOY_KILL_MARK")
+    if kill and Path(kill).exists() and inputs["source"].pose.shape[0] == 7:
+        Path(kill).unlink()  # once: a rerun computes it
+        os.kill(os.getpid(), signal.SIGKILL)
+    p = inputs["source"].pose.copy()
+    p[1:-1] = (p[:-2] + p[1:-1] + p[2:]) / 3
+    return Toy(p, {"pid": os.getpid(), "mark": os.environ.get("TOY_MARK", ""),
+                   "cwd": os.getcwd()})
+
+
+def _sum(ctx, inputs):
+    return Toy(np.array(float(inputs["collide"].x.sum())), {"pid": os.getpid()})
+
+
+COLLIDE = Step("collide", "1", ("body",), _where, Toy.from_arrays, (SOURCE,))
+METRICS = Step("metrics", "1", (), _sum, Toy.from_arrays, (COLLIDE,))
+TOY = Pipeline(SOURCE, (COLLIDE, METRICS))
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("workers") / "data"
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for i in range(N_SEQ):
+        frames = 7 if i == 5 else 6  # seq005 is the one a worker dies on
+        np.savez(folder / f"seq{i:03d}.npz",
+                 poses=rng.normal(0, 0.1, (frames, 165)).astype(np.float32),
+                 trans=np.zeros((frames, 3), np.float32), betas=np.zeros(10, np.float32),
+                 gender="neutral", mocap_frame_rate=30.0)
+    return folder
+
+
+@pytest.fixture(autouse=True)
+def _in_tmp(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+
+
+def _run(data, store: Path, pipeline=TOY, name="toy", **run):
+    from embody.flows.dataset import run_flow
+    cfg = Config.model_validate({"run": {"store": str(store), "batch_size": 2, "name": name,
+                                         "workers": 2, "report": False, **run}})
+    return run_flow(data, cfg, pipeline=pipeline)
+
+
+def _metrics(store: Path, run: str, step: str) -> dict[str, dict]:
+    seqs = Manifest.load(ArtifactStore(store), run).sequences
+    return {sid: s["metrics"].get(step, {}) for sid, s in seqs.items()}
+
+
+def _arrays(store: Path) -> dict[str, dict[str, bytes]]:
+    s = ArtifactStore(store)
+    return {f"{r['step']}/{r['sequence']}": {k: np.asarray(v).tobytes() for k, v in
+                                             s.read(r["step"], r["key"]).arrays.items()}
+            for r in s.computations()}
+
+
+def test_usable_only_for_several_thread_workers():
+    assert usable(2, "threads", True)
+    assert not usable(1, "threads", True)
+    assert not usable(2, "dask", True) and not usable(2, "processes", True)
+    assert not usable(2, "threads", False)
+
+
+def test_workers_compute_in_two_processes_what_the_threads_compute(
+        prefect_harness, data, tmp_path, monkeypatch):
+    monkeypatch.setenv("TOY_MARK", "from-the-driver")  # set after the zygote may have started
+    before = cpu_seconds()
+    procs = _run(data, tmp_path / "procs")
+    threads = _run(data, tmp_path / "threads", worker_processes=False)
+    assert procs["ok"] == threads["ok"] == N_SEQ
+    pids = {m["pid"] for m in _metrics(tmp_path / "procs", "toy", "collide").values()}
+    pids |= {m["pid"] for m in _metrics(tmp_path / "procs", "toy", "metrics").values()}
+    assert os.getpid() not in pids and len(pids) == 2  # one process per worker
+    in_thread = _metrics(tmp_path / "threads", "toy", "collide").values()
+    assert {m["pid"] for m in in_thread} == {os.getpid()}
+    for m in _metrics(tmp_path / "procs", "toy", "collide").values():
+        assert m["mark"] == "from-the-driver" and m["cwd"] == str(tmp_path)
+    assert _arrays(tmp_path / "procs") == _arrays(tmp_path / "threads")
+    assert cpu_seconds() > before  # the workers' CPU, as they reported it when the run closed
+
+
+def test_a_worker_that_dies_fails_its_batch_and_the_run_goes_on(
+        prefect_harness, data, tmp_path, monkeypatch):
+    mark = tmp_path / "kill-once"
+    mark.touch()
+    monkeypatch.setenv("TOY_KILL_MARK", str(mark))
+    out = _run(data, tmp_path / "store")
+    assert not mark.exists()  # the worker killed itself on seq005
+    failed = {f["id"]: f for f in out["failures"]}
+    assert "seq005" in failed and failed["seq005"]["step"] == "collide"
+    assert "exited while computing step 'collide'" in failed["seq005"]["error"]
+    assert set(failed) <= {"seq004", "seq005"}  # its batch (of 2), nothing else
+    assert out["ok"] == N_SEQ - len(failed)
+    # the dead worker's thread computed its next batches itself
+    pids = {m.get("pid") for m in _metrics(tmp_path / "store", "toy", "metrics").values()}
+    assert os.getpid() in pids
+    again = _run(data, tmp_path / "store", name="toy-again")  # a rerun computes what failed
+    assert again["ok"] == N_SEQ and again["failed"] == 0
+
+
+def _lambda_pipeline() -> Pipeline:
+    step = Step("collide", "1", ("body",), lambda ctx, inputs: _where(ctx, inputs),
+                Toy.from_arrays, (SOURCE,))
+    return Pipeline(SOURCE, (step,))
+
+
+def test_a_pipeline_that_does_not_pickle_is_computed_in_the_threads(
+        prefect_harness, data, tmp_path):
+    out = _run(data, tmp_path / "store", pipeline=_lambda_pipeline())
+    assert out["ok"] == N_SEQ
+    assert {m["pid"] for m in _metrics(tmp_path / "store", "toy", "collide").values()} == {
+        os.getpid()}
