@@ -382,7 +382,7 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers,
                      workers=cfg.run.workers)
     from embody.tasks.workers import usable, worker_pool
-    if usable(cfg.run.workers, cfg.run.runner, cfg.run.worker_processes):
+    if usable(cfg):
         pool = worker_pool(ctx, pipeline, cfg.run.workers)
     else:
         pool = contextlib.nullcontext(False)
@@ -441,8 +441,7 @@ def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
         from embody.tasks.stages import warm as warm_steps
         from embody.tasks.workers import prewarm, usable
         ctx = Context(cfg=cfg, store_root=str(cfg.run.store), run="")
-        if (usable(cfg.run.workers, cfg.run.runner, cfg.run.worker_processes)
-                and prewarm(ctx, steps)):
+        if usable(cfg) and prewarm(ctx, steps):
             return  # the worker processes' zygote warms itself (`tasks.workers`)
         try:
             warm_steps(ctx, steps)

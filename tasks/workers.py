@@ -17,7 +17,9 @@ A run's `Context` and `Pipeline` reach the zygote pickled, so their step functio
 importable there (the driver's `sys.path`, working directory and environment go with them).
 Where they are not, or the zygote fails, the worker threads compute as before. A process that
 dies (a crash, the OOM killer) fails the batch it held ("task crashed"); its thread then
-computes in-thread for the rest of the run. No Prefect here.
+computes in-thread for the rest of the run. A run with the VLM critic computes in the threads:
+its request budget caps the whole run, and one client in one process counts it. No Prefect
+here.
 """
 
 from __future__ import annotations
@@ -36,6 +38,7 @@ from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import Any
 
+from embody.config import Config
 from embody.tasks.execute import run_batch, run_shared
 from embody.tasks.pipeline import Context, Pipeline, Step
 
@@ -180,6 +183,9 @@ class _Zygote:
         code = (f"import sys; sys.path[:] = {sys.path!r}; "
                 f"from embody.tasks.workers import _zygote_main; _zygote_main({theirs.fileno()})")
         env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")
+        # what `embody.render.gl` sets: mujoco then imports its EGL module (whose display is
+        # made by the first context, in a worker) instead of GLFW's (~0.2 s of imports)
+        env.setdefault("MUJOCO_GL", "egl")
         try:
             proc = subprocess.Popen([sys.executable, "-c", code], pass_fds=[theirs.fileno()],
                                     stdin=subprocess.DEVNULL, env=env)
@@ -218,10 +224,14 @@ def _state(ctx: Context, pipeline: Pipeline) -> tuple[dict[str, str], str, list[
     return dict(os.environ), os.getcwd(), list(sys.path), pickle.dumps((ctx, pipeline))
 
 
-def usable(workers: int, runner: str, enabled: bool) -> bool:
+def usable(cfg: Config) -> bool:
     """Whether a run's worker threads compute in worker processes: several workers of the
-    thread runner, `run.worker_processes` on, and `os.fork` (POSIX)."""
-    return enabled and runner == "threads" and workers > 1 and hasattr(os, "fork")
+    thread runner, `run.worker_processes` on, `os.fork` (POSIX), and no VLM critic (its request
+    budget caps the whole run: one client in one process counts it)."""
+    run = cfg.run
+    vlm = run.critic and cfg.critic.kind == "vlm"
+    return (run.worker_processes and run.runner == "threads" and run.workers > 1
+            and hasattr(os, "fork") and not vlm)
 
 
 def prewarm(ctx: Context, pipeline: Pipeline) -> bool:

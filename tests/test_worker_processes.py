@@ -97,11 +97,18 @@ def _arrays(store: Path) -> dict[str, dict[str, bytes]]:
             for r in s.computations()}
 
 
-def test_usable_only_for_several_thread_workers():
-    assert usable(2, "threads", True)
-    assert not usable(1, "threads", True)
-    assert not usable(2, "dask", True) and not usable(2, "processes", True)
-    assert not usable(2, "threads", False)
+def _usable(**sections) -> bool:
+    return usable(Config.model_validate(sections))
+
+
+def test_usable_only_for_several_thread_workers_without_a_vlm_critic():
+    assert _usable(run={"workers": 2})
+    assert not _usable(run={"workers": 1})
+    assert not _usable(run={"runner": "dask"}) and not _usable(run={"runner": "processes"})
+    assert not _usable(run={"worker_processes": False})
+    # the VLM's request budget is one counter for the run: one client, in the driver
+    assert not _usable(critic={"kind": "vlm"})
+    assert _usable(critic={"kind": "vlm"}, run={"critic": False})
 
 
 def test_workers_compute_in_two_processes_what_the_threads_compute(
