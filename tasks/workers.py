@@ -15,9 +15,11 @@ call, and a driver (or a test session) may have rendered before. The zygote neve
 
 A run's `Context` and `Pipeline` reach the zygote pickled, so their step functions must be
 importable there (the driver's `sys.path`, working directory and environment go with them).
-Where they are not, or the zygote fails, the worker threads compute as before. A process that
-dies (a crash, the OOM killer) fails the batch it held ("task crashed"); its thread then
-computes in-thread for the rest of the run. A run with the VLM critic computes in the threads:
+Where they are not, or the zygote fails, the worker threads compute as before. A call goes to
+a free worker, preferably the one that computed the same sequences' previous step (whose
+in-memory results and memos it reuses). A process that dies (a crash, the OOM killer) fails the
+batch it held ("task crashed"); from then on a thread that finds no free worker computes
+in-thread. A run with the VLM critic computes in the threads:
 its request budget caps the whole run, and one client in one process counts it. No Prefect
 here.
 """
@@ -262,35 +264,52 @@ class _Worker:
 
 
 class _Pool:
-    """One run's worker processes; each driver thread that computes gets one of its own."""
+    """One run's worker processes. A call takes a free worker, preferring the one that computed
+    the same sequences' previous step (its `tasks.recent` arrays and memos hold them); with no
+    free worker (one died) the calling thread computes itself."""
 
     def __init__(self, workers: list[_Worker]) -> None:
         self.workers = workers
-        self._free = list(workers)
-        self._of_thread: dict[int, _Worker | None] = {}
+        self._busy: set[int] = set()
+        self._last: dict[str, int] = {}  # sequence id → pid of the worker that last had it
         self._lock = threading.Lock()
 
-    def _mine(self) -> _Worker | None:
-        tid = threading.get_ident()
+    def _take(self, ids: list[str]) -> _Worker | None:
         with self._lock:
-            if tid not in self._of_thread:
-                self._of_thread[tid] = self._free.pop(0) if self._free else None
-            return self._of_thread[tid]
+            free = [w for w in self.workers if not w.dead and w.pid not in self._busy]
+            if not free:
+                return None
+            votes: dict[int, int] = {}
+            for i in ids:
+                pid = self._last.get(i)
+                if pid is not None:
+                    votes[pid] = votes.get(pid, 0) + 1
+            w = max(free, key=lambda w: votes.get(w.pid, 0))  # ties: the first free one
+            self._busy.add(w.pid)
+            return w
+
+    def _give(self, w: _Worker, ids: list[str]) -> None:
+        with self._lock:
+            self._busy.discard(w.pid)
+            self._last.update(dict.fromkeys(ids, w.pid))
 
     def call(self, kind: str, name: str, records: Any, shared_keys: dict[str, str]
              ) -> tuple[bool, Any]:
-        """(True, result) from this thread's worker, or (False, None): compute in-thread."""
-        w = self._mine()
-        if w is None or w.dead:
+        """(True, result) from a worker, or (False, None): compute in-thread."""
+        ids = [r["id"] for r in records] if records else []
+        w = self._take(ids)
+        if w is None:
             return False, None
-        with w.lock:
-            try:
+        try:
+            with w.lock:
                 w.conn.send((kind, name, records, shared_keys))
                 status, value = w.conn.recv()
-            except (EOFError, OSError) as exc:
-                w.dead = True
-                raise WorkerLost(f"worker process {w.pid} exited while computing step "
-                                 f"{name!r} ({type(exc).__name__})") from None
+        except (EOFError, OSError) as exc:
+            w.dead = True
+            raise WorkerLost(f"worker process {w.pid} exited while computing step "
+                             f"{name!r} ({type(exc).__name__})") from None
+        finally:
+            self._give(w, ids)
         if status != "ok":
             raise RuntimeError(f"worker process {w.pid}: {value}")
         return True, value

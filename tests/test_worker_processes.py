@@ -141,9 +141,10 @@ def test_a_worker_that_dies_fails_its_batch_and_the_run_goes_on(
     assert "exited while computing step 'collide'" in failed["seq005"]["error"]
     assert set(failed) <= {"seq004", "seq005"}  # its batch (of 2), nothing else
     assert out["ok"] == N_SEQ - len(failed)
-    # the dead worker's thread computed its next batches itself
-    pids = {m.get("pid") for m in _metrics(tmp_path / "store", "toy", "metrics").values()}
-    assert os.getpid() in pids
+    # the other worker (or a thread itself, when it found no free worker) did the rest
+    done = [m for sid, m in _metrics(tmp_path / "store", "toy", "metrics").items()
+            if sid not in failed]
+    assert len(done) == out["ok"] and all("pid" in m for m in done)
     again = _run(data, tmp_path / "store", name="toy-again")  # a rerun computes what failed
     assert again["ok"] == N_SEQ and again["failed"] == 0
 
@@ -160,3 +161,23 @@ def test_a_pipeline_that_does_not_pickle_is_computed_in_the_threads(
     assert out["ok"] == N_SEQ
     assert {m["pid"] for m in _metrics(tmp_path / "store", "toy", "collide").values()} == {
         os.getpid()}
+
+
+def test_a_call_prefers_the_free_worker_that_had_the_same_sequences():
+    from embody.tasks.workers import _Pool, _Worker
+    a, b = _Worker(101, None), _Worker(102, None)
+    pool = _Pool([a, b])
+    assert pool._take(["s1", "s2"]) is a  # nothing known: the first free one
+    pool._give(a, ["s1", "s2"])
+    assert pool._take(["s3"]) is a
+    pool._give(a, ["s3"])
+    pool._last.update(s4=102, s5=102)
+    w = pool._take(["s4", "s5", "s1"])  # two of three were last on b
+    assert w is b
+    assert pool._take(["s4"]) is a  # b is busy: the free one, not a wait
+    assert pool._take(["s1"]) is None  # none free: the caller computes itself
+    pool._give(b, ["s4", "s5", "s1"])
+    assert pool._last["s1"] == 102
+    b.dead = True
+    pool._give(a, ["s4"])
+    assert pool._take(["s1"]) is a  # a dead worker is never chosen
