@@ -45,6 +45,9 @@ __all__ = ["EphemeralServer", "database_template", "prefect_api", "running_serve
 _DB = "prefect.db"
 #: Settings that move Prefect's database elsewhere: then there is no SQLite file to seed.
 _DB_SETTINGS = ("PREFECT_API_DATABASE_CONNECTION_URL", "PREFECT_SERVER_DATABASE_CONNECTION_URL")
+#: Whether the server migrates its database when it starts (Prefect's two names for it).
+_MIGRATE_SETTINGS = ("PREFECT_SERVER_DATABASE_MIGRATE_ON_START",
+                     "PREFECT_API_DATABASE_MIGRATE_ON_START")
 #: The child's environment on top of ours: what Prefect's `SubprocessASGIServer` sets.
 _CHILD_ENV = {"PREFECT_UI_ENABLED": "0", "PREFECT__SERVER_EPHEMERAL": "1",
               "PREFECT__SERVER_FINAL": "1"}
@@ -63,7 +66,7 @@ def _sqlite() -> bool:
 def seed_database(home: str | Path) -> bool:
     """Copy the template into a `PREFECT_HOME` that has no database yet; True if it did.
 
-    The server still runs its migrations at start, which find nothing to do."""
+    The server then skips its migration check (`EphemeralServer._child_env`)."""
     home, template = Path(home), database_template()
     target = home / _DB
     if not _sqlite() or target.exists() or not template.is_file():
@@ -148,8 +151,18 @@ class EphemeralServer:
             [sys.executable, "-m", "uvicorn", "--app-dir", app_dir, "--factory",
              "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port",
              str(self.port), "--log-level", "error", "--lifespan", "on"],
-            env={**os.environ, "PREFECT_HOME": str(self.home), **_CHILD_ENV})
+            env=self._child_env())
         self._pidfile = register_server(self.proc.pid, self.home)
+
+    def _child_env(self) -> dict[str, str]:
+        """Our environment, the home and what Prefect's own ephemeral server sets. A database
+        copied from this Prefect's migrated template is already at Alembic's head, so the
+        server skips its migration check (Alembic reading Prefect's ~200 revision files at
+        every boot) unless the user set `..._MIGRATE_ON_START` themselves."""
+        env = {**os.environ, "PREFECT_HOME": str(self.home), **_CHILD_ENV}
+        if self.seeded and not any(n in os.environ for n in _MIGRATE_SETTINGS):
+            env[_MIGRATE_SETTINGS[0]] = "false"
+        return env
 
     def wait(self) -> str:
         """Block until the server is up; returns the API URL (RuntimeError if it never is)."""

@@ -50,6 +50,7 @@ def test_first_server_saves_the_template_and_the_next_home_is_seeded(cache, tmp_
     first = _serve(tmp_path / "h1")
     try:
         assert not first.seeded  # no template yet: this server migrates its own database
+        assert "PREFECT_SERVER_DATABASE_MIGRATE_ON_START" not in first._child_env()
         url = first.wait()
         pidfile = tmp_path / "h1" / "embody-servers" / f"{first.proc.pid}.json"
         assert json.loads(pidfile.read_text())["server"] == first.proc.pid
@@ -69,12 +70,27 @@ def test_first_server_saves_the_template_and_the_next_home_is_seeded(cache, tmp_
     second = _serve(tmp_path / "h2")
     try:
         assert second.seeded
+        # a copy of the migrated template: the server skips Alembic's check at its boot
+        assert second._child_env()["PREFECT_SERVER_DATABASE_MIGRATE_ON_START"] == "false"
         url = second.wait()
         with urllib.request.urlopen(f"{url}/admin/version", timeout=10) as reply:
             assert reply.status == 200
+        request = urllib.request.Request(f"{url}/flow_runs/filter", data=b"{}",
+                                         headers={"Content-Type": "application/json"})
+        with urllib.request.urlopen(request, timeout=10) as reply:  # the schema is there
+            assert reply.status == 200 and json.loads(reply.read()) == []
     finally:
         second.stop()
     assert _revision(tmp_path / "h2" / "prefect.db") == _revision(template)
+
+
+def test_a_users_migration_setting_is_kept(tmp_path, monkeypatch):
+    server = EphemeralServer(tmp_path / "h")
+    server.seeded = True
+    monkeypatch.setenv("PREFECT_API_DATABASE_MIGRATE_ON_START", "true")
+    env = server._child_env()
+    assert env["PREFECT_API_DATABASE_MIGRATE_ON_START"] == "true"
+    assert "PREFECT_SERVER_DATABASE_MIGRATE_ON_START" not in env
 
 
 def test_the_template_keeps_no_rows_and_an_existing_database_is_never_replaced(cache, tmp_path):
