@@ -19,9 +19,11 @@ Where they are not, or the zygote fails, the worker threads compute as before. A
 a free worker, preferably the one that computed the same sequences' previous step (whose
 in-memory results and memos it reuses). A process that dies (a crash, the OOM killer) fails the
 batch it held ("task crashed"); from then on a thread that finds no free worker computes
-in-thread. A run with the VLM critic computes in the threads:
-its request budget caps the whole run, and one client in one process counts it. No Prefect
-here.
+in-thread. A run with the VLM critic computes in the threads: its request budget caps the whole
+run, and one client in one process counts it.
+
+Pickles travel only over socket pairs this process creates and hands to its own children (no
+listening socket, no file), so nothing else can feed one to a worker. No Prefect here.
 """
 
 from __future__ import annotations
