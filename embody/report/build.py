@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from embody.csvsafe import csv_safe
-from embody.report import assemble, figures
+from embody.report import assemble, drawing, figures
 from embody.report.paths import ReportPaths, safe_name
 from embody.report.data import RunData
 from embody.report.html import render_index
@@ -51,28 +51,36 @@ def _remember(out_dir: Path, paths: list[Path]) -> None:
     (out_dir / _RECORD).write_text(json.dumps({"files": rel}, indent=1) + "\n")
 
 
-def _figures(data: RunData, out_dir: Path) -> tuple[dict[str, list[Path]],
-                                                    dict[str, dict[str, Path]]]:
+def _figures(data: RunData, out_dir: Path, processes: int | None = None
+             ) -> tuple[dict[str, list[Path]], dict[str, dict[str, Path]]]:
     """(section → figures shown on the page, sequence id → {"sheet"|"wrists"|"location"|"preview":
-    path})."""
+    path}). The plots are drawn side by side (`drawing.draw`; `processes` as there)."""
     fig_dir = out_dir / "figures"
     out: dict[str, list[Path]] = {"Collision": [], "Wrist trajectories": [],
                                   "Location error": [], "Critic comparison sheets": []}
     links: dict[str, dict[str, Path]] = {}
+    jobs: list[drawing.Job] = []
+    places: list[tuple[str, str | None, str | None]] = []  # (section, sequence, link name)
     if len(data.collision):
-        out["Collision"] = [
-            figures.collision_energy(data.collision, fig_dir / "collision_energy.png"),
-            figures.pose_vs_reduction(data.collision, fig_dir / "pose_vs_reduction.png")]
+        jobs += [(figures.collision_energy, (data.collision, fig_dir / "collision_energy.png"), {}),
+                 (figures.pose_vs_reduction, (data.collision, fig_dir / "pose_vs_reduction.png"),
+                  {})]
+        places += [("Collision", None, None)] * 2
     for sid, tracks in sorted(data.wrists.items()):
-        path = figures.wrist_tracks(tracks, data.wrist_fps[sid],
-                                    fig_dir / "wrists" / f"{safe_name(sid)}.png", title=sid)
-        out["Wrist trajectories"].append(path)
-        links.setdefault(sid, {})["wrists"] = path
+        jobs.append((figures.wrist_tracks, (tracks, data.wrist_fps[sid],
+                                            fig_dir / "wrists" / f"{safe_name(sid)}.png"),
+                     {"title": sid}))
+        places.append(("Wrist trajectories", sid, "wrists"))
     for sid, loc in sorted(data.locations.items()):
-        path = figures.location_error(loc["err"], loc["landmark"], loc["names"], loc["fps"],
-                                      fig_dir / "location" / f"{safe_name(sid)}.png", title=sid)
-        out["Location error"].append(path)
-        links.setdefault(sid, {})["location"] = path
+        jobs.append((figures.location_error, (loc["err"], loc["landmark"], loc["names"],
+                                              loc["fps"],
+                                              fig_dir / "location" / f"{safe_name(sid)}.png"),
+                     {"title": sid}))
+        places.append(("Location error", sid, "location"))
+    for path, (section, sid, name) in zip(drawing.draw(jobs, processes), places):
+        out[section].append(path)
+        if sid is not None:
+            links.setdefault(sid, {})[name] = path
     for sid, png in sorted(data.sheets.items()):
         dst = fig_dir / "sheets" / f"{safe_name(sid)}.png"
         dst.parent.mkdir(parents=True, exist_ok=True)
