@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -72,6 +73,10 @@ def test_run_isolates_a_failure_then_resumes(prefect_harness, tmp_path, capsys, 
     render = store_.read("render", summary_key(store_, "seq000", "render"))
     assert bytes(render.arrays["sheet_png"][:8]) == b"\x89PNG\r\n\x1a\n"
     assert bytes(render.arrays["preview"][:6]) in (b"GIF89a", b"GIF87a")
+    # the two workers computed in processes of their own (`embody.tasks.workers`), forked
+    # from a zygote that never rendered: EGL works there
+    pids = {r["pid"] for r in store_.computations() if r["step"] != "shape_fit"}
+    assert os.getpid() not in pids and 1 <= len(pids) <= 4
     assert "retarget" in out.err  # progress lines on stderr
     store = ArtifactStore(tmp_path / "store")
     q = store.read("retarget", summary_key(store, "seq000", "retarget")).arrays["q"]
