@@ -430,19 +430,21 @@ def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
     steps = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
 
     def warm() -> None:
+        from embody.tasks.workers import prewarm, usable
+        ctx = Context(cfg=cfg, store_root=str(cfg.run.store), run="")
+        threads = cfg.run.runner == "threads"  # other runners' workers are other processes
+        # the worker processes' zygote first (it warms itself, `tasks.workers`): its start-up
+        # is the longest, so it must not wait for the driver's Prefect imports
+        zygote = threads and usable(cfg) and prewarm(ctx, steps)
         # what a flow's first call imports (~1.3 s here), done while the server boots
         import fastapi.encoders  # noqa: F401  (Prefect's parameter serialisation)
         import prefect.flow_engine  # noqa: F401
         import prefect.task_engine  # noqa: F401
         import prefect.utilities.visualization  # noqa: F401
         prefect_flow()
-        if cfg.run.runner != "threads":  # other runners' workers are other processes
+        if not threads or zygote:
             return
         from embody.tasks.stages import warm as warm_steps
-        from embody.tasks.workers import prewarm, usable
-        ctx = Context(cfg=cfg, store_root=str(cfg.run.store), run="")
-        if usable(cfg) and prewarm(ctx, steps):
-            return  # the worker processes' zygote warms itself (`tasks.workers`)
         try:
             warm_steps(ctx, steps)
         except Exception:  # a bad model is each sequence's error, reported by its step
