@@ -12,7 +12,6 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -23,24 +22,11 @@ from embody.store import ArtifactStore, Manifest
 from embody.tasks.execute import new_record, run_batch
 from embody.tasks.pipeline import Context, Pipeline, Step
 from embody.tasks.stages import SOURCE
+from toy_flow import Toy, write_amass
 
 N_SEQ = 7
 
 
-@dataclass
-class Toy:
-    x: np.ndarray
-    metrics: dict
-
-    def to_arrays(self):
-        return {"x": self.x}
-
-    def to_attrs(self):
-        return {"metrics": self.metrics}
-
-    @classmethod
-    def from_arrays(cls, arrays, attrs):
-        return cls(np.asarray(arrays["x"]), dict(attrs["metrics"]))
 
 
 def _smooth(ctx, inputs):
@@ -70,17 +56,6 @@ RETARGET = Step("retarget", "1", ("body", "robot", "ik"), _ik, Toy.from_arrays,
                 (COLLIDE, SHAPE_FIT))
 METRICS = Step("metrics", "1", (), _metrics, Toy.from_arrays, (RETARGET,))
 TOY = Pipeline(SOURCE, (COLLIDE, SHAPE_FIT, RETARGET, METRICS))
-
-
-def write_amass(folder: Path, n: int, frames: int = 6) -> Path:
-    folder.mkdir(parents=True, exist_ok=True)
-    rng = np.random.default_rng(0)
-    for i in range(n):
-        np.savez(folder / f"seq{i:03d}.npz",
-                 poses=rng.normal(0, 0.1, (frames, 165)).astype(np.float32),
-                 trans=np.zeros((frames, 3), np.float32), betas=np.zeros(10, np.float32),
-                 gender="neutral", mocap_frame_rate=30.0)
-    return folder
 
 
 @pytest.fixture(autouse=True)

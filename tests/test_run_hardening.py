@@ -96,7 +96,7 @@ CHEAP = ["--set", "collision.enabled=false", "--set", "ik.iterations=1",
 
 def test_vlm_key_never_reaches_manifest_tables_report_or_stderr(prefect_harness, tmp_path,
                                                                  monkeypatch, capsys):
-    from test_flow import write_amass
+    from toy_flow import write_amass
 
     monkeypatch.chdir(tmp_path)
     data = write_amass(tmp_path / "data", 1, frames=4)
@@ -130,7 +130,7 @@ def test_vlm_key_never_reaches_manifest_tables_report_or_stderr(prefect_harness,
 # -- corrupt artifacts and a full disk on the toy pipeline ---------------------------------------------
 @pytest.fixture
 def toy(tmp_path, monkeypatch):
-    from test_flow import write_amass
+    from toy_flow import write_amass
 
     monkeypatch.chdir(tmp_path)
     return write_amass(tmp_path / "data", 3)

@@ -18,6 +18,7 @@ from embody.store import ArtifactStore, CorruptArtifact, Manifest, check_run_nam
 from embody.tasks.execute import new_record, run_batch
 from embody.tasks.pipeline import Context, Step
 from embody.tasks.stages import SOURCE
+from toy_flow import Toy
 
 K1, K2, K3 = "ab" + "1" * 62, "cd" + "2" * 62, "ef" + "3" * 62
 
@@ -96,19 +97,6 @@ def test_reads_check_each_arrays_digest(tmp_path):
         store.read("ik", K2)
 
 
-class Toy:
-    def __init__(self, x, metrics=None):
-        self.x, self.metrics = np.asarray(x), metrics or {}
-
-    def to_arrays(self):
-        return {"x": self.x}
-
-    def to_attrs(self):
-        return {"metrics": self.metrics}
-
-    @classmethod
-    def from_arrays(cls, arrays, attrs):
-        return cls(arrays["x"], attrs.get("metrics"))
 
 
 COLLIDE = Step("collide", "1", ("collision",), lambda ctx, i: Toy(i["source"].pose * 2,

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import os
 import signal
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -18,24 +17,10 @@ from embody.store import ArtifactStore, Manifest
 from embody.tasks.pipeline import Pipeline, Step
 from embody.tasks.stages import SOURCE
 from embody.tasks.workers import cpu_seconds, usable
+from toy_flow import Toy, write_amass
 
 N_SEQ = 8
 
-
-@dataclass
-class Toy:
-    x: np.ndarray
-    metrics: dict
-
-    def to_arrays(self):
-        return {"x": self.x}
-
-    def to_attrs(self):
-        return {"metrics": self.metrics}
-
-    @classmethod
-    def from_arrays(cls, arrays, attrs):
-        return cls(np.asarray(arrays["x"]), dict(attrs["metrics"]))
 
 
 def _where(ctx, inputs):
@@ -61,16 +46,8 @@ TOY = Pipeline(SOURCE, (COLLIDE, METRICS))
 
 @pytest.fixture(scope="module")
 def data(tmp_path_factory) -> Path:
-    folder = tmp_path_factory.mktemp("workers") / "data"
-    folder.mkdir()
-    rng = np.random.default_rng(0)
-    for i in range(N_SEQ):
-        frames = 7 if i == 5 else 6  # seq005 is the one a worker dies on
-        np.savez(folder / f"seq{i:03d}.npz",
-                 poses=rng.normal(0, 0.1, (frames, 165)).astype(np.float32),
-                 trans=np.zeros((frames, 3), np.float32), betas=np.zeros(10, np.float32),
-                 gender="neutral", mocap_frame_rate=30.0)
-    return folder
+    # seq005 (7 frames) is the one a worker dies on
+    return write_amass(tmp_path_factory.mktemp("workers") / "data", N_SEQ, frames_of={5: 7})
 
 
 @pytest.fixture(autouse=True)
