@@ -27,8 +27,6 @@ from toy_flow import Toy, write_amass
 N_SEQ = 7
 
 
-
-
 def _smooth(ctx, inputs):
     if os.environ.get("TOY_SLOW"):
         time.sleep(float(os.environ["TOY_SLOW"]))

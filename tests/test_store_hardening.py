@@ -97,8 +97,6 @@ def test_reads_check_each_arrays_digest(tmp_path):
         store.read("ik", K2)
 
 
-
-
 COLLIDE = Step("collide", "1", ("collision",), lambda ctx, i: Toy(i["source"].pose * 2,
                                                                   {"sum": float(i["source"].pose.sum())}),
                Toy.from_arrays, (SOURCE,))
