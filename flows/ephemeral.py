@@ -288,10 +288,12 @@ def prefect_api(warm: Callable[[], None] | None = None) -> Iterator[str | None]:
                 raise RuntimeError("PREFECT_HOME is not set: call embody.flows.env.configure "
                                    "first")
             server = EphemeralServer(Path(home).expanduser())
-            server.start()
+            # known (and stopped at exit) before its child exists: a SIGTERM that lands
+            # between the spawn and the assignment left the server running (CI, 2026-11-27)
             if _SERVER is None:
                 atexit.register(lambda: _SERVER is not None and _SERVER.stop())
             _SERVER = server
+            server.start()
         if warm is not None:
             warm()
         url = server.wait()
