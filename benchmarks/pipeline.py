@@ -40,12 +40,9 @@ def _server_cpu() -> float:
     """CPU seconds of this process's Prefect server child so far (Linux; 0 without one): it
     shares the cores with the workers but is not in `cpu_s_per_seq` (a child still running)."""
     from embody.flows.ephemeral import running_server
+    from embody.tasks.workers import process_cpu_seconds
     server = running_server()
-    try:
-        fields = Path(f"/proc/{server.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
-    except (AttributeError, OSError):
-        return 0.0
-    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    return 0.0 if server is None or server.proc is None else process_cpu_seconds(server.proc.pid)
 
 
 def _prefect_db() -> str:

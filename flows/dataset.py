@@ -8,7 +8,6 @@ Shared steps (the shape fit) run once; steps that need them wait until they are 
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import functools
 import queue
@@ -381,12 +380,8 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     bar = Progress([s.name for s in pipeline.per_sequence], len(refs), enabled=progress)
     driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers,
                      workers=cfg.run.workers)
-    from embody.tasks.workers import usable, worker_pool
-    if usable(cfg):
-        pool = worker_pool(ctx, pipeline, cfg.run.workers)
-    else:
-        pool = contextlib.nullcontext(False)
-    with worker_threads(cfg.run.workers), pool:
+    from embody.tasks.workers import worker_pool
+    with worker_threads(cfg.run.workers), worker_pool(ctx, pipeline):
         driver.run(batches)
     return finish_run(store, run, manifest, cfg, dataset=dataset, split=split, t0=t0,
                       computed=driver.computed,
@@ -430,19 +425,18 @@ def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
     steps = pipeline or default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
 
     def warm() -> None:
-        from embody.tasks.workers import prewarm, usable
+        from embody.tasks.workers import prewarm
         ctx = Context(cfg=cfg, store_root=str(cfg.run.store), run="")
-        threads = cfg.run.runner == "threads"  # other runners' workers are other processes
         # the worker processes' zygote first (it warms itself, `tasks.workers`): its start-up
         # is the longest, so it must not wait for the driver's Prefect imports
-        zygote = threads and usable(cfg) and prewarm(ctx, steps)
+        zygote = prewarm(ctx, steps)
         # what a flow's first call imports (~1.3 s here), done while the server boots
         import fastapi.encoders  # noqa: F401  (Prefect's parameter serialisation)
         import prefect.flow_engine  # noqa: F401
         import prefect.task_engine  # noqa: F401
         import prefect.utilities.visualization  # noqa: F401
         prefect_flow()
-        if not threads or zygote:
+        if cfg.run.runner != "threads" or zygote:  # other runners' workers: other processes
             return
         from embody.tasks.stages import warm as warm_steps
         try:

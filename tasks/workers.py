@@ -46,7 +46,8 @@ from embody.config import Config
 from embody.tasks.execute import run_batch, run_shared
 from embody.tasks.pipeline import Context, Pipeline, Step
 
-__all__ = ["WorkerLost", "batch", "cpu_seconds", "prewarm", "shared", "usable", "worker_pool"]
+__all__ = ["WorkerLost", "batch", "cpu_seconds", "prewarm", "process_cpu_seconds", "shared",
+           "usable", "worker_pool"]
 
 #: How long the driver waits for a worker's CPU report when a run closes its pool (s).
 _CLOSE_WAIT_S = 10.0
@@ -240,7 +241,10 @@ def usable(cfg: Config) -> bool:
 
 def prewarm(ctx: Context, pipeline: Pipeline) -> bool:
     """Start the zygote (once per process) and have it build what `pipeline` needs, without
-    waiting; False when the run's context or pipeline does not pickle (compute in-thread)."""
+    waiting; False when the run computes in its threads (`usable`) or its context or pipeline
+    does not pickle."""
+    if not usable(ctx.cfg):
+        return False
     try:
         state = _state(ctx, pipeline)
     except Exception:
@@ -366,10 +370,11 @@ def _fork(n: int, ctx: Context, pipeline: Pipeline) -> _Pool | None:
 
 
 @contextmanager
-def worker_pool(ctx: Context, pipeline: Pipeline, workers: int) -> Iterator[bool]:
-    """Worker processes for the run of `ctx` (its session) inside the block; yields whether
-    there are any (else the worker threads compute, as with one worker)."""
-    pool = _fork(workers, ctx, pipeline)
+def worker_pool(ctx: Context, pipeline: Pipeline) -> Iterator[bool]:
+    """Worker processes for the run of `ctx` (its session; one per `run.workers`) inside the
+    block when the run can use them (`usable`); yields whether there are any (else the worker
+    threads compute, as with one worker)."""
+    pool = _fork(ctx.cfg.run.workers, ctx, pipeline) if usable(ctx.cfg) else None
     if pool is None:
         yield False
         return
@@ -381,19 +386,22 @@ def worker_pool(ctx: Context, pipeline: Pipeline, workers: int) -> Iterator[bool
         _CPU[0] += pool.close()
 
 
+def process_cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds of a running process so far (Linux's /proc; 0 elsewhere or
+    when it is gone)."""
+    try:
+        with open(f"/proc/{pid}/stat") as f:
+            fields = f.read().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, IndexError, ValueError):
+        return 0.0
+
+
 def cpu_seconds() -> float:
     """CPU seconds of this process's worker processes so far: those of ended runs (as they
-    reported) plus the zygote's own (Linux; its share of /proc)."""
-    total = _CPU[0]
+    reported) plus the zygote's own."""
     z = _ZYGOTE
-    if z is not None and z.alive():
-        try:
-            with open(f"/proc/{z.proc.pid}/stat") as f:
-                fields = f.read().rsplit(")", 1)[1].split()
-            total += (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-        except (OSError, IndexError, ValueError):
-            pass
-    return total
+    return _CPU[0] + (process_cpu_seconds(z.proc.pid) if z is not None and z.alive() else 0.0)
 
 
 def batch(step: Step, ctx: Context, records: list[dict[str, Any]],

@@ -16,7 +16,7 @@ from embody.config import Config
 from embody.store import ArtifactStore, Manifest
 from embody.tasks.pipeline import Pipeline, Step
 from embody.tasks.stages import SOURCE
-from embody.tasks.workers import cpu_seconds, usable
+from embody.tasks.workers import cpu_seconds, process_cpu_seconds, usable
 from toy_flow import Toy, write_amass
 
 N_SEQ = 8
@@ -158,3 +158,9 @@ def test_a_call_prefers_the_free_worker_that_had_the_same_sequences():
     b.dead = True
     pool._give(a, ["s4"])
     assert pool._take(["s1"]) is a  # a dead worker is never chosen
+
+
+def test_process_cpu_seconds_reads_a_running_process_and_zero_for_a_gone_one():
+    spent = sum(i * i for i in range(2_000_000))  # some CPU of our own first
+    assert spent > 0 and process_cpu_seconds(os.getpid()) > 0
+    assert process_cpu_seconds(2 ** 22 + 7) == 0.0  # beyond Linux's pid range
