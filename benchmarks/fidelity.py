@@ -18,7 +18,7 @@ hand-hand channel during signs whose metadata says `contact: hands`; per frame, 
 runs of contact frames matched when they overlap) and, for reference, pooled over every frame
 and channel.
 
-    python benchmarks/fidelity.py [--n 24] [--no-refine] [--no-locations] [--no-lean] [--workers 2]
+    python benchmarks/fidelity.py [--n 24] [--no-refine] [--no-locations] [--no-lean] [--workers 2] [--ik KEY=VALUE ...]
 
 Speed without changing what is measured: each sequence's collision mitigation (~¾ of its time)
 is computed once, shared by the three rows and kept under `--cache` by content key (the motion's
@@ -45,11 +45,13 @@ from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 import embody
 from embody.body import load_body_model
 from embody.collision import mitigate
 from embody.config import Config
+from embody.config.ik import IKConfig
 from embody.critic import refine
 from embody.metrics import mean_jerk
 from embody.motion import Motion
@@ -240,13 +242,17 @@ def thumb_at_limit(robot, q: np.ndarray, motion, tol: float = 0.02) -> tuple[flo
 _SETUP: dict = {}
 
 
-def _setup(threads: int | None = None) -> dict:
-    """Config, body, robot and shape fit, once per process (workers: one torch thread each)."""
+def _setup(threads: int | None = None, ik: tuple[str, ...] = ()) -> dict:
+    """Config, body, robot and shape fit, once per process (workers: one torch thread each);
+    `ik`: KEY=VALUE overrides of the `ik` section (for A/B runs)."""
     if not _SETUP:
         if threads:
             import torch
             torch.set_num_threads(threads)
         cfg = Config()
+        if ik:
+            over = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in ik)}
+            cfg = cfg.model_copy(update={"ik": IKConfig.model_validate({**cfg.ik.model_dump(), **over})})
         body, robot = load_body_model(cfg.body), load_robot(cfg.robot)
         _SETUP.update(cfg=cfg, body=body, robot=robot, fit=shape_fit(robot, body, cfg.ik))
     return _SETUP
@@ -274,9 +280,11 @@ def main() -> None:
     ap.add_argument("--cache", type=Path, default=Path(".cache/fidelity-collide"),
                     help="collision mitigation results by content key (reused across runs)")
     ap.add_argument("--no-cache", action="store_true", help="mitigate every sequence afresh")
+    ap.add_argument("--ik", action="append", default=[], metavar="KEY=VALUE",
+                    help="override an ik config field (repeatable)")
     args = ap.parse_args()
     cache = None if args.no_cache else args.cache
-    ctx = _setup()
+    ctx = _setup(None, tuple(args.ik))
     cfg, body, robot, fit = ctx["cfg"], ctx["body"], ctx["robot"], ctx["fit"]
     final = "preserving" if args.no_refine else "refined"
     rows, seconds, thumbs = [], [], []
@@ -284,7 +292,7 @@ def main() -> None:
     ids = range(args.first, args.first + args.n)
     if args.workers > 1 and args.n > 1:
         pool = ProcessPoolExecutor(args.workers, mp_context=get_context("spawn"), initializer=_setup,
-                                   initargs=(1,))
+                                   initargs=(1, tuple(args.ik)))
         results = pool.map(default_sequence, ids, [not args.no_refine] * args.n, [cache] * args.n)
     else:
         pool, results = None, (default_sequence(i, not args.no_refine, cache) for i in ids)

@@ -39,8 +39,11 @@ Frames per second are wall clock (`*_fps`, `fps_ratio*`, as the issue states the
 CPU time (`*_cpu_fps`, `fps_ratio*_cpu`: every solver runs single-threaded, so on a shared,
 loaded machine the CPU ratio is the one that does not move with the other processes).
 
-Usage: python benchmarks/ik_vs_mink.py [--sequences 4] [--seed 0] [--profile ik.pstats] [--ik KEY=VALUE ...]
+Usage: python benchmarks/ik_vs_mink.py [--sequences 4] [--seed 0] [--profile ik.pstats] [--config FILE ...]
+[--ik KEY=VALUE ...]
 (`--profile`: cProfile of our solves only, saved there, top entries printed before the RESULT line;
+`--config`: our solver's `ik` section from a config file, e.g. `--config configs/ik/tracking.yaml`,
+the plain-tracking preset, whose task is exactly this benchmark's; mink keeps the default's weights;
 `--ik`: override an `ik` config field of our solver, e.g. `--ik polish_iterations=0` for an A/B).
 """
 
@@ -65,7 +68,7 @@ import torch  # noqa: E402
 
 from embody.body import load_body_model  # noqa: E402
 from embody.collision import mitigate  # noqa: E402
-from embody.config import Config  # noqa: E402
+from embody.config import Config, load_config  # noqa: E402
 from embody.config.ik import IKConfig  # noqa: E402
 from embody.retarget import build_targets, shape_fit, solve  # noqa: E402
 from embody.retarget.ik import evaluate  # noqa: E402
@@ -171,13 +174,17 @@ def main() -> None:
     parser.add_argument("--sequences", type=int, default=4)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--profile", default=None, help="save a cProfile of our solves here")
+    parser.add_argument("--config", action="append", default=[], metavar="FILE",
+                        help="our solver's `ik` section from this config file (repeatable; e.g. "
+                             "configs/ik/tracking.yaml); mink and the inputs keep the defaults")
     parser.add_argument("--ik", action="append", default=[], metavar="KEY=VALUE",
                         help="override an ik config field of our solver (repeatable)")
     args = parser.parse_args()
     torch.set_num_threads(1)
     config = Config()
     robot, body = load_robot(config.robot), load_body_model(config.body)
-    cfg = IKConfig.model_validate({**config.ik.model_dump(), **dict(kv.split("=", 1) for kv in args.ik)})
+    ours = load_config(args.config).ik if args.config else config.ik
+    cfg = IKConfig.model_validate({**ours.model_dump(), **dict(kv.split("=", 1) for kv in args.ik)})
     other = "tree" if cfg.kinematics == "pytorch_kinematics" else "pytorch_kinematics"
     cfg_other = cfg.model_copy(update={"kinematics": other})
     other_key = {"tree": "tree", "pytorch_kinematics": "pk"}[other]
