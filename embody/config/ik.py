@@ -18,6 +18,11 @@ class IKConfig(Section):
     #: Also fit one global scale (robots are ~0.7× a human: betas alone cannot get there).
     shape_fit_scale: bool = True
     # --- IK costs (targets in metres / radians, torso frame) ---
+    #: Wrist position. 1 lets the location-preserving terms (hand points, hand clearance) and the
+    #: regularisers shape where the hand goes relative to the robot's own face and body; plain
+    #: tracking of the human's wrists wants it 80× heavier (`configs/ik/tracking.yaml`: 4.15 →
+    #: 1.01 mm on benchmarks/ik_vs_mink.py). Here, 20× heavier raised the sign-fidelity location
+    #: error 0.097 → 0.118-0.128 body scales (docs/performance.md, s17-track).
     w_wrist_pos: float = Field(1.0, ge=0)
     #: Wrist orientation error (rad², rotation vector) against position (m²).
     w_wrist_rot: float = Field(0.02, ge=0)
