@@ -138,14 +138,21 @@ class ArtifactStore:
         tmp = final.parent / f"{key}{_TMP}{socket.gethostname()}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
         try:
             arrays = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
-            group = zarr.open_group(str(tmp), mode="w", zarr_format=3)
+            # zarr encodes the group into memory, then its files are written here: the same
+            # bytes as zarr's LocalStore writes, without its thread hop and temp-file rename
+            # per key (~11 → ~7 CPU-ms a publish, 2026-11-27); the group is still published
+            # by one rename of its folder
+            blobs: dict[str, Any] = {}
+            group = zarr.open_group(store=zarr.storage.MemoryStore(blobs), mode="w",
+                                    zarr_format=3)
             for name, a in arrays.items():
                 arr = group.create_array(name, shape=a.shape, dtype=a.dtype,
                                          chunks=a.shape if a.ndim else (), overwrite=True)
                 arr[...] = a
-            # Chunk files and sizes as written (zarr skips all-fill chunks): `intact` stats them.
-            files = {p.relative_to(tmp).as_posix(): p.stat().st_size
-                     for p in sorted(tmp.rglob("*")) if p.is_file() and p.name != "zarr.json"}
+            # Chunk files and sizes as written (zarr skips all-fill chunks): `intact` stats
+            # them. In path order (as the folder's sorted paths were listed before).
+            files = {k: len(blobs[k]) for k in sorted(blobs, key=lambda k: k.split("/"))
+                     if k.rsplit("/", 1)[-1] != "zarr.json"}
             group.attrs.update(jsonable({
                 "embody": {**info, "step": step, "key": key, "status": "ok",
                            "checksum": arrays_checksum(arrays),
@@ -154,6 +161,10 @@ class ArtifactStore:
                            "host": socket.gethostname(), "created": time.time()},
                 "result": dict(attrs),
             }))
+            for rel in sorted(blobs):
+                path = tmp / rel
+                path.parent.mkdir(parents=True, exist_ok=True)
+                path.write_bytes(blobs[rel].to_bytes())
             os.rename(tmp, final)
             return True
         except OSError:

@@ -15,7 +15,9 @@ call, and a driver (or a test session) may have rendered before. The zygote neve
 
 A run's `Context` and `Pipeline` reach the zygote pickled, so their step functions must be
 importable there (the driver's `sys.path`, working directory and environment go with them).
-Where they are not, or the zygote fails, the worker threads compute as before. A call goes to
+Where they are not, or the zygote fails, the worker threads compute as before. A worker keeps
+one renderer open for the run's render steps (`render.record.kept_renderer`: the same
+pictures, without building the scene and its GL context per sequence). A call goes to
 a free worker, preferably the one that computed the same sequences' previous step (whose
 in-memory results and memos it reuses). A process that dies (a crash, the OOM killer) fails the
 batch it held ("task crashed"); from then on a thread that finds no free worker computes
@@ -37,7 +39,7 @@ import subprocess
 import sys
 import threading
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import Any
@@ -155,24 +157,28 @@ def _serve(fd: int, ctx: Context, pipeline: Pipeline, parent: int) -> None:
     threadpool_limits(limits=1, user_api="blas")
     steps: dict[str, Step] = {s.name: s for s in (pipeline.source, *pipeline.steps)}
     conn = Connection(fd)
-    while True:
-        try:
-            msg = conn.recv()
-        except (EOFError, OSError):
-            return
-        if msg is None:
-            t = os.times()
-            conn.send(("bye", t.user + t.system + t.children_user + t.children_system))
-            return
-        kind, name, records, shared_keys = msg
-        try:
-            step = steps[name]
-            out = (run_batch(step, ctx, records, shared_keys) if kind == "batch"
-                   else run_shared(step, ctx, shared_keys))
-            reply = ("ok", out)
-        except BaseException as exc:  # noqa: BLE001 - the driver's task reports it
-            reply = ("error", f"{type(exc).__name__}: {exc}")
-        conn.send(reply)
+    with ExitStack() as stack:
+        if "render" in steps:  # one renderer for the run's sequences (`render.record`)
+            from embody.render.record import kept_renderer
+            stack.enter_context(kept_renderer())
+        while True:
+            try:
+                msg = conn.recv()
+            except (EOFError, OSError):
+                return
+            if msg is None:
+                t = os.times()
+                conn.send(("bye", t.user + t.system + t.children_user + t.children_system))
+                return
+            kind, name, records, shared_keys = msg
+            try:
+                step = steps[name]
+                out = (run_batch(step, ctx, records, shared_keys) if kind == "batch"
+                       else run_shared(step, ctx, shared_keys))
+                reply = ("ok", out)
+            except BaseException as exc:  # noqa: BLE001 - the driver's task reports it
+                reply = ("error", f"{type(exc).__name__}: {exc}")
+            conn.send(reply)
 
 
 @dataclass

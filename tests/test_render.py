@@ -228,6 +228,40 @@ def test_preview_plays_in_real_time_at_480px_and_sheet_reuses_its_frames(robot, 
         assert again.preview == out.preview and again.sheet_png == out.sheet_png
 
 
+def test_a_kept_renderer_draws_the_same_bytes_and_opens_once(robot, fitted, monkeypatch):
+    from embody.render import record
+    body, fit = fitted
+    cfg = RenderConfig(keyframes=2, preview_fps=12.0)
+    waves = [_wave(robot, 6, 24.0), _wave(robot, 9, 30.0)]
+    waves[1][1][:, robot.joint_index("right_elbow_joint")] += 0.3  # another pose
+    keys = np.array([0, 5])
+    fresh = [record.render_sequence(m, body, fit, robot, q, keys, cfg, "t").to_arrays()
+             for m, q in waves]
+    opened, closed = [], []
+    real_open = record.open_renderer
+
+    def counting_open(*args):
+        renderer = real_open(*args)
+        real_close = renderer.close
+        renderer.close = lambda: (closed.append(renderer), real_close())
+        opened.append(renderer)
+        return renderer
+    monkeypatch.setattr(record, "open_renderer", counting_open)
+    with record.kept_renderer():
+        kept = [record.render_sequence(m, body, fit, robot, q, keys, cfg, "t").to_arrays()
+                for m, q in waves + waves[:1]]
+        assert len(opened) == 1 and not closed  # one renderer for the three sequences
+        other = RenderConfig(keyframes=2, preview_fps=12.0, width=200)
+        record.render_sequence(waves[0][0], body, fit, robot, waves[0][1], keys, other, "t")
+        assert len(opened) == 2 and closed == opened[:1]  # another config: the old one closed
+    assert closed == opened  # closed at the block's end
+    for a, b in zip(fresh + fresh[:1], kept):
+        assert a.keys() == b.keys()
+        assert all(np.array_equal(a[k], b[k]) for k in a)
+    record.render_sequence(waves[0][0], body, fit, robot, waves[0][1], keys, cfg, "t")
+    assert len(closed) == len(opened) == 3  # outside the block: opened and closed each time
+
+
 def test_preview_crop_holds_both_bodies_and_draws_the_same_pixels(robot, fitted):
     from embody.render.compare import draw_reference, open_renderer, preview_crop
     body, fit = fitted

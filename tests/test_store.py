@@ -82,6 +82,42 @@ def test_publish_roundtrip_and_metadata(tmp_path):
     assert list(store.entries()) == [("ik", K1, store.path("ik", K1))]
 
 
+def test_publish_writes_the_files_zarr_writes(tmp_path):
+    """`publish` encodes in memory and writes the files itself: the same files, byte for byte,
+    as zarr's own LocalStore writes for the same arrays and attrs (folder order included in
+    the recorded `files`: names sorting differently as strings and as paths)."""
+    import zarr
+    store = ArtifactStore(tmp_path / "store")
+    arrays = {"q": np.linspace(0, 1, 12).reshape(4, 3), "scalar": np.float32(2.5),
+              "png": np.frombuffer(b"\x89PNG" * 7, np.uint8), "zeros": np.zeros((3, 2)),
+              "flags": np.array([True, False, True]), "ids": np.arange(5, dtype=np.int64),
+              "a-b": np.ones(2), "a": np.full((2, 2), np.nan, np.float32), "a.c": np.ones(3)}
+    assert store.publish("ik", K1, arrays, {"fps": 30.0}, {"inputs": {}})
+    ours = store.path("ik", K1)
+    ref = tmp_path / "ref"
+    group = zarr.open_group(str(ref), mode="w", zarr_format=3)
+    for name, a in arrays.items():
+        a = np.ascontiguousarray(a)
+        arr = group.create_array(name, shape=a.shape, dtype=a.dtype,
+                                 chunks=a.shape if a.ndim else (), overwrite=True)
+        arr[...] = a
+    files = {p.relative_to(ref).as_posix(): p.stat().st_size
+             for p in sorted(ref.rglob("*")) if p.is_file() and p.name != "zarr.json"}
+    attributes = json.loads((ours / "zarr.json").read_text())["attributes"]
+    assert attributes["embody"]["files"] == files
+    assert list(attributes["embody"]["files"]) == list(files)  # same order
+    group.attrs.update(attributes)
+    listing = sorted(p.relative_to(ref).as_posix() for p in ref.rglob("*") if p.is_file())
+    assert listing == sorted(p.relative_to(ours).as_posix() for p in ours.rglob("*")
+                             if p.is_file())
+    for rel in listing:
+        assert (ours / rel).read_bytes() == (ref / rel).read_bytes(), rel
+    art = store.read("ik", K1)
+    for name, a in arrays.items():
+        np.testing.assert_array_equal(art.arrays[name], a)
+    assert store.intact("ik", K1) and store.verify("ik", K1) is None
+
+
 def test_store_rejects_urls():
     from embody.errors import ConfigError
     with pytest.raises(ConfigError):
