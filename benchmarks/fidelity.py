@@ -45,13 +45,11 @@ from multiprocessing import get_context
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 import embody
 from embody.body import load_body_model
 from embody.collision import mitigate
-from embody.config import Config
-from embody.config.ik import IKConfig
+from embody.config import Config, load_config
 from embody.critic import refine
 from embody.metrics import mean_jerk
 from embody.motion import Motion
@@ -249,10 +247,7 @@ def _setup(threads: int | None = None, ik: tuple[str, ...] = ()) -> dict:
         if threads:
             import torch
             torch.set_num_threads(threads)
-        cfg = Config()
-        if ik:
-            over = {k: yaml.safe_load(v) for k, v in (kv.split("=", 1) for kv in ik)}
-            cfg = cfg.model_copy(update={"ik": IKConfig.model_validate({**cfg.ik.model_dump(), **over})})
+        cfg = load_config(sets=[f"ik.{kv}" for kv in ik])  # the defaults when none
         body, robot = load_body_model(cfg.body), load_robot(cfg.robot)
         _SETUP.update(cfg=cfg, body=body, robot=robot, fit=shape_fit(robot, body, cfg.ik))
     return _SETUP

@@ -183,8 +183,8 @@ def main() -> None:
     torch.set_num_threads(1)
     config = Config()
     robot, body = load_robot(config.robot), load_body_model(config.body)
-    ours = load_config(args.config).ik if args.config else config.ik
-    cfg = IKConfig.model_validate({**ours.model_dump(), **dict(kv.split("=", 1) for kv in args.ik)})
+    # our solver's config: the files, then the `ik` overrides, as `embody run` merges them
+    cfg = load_config(args.config, sets=[f"ik.{kv}" for kv in args.ik]).ik
     other = "tree" if cfg.kinematics == "pytorch_kinematics" else "pytorch_kinematics"
     cfg_other = cfg.model_copy(update={"kinematics": other})
     other_key = {"tree": "tree", "pytorch_kinematics": "pk"}[other]
