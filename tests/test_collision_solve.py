@@ -48,7 +48,8 @@ def test_analytic_jacobians_match_finite_differences(body):
     sel = S._select(pb.model, ext, rows, tr, 0.0)
     jd = S._point_jacobian(pb, sel, tr)
     sub = S._point_jacobian(pb, sel, tr, np.array([2, 5]))
-    assert torch.equal(sub, jd[:, [2, 5]])
+    # a column subset is the same product over fewer columns: float64 round-off apart
+    assert torch.allclose(sub, jd[:, [2, 5]], rtol=1e-12, atol=1e-15)
     ov, _, jc = S._capsule_terms(pb, tr, x, True)
     assert len(sel.t) > 100 and len(ov) > 0
     eps = 1e-6

@@ -7,15 +7,12 @@ candidate point, take it to its part's frame, box filter, the deepest piece's ac
 the largest part of a step left (~35 %), as ~40 small tensor ops, and the depths' autograd
 graph (per-point gathers, a batched skinning product) most of its backward.
 
-`select` reproduces the torch selection's float32 arithmetic operation for operation, so the
-same points, planes and plane values come out bit for bit: the skinning product and the plane
-products are MKL's (a fused multiply-add chain over the joints, and over x, y, z then + d for 4
-or more rows a piece, plain products for fewer), the rest is torch's elementwise order. An FMA
-of float32 values is emulated in float64 (the product is exact there; the double rounding
-differs from a true FMA once in ~2^29 results). `tests/test_collision_compiled.py` compares
-the selections; on another CPU or MKL build the torch path may round differently, then the two
-agree to float32 rounding instead of bit for bit. `PointDepths` works in float64: equal to the
-autograd graph's depths and gradients to rounding (same test file, with gradcheck).
+`select` follows the torch selection's float32 arithmetic operation for operation (the
+skinning and plane products as fused multiply-add chains, emulated in float64), so the two
+select the same points and planes, with plane values equal to float32 rounding; only a point
+within rounding of the threshold may be selected by one and not the other (checked in
+`tests/test_collision_compiled.py`). `PointDepths` works in float64: equal to the autograd
+graph's depths and gradients to rounding (same test file, with gradcheck).
 """
 
 from __future__ import annotations
