@@ -375,7 +375,8 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 # v16: the contact phase's proxy rows at the samples packed per frame (`Residuals._sample_rows`)
 #      and its proxy block cut to the proxy frames' width (`Residuals._exact_rows`): the same
 #      Gauss-Newton blocks to round-off, solutions within ~6e-13 rad (s13-ikevals).
-RETARGET = Step("retarget", "16", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v17: smoothness, velocity hinge and cold-start stride per second, not per frame (other rates than 30 fps).
+RETARGET = Step("retarget", "17", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.

@@ -123,9 +123,9 @@ class IKConfig(Section):
     #: contact frames after the repair). 0 iterations: no ramp.
     ramp_collision: float = Field(0.1, ge=0, le=1)
     ramp_iterations: int = Field(6, ge=0, le=10_000)
-    #: Cold start: the tracking and ramp phases run on every `coarse_stride`-th frame (time step
-    #: × stride, smoothness rescaled), and their interpolation starts the full phase on every
-    #: frame. 1: every phase on every frame.
+    #: Cold start: the tracking and ramp phases run on every `coarse_stride`-th frame of a 30 fps
+    #: clip (the same time step at other rates), and their interpolation starts the full phase on
+    #: every frame. 1: every phase on every frame.
     coarse_stride: int = Field(2, ge=1, le=8)
     #: Iterations with every term on (the only phase when warm-started).
     iterations: int = Field(24, ge=1, le=10_000)

@@ -105,6 +105,25 @@ def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
     return np.cumsum(cover)[pad: pad + len(mask)] > 0
 
 
+#: The frame rate at which `w_smooth` and `w_jerk` are stated (the synthetic data's and SOKE's).
+WEIGHT_FPS = 30.0
+
+
+def smoothness_scale(fps: float, order: int) -> float:
+    """Factor on a per-frame Δ^k q penalty so that the same motion costs the same against the
+    per-frame tracking terms at any frame rate: Δ^k q shrinks as dt^k, so Σ(Δ^k q)² over
+    1/dt frames falls as dt^(2k-1) while tracking grows as 1/dt. Unscaled, a 120 fps clip
+    gets 1/256 of the 30 fps clip's smoothing (Δ²) and its wrists chatter."""
+    return (fps / WEIGHT_FPS) ** (2 * order)
+
+
+def coarse_stride(stride: int, fps: float) -> int:
+    """The cold start's stride in frames at `fps`: `stride` at 30 fps, the same time step at
+    other rates (a 120 fps clip with stride 2 starts from a 60 fps grid, whose cold phases do
+    not reach the basin the 15 fps one does)."""
+    return max(1, int(round(stride * fps / WEIGHT_FPS)))
+
+
 class _Problem:
     """½‖r(q)‖² + ½Σ w_post·(q − q_rest)² + ½·w_smooth‖Δ²q‖² + ½·w_jerk‖Δ³q‖² over the IK joints
     of every frame."""
@@ -124,11 +143,13 @@ class _Problem:
         self.w_post = np.where(waist, cfg.w_waist_posture, cfg.w_posture)
         # Δ²q (acceleration) and Δ³q (jerk, what `mean_jerk` measures) penalties, one band
         self.dtd = np.zeros((4, t))
-        self.dtd[:3] += _difference_normal(t, 2) * cfg.w_smooth
-        self.dtd += _difference_normal(t, 3) * cfg.w_jerk
+        self.dtd[:3] += _difference_normal(t, 2) * cfg.w_smooth * smoothness_scale(targets.fps, 2)
+        self.dtd += _difference_normal(t, 3) * cfg.w_jerk * smoothness_scale(targets.fps, 3)
         self.dtd_polish = self.dtd * cfg.polish_smooth  # the polish phase's (the basin is chosen)
         #: per-step joint change allowed by the velocity limits, with a little headroom
         self.step_limit = robot.velocity_limits[self.ik] / targets.fps * (1.0 - cfg.velocity_headroom)
+        #: the velocity hinge's weight at this rate (a per-step excess shrinks as dt, like Δ¹q)
+        self.w_velocity = cfg.w_velocity * smoothness_scale(targets.fps, 1)
         #: (T,) bool frames held where they are (the edges of a windowed contact phase), or None
         self.held: np.ndarray | None = None
 
@@ -157,7 +178,7 @@ class _Problem:
         sg = self._smooth_grad(qi)
         d = np.diff(qi, axis=0)
         over = np.maximum(np.abs(d) - self.step_limit, 0.0)  # velocity hinge: only past the limit
-        post, smooth, vel = (self.w_post * dq**2).sum(), (qi * sg).sum(), self.cfg.w_velocity * (over**2).sum()
+        post, smooth, vel = (self.w_post * dq**2).sum(), (qi * sg).sum(), self.w_velocity * (over**2).sum()
         limit = None
         if bound is not None:  # the rows' sum of squares above which the cost exceeds the bound
             linear = float(post + smooth + vel)
@@ -173,10 +194,10 @@ class _Problem:
             j = jac()
             jt = np.swapaxes(j, 1, 2)
             g = (jt @ r[..., None])[..., 0] + self.w_post * dq + sg
-            gv = self.cfg.w_velocity * over * np.sign(d)
+            gv = self.w_velocity * over * np.sign(d)
             g[1:] += gv
             g[:-1] -= gv
-            active = self.cfg.w_velocity * (over > 0)
+            active = self.w_velocity * (over > 0)
             vdiag = np.zeros_like(qi)
             vdiag[1:] += active
             vdiag[:-1] += active
@@ -370,14 +391,18 @@ def _solve_joints_checked(robot: Robot, targets: Targets, cfg: IKConfig,
     q0 = init.q if isinstance(init, IKSolution) else init
     if q0 is not None and np.shape(q0) == (t, robot.n_joints):
         qi = problem.solve(np.asarray(q0, dtype=np.float64)[:, problem.ik], cold=False)
-    elif cfg.coarse_stride > 1 and t >= 4 * cfg.coarse_stride and problem.residuals.proxies is not None:
-        # coarse to fine: the cold phases on every `coarse_stride`-th frame, interpolated, then
-        # the full phase on every frame (Δ²q on a stride-s grid is s² times the per-frame one,
-        # and there are 1/s as many frames: w_smooth/s³ keeps the same smoothness per second)
-        s = cfg.coarse_stride
+    elif (s := coarse_stride(cfg.coarse_stride, targets.fps)) > 1 and t >= 4 * s \
+            and problem.residuals.proxies is not None:
+        # coarse to fine: the cold phases on every s-th frame (a grid at 30 / `coarse_stride`
+        # fps whatever the input rate), interpolated, then the full phase on every frame.
+        # `_Problem` rescales the smoothness to the coarse grid's rate; the extra factor
+        # `coarse_stride` makes the cold phases that much smoother than the full one, so the
+        # basin they choose is a smooth one (and its square keeps the velocity hinge per step).
+        c = cfg.coarse_stride
         idx = np.unique(np.r_[np.arange(0, t, s), t - 1])
         coarse_targets = replace(targets, fps=targets.fps / s, **{k: getattr(targets, k)[idx] for k in _ARRAYS})
-        coarse_cfg = cfg.model_copy(update={"w_smooth": cfg.w_smooth / s**3, "w_jerk": cfg.w_jerk / s**5})
+        coarse_cfg = cfg.model_copy(update={"w_smooth": cfg.w_smooth * c, "w_jerk": cfg.w_jerk * c,
+                                            "w_velocity": cfg.w_velocity * c**2})
         coarse = _Problem(robot, coarse_targets, coarse_cfg)
         qc = coarse.solve(np.tile(robot.rest[problem.ik], (len(idx), 1)), cold=True, full=False)
         frames = np.arange(t)

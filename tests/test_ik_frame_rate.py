@@ -1,0 +1,80 @@
+"""The same motion at any input rate: one clip fed at 30, 60 and 120 fps retargets to the same
+robot motion (the IK's smoothness and velocity terms are stated per second, not per frame).
+Unscaled, the 120 fps clip's mean jerk was ~30x the 30 fps one's and its wrists reversed
+direction on a large share of samples."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation, Slerp
+
+from embody.body import load_body_model
+from embody.config import Config
+from embody.metrics.trajectory import mean_jerk
+from embody.motion import Motion
+from embody.retarget import retarget, shape_fit
+from embody.retarget.ik import smoothness_scale
+from embody.robot import load_robot
+from embody.synth import generate_sequence
+
+
+def _at_rate(m: Motion, k: int) -> Motion:
+    """`m` sampled k times as densely (slerp per joint): the same motion at k× the rate."""
+    t0 = np.arange(m.num_frames) / m.fps
+    t1 = np.arange((m.num_frames - 1) * k + 1) / (m.fps * k)
+    pose = np.stack([Slerp(t0, Rotation.from_rotvec(m.pose[:, j]))(t1).as_rotvec()
+                     for j in range(m.pose.shape[1])], 1)
+    out = m.with_pose(pose, np.zeros((len(t1), 3)))
+    out.fps = m.fps * k
+    return out
+
+
+def test_smoothness_scale_is_per_second():
+    assert smoothness_scale(30.0, 2) == 1.0
+    assert smoothness_scale(120.0, 2) == pytest.approx(4.0**4)
+    assert smoothness_scale(60.0, 3) == pytest.approx(2.0**6)
+    assert smoothness_scale(15.0, 1) == pytest.approx(0.25)
+
+
+@pytest.fixture(scope="module")
+def solved():
+    cfg = Config()
+    body, robot = load_body_model(cfg.body), load_robot(cfg.robot)
+    fit = shape_fit(robot, body, cfg.ik)
+    clip = generate_sequence(0, 3)
+    clip = clip.with_pose(clip.pose[:90], clip.transl[:90])  # 3 s
+    wrists = [robot.joint_index(n) for n in robot.joint_names if "wrist" in n]
+    out = {}
+    for k in (1, 2, 4):
+        targets, sol = retarget(_at_rate(clip, k), robot, body, fit, cfg.ik)
+        out[k] = (sol, targets, wrists, robot)
+    return out
+
+
+def _wrist_path(robot, q: np.ndarray) -> float:
+    """Both robot wrists' travelled distance (m) in the torso frame."""
+    pos, _ = robot.link_poses(q, ["left_wrist", "right_wrist"])
+    return float(np.linalg.norm(np.diff(pos, axis=0), axis=-1).sum())
+
+
+def test_same_motion_at_any_rate(solved):
+    sol30, targets30, wrists, robot = solved[1]
+    jerk30 = mean_jerk(sol30.q[:, robot.ik_mask], sol30.fps)
+    human30 = float(np.linalg.norm(np.diff(targets30.wrist_pos, axis=0), axis=-1).sum())
+    for k in (2, 4):
+        sol, targets, _, _ = solved[k]
+        assert sol.fps == pytest.approx(30.0 * k)
+        jerk = mean_jerk(sol.q[:, robot.ik_mask], sol.fps)
+        assert jerk <= 1.5 * jerk30, (k, jerk, jerk30)
+        path = _wrist_path(robot, sol.q)
+        human = float(np.linalg.norm(np.diff(targets.wrist_pos, axis=0), axis=-1).sum())
+        assert human == pytest.approx(human30, rel=0.05)  # the human's path, at either rate
+        assert path <= 1.2 * human, (k, path, human)
+        assert path == pytest.approx(_wrist_path(robot, sol30.q), rel=0.2)
+    # the wrist joints do not chatter at 120 fps: few direction reversals
+    q = solved[4][0].q[:, wrists]
+    d = np.diff(q, axis=0)
+    moving = np.abs(d[1:]) + np.abs(d[:-1]) > 1e-6
+    reversals = ((d[1:] * d[:-1] < 0) & moving).sum() / max(moving.sum(), 1)
+    assert reversals <= 0.05, reversals
