@@ -108,6 +108,12 @@ def _cases(marker: Path) -> dict[str, bytes]:
         "numpy-dotted": _hostile("numpy.lib._datasource", "os.system", f"touch {marker}"),
         "numpy-getattr": _hostile("numpy", "__builtins__", "x"),
         "gz-bomb-ish": gzip.compress(b"\x80\x04" + b"N" * 1000 + b"."),
+        "memo-bomb": gzip.compress(pickle.dumps({"smplx": [[0.0] * 182] * 100_000}, 4)),
+        "range-bomb": pickle.dumps({"smplx": range(10 ** 6)}),
+        "deep-nesting": (b"\x80\x02}X\x05\x00\x00\x00smplx" + b"(" * 50_000 + b"N"
+                         + b"l" * 50_000 + b"s."),
+        "ragged-fps": pickle.dumps({"smplx": smplx, "fps": [[24.0, 25.0], [30.0]]}),
+        "object-dtype": pickle.dumps({"smplx": smplx.astype(object)}),
     }
     for name, raw in pickles.items():
         cases[f"{name}.pkl"] = raw

@@ -34,6 +34,8 @@ import numpy as np
 import pandas as pd
 
 from embody.errors import InputError
+from embody.io import safe_pickle
+from embody.io.safe_pickle import Budget
 
 ExportFormat = Literal["npz", "csv", "gmr", "beyondmimic"]
 
@@ -108,26 +110,21 @@ def _write_beyondmimic(path: Path, q: np.ndarray, lay: Layout) -> None:
     np.savetxt(path, motion, delimiter=",", fmt="%.17g")
 
 
-class _ArraysOnly(pickle.Unpickler):
-    """Unpickles plain containers and NumPy arrays only: a received library is data, not code."""
-
-    ALLOWED = {("numpy.core.multiarray", "_reconstruct"), ("numpy._core.multiarray", "_reconstruct"),
-               ("numpy.core.multiarray", "scalar"), ("numpy._core.multiarray", "scalar"),
-               ("numpy", "ndarray"), ("numpy", "dtype")}
-
-    def find_class(self, module: str, name: str) -> Any:
-        if (module, name) in self.ALLOWED:
-            return super().find_class(module, name)
-        raise pickle.UnpicklingError(f"{module}.{name} is not allowed in a motion pickle")
+#: Largest GMR motion pickle read.
+GMR_MAX_BYTES = 1 << 30
+#: Floor of a GMR pickle's element budget (below it, small files are never refused by size).
+GMR_MIN_ELEMENTS = 1 << 16
 
 
 def read_gmr(path: Path) -> dict[str, Any]:
-    """A GMR motion pickle as its consumers load it (`pickle.load`), restricted to arrays."""
+    """A GMR motion pickle as its consumers load it (`pickle.load`), read by `safe_pickle`:
+    plain containers and numeric arrays only, no more values than the file has bytes."""
     try:
-        with open(path, "rb") as f:
-            motion = _ArraysOnly(f).load()
-    except (OSError, pickle.UnpicklingError, EOFError, AttributeError, ValueError) as exc:
-        raise InputError(path, None, f"cannot read GMR motion pickle: {exc}") from None
+        size = path.stat().st_size
+    except OSError as exc:
+        raise InputError(path, None, f"cannot read GMR motion pickle: {exc.strerror or exc}") from None
+    budget = Budget(max_bytes=GMR_MAX_BYTES, max_elements=max(size, GMR_MIN_ELEMENTS))
+    motion = safe_pickle.read(path, budget)
     if not isinstance(motion, dict):
         raise InputError(path, None, "a GMR motion pickle is a dict")
     for key in ("fps", "root_pos", "root_rot", "dof_pos"):

@@ -2,12 +2,7 @@
 
 from __future__ import annotations
 
-import codecs
-import collections
-import gzip
-import importlib
-import io
-import pickle
+import reprlib
 import zipfile
 import zlib
 from pathlib import Path
@@ -16,51 +11,9 @@ from typing import Any
 import numpy as np
 
 from embody.errors import InputError
-
-
-def _numpy_attr(name: str) -> Any:
-    """`name` from numpy's core modules, whichever layout this numpy has (1.x `numpy.core`,
-    2.x `numpy._core`), so pickles written by either load under either."""
-    for module in ("numpy._core.multiarray", "numpy._core.numeric", "numpy.core.multiarray",
-                   "numpy.core.numeric"):
-        try:
-            obj = getattr(importlib.import_module(module), name, None)
-        except ImportError:
-            continue
-        if obj is not None:
-            return obj
-    raise pickle.UnpicklingError(f"this numpy has no {name}")
-
-
-class _NumpyUnpickler(pickle.Unpickler):
-    """Unpickles plain containers and numpy arrays only: field pickles need nothing else,
-    and refusing other classes keeps a hostile pickle from running code.
-
-    Only exact (module, name) pairs are resolved, from a fixed table: a module prefix would let
-    a dotted name (`numpy.lib._datasource` + `os.system`) reach any attribute of any module.
-    """
-
-    _CORE_NAMES = {"numpy.core.multiarray": ("_reconstruct", "scalar"),
-                   "numpy._core.multiarray": ("_reconstruct", "scalar"),
-                   "numpy.core.numeric": ("_frombuffer",),
-                   "numpy._core.numeric": ("_frombuffer",)}
-    _ALLOWED: dict[tuple[str, str], Any] = {
-        ("numpy", "ndarray"): np.ndarray, ("numpy", "dtype"): np.dtype,
-        ("collections", "OrderedDict"): collections.OrderedDict,
-        ("builtins", "set"): set, ("builtins", "frozenset"): frozenset,
-        ("builtins", "complex"): complex, ("builtins", "slice"): slice,
-        ("builtins", "range"): range,
-        # protocol 0-2 pickles store bytes as _codecs.encode(text, "latin1")
-        ("_codecs", "encode"): codecs.encode,
-    }
-
-    def find_class(self, module: str, name: str) -> Any:
-        if "." not in name:
-            if (module, name) in self._ALLOWED:
-                return self._ALLOWED[(module, name)]
-            if name in self._CORE_NAMES.get(module, ()):
-                return _numpy_attr(name)
-        raise pickle.UnpicklingError(f"refusing to unpickle {module}.{name}")
+from embody.io import safe_pickle
+from embody.io.limits import pickle_budget
+from embody.io.safe_pickle import Budget
 
 
 def _brief(exc: BaseException) -> str:
@@ -68,29 +21,10 @@ def _brief(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
-#: Largest decompressed gzip pickle (split index files): a gzip bomb stops here.
-MAX_GZIP_BYTES = 1 << 30
-
-
-def _gunzip(raw: bytes) -> bytes:
-    with gzip.GzipFile(fileobj=io.BytesIO(raw)) as fh:
-        out = fh.read(MAX_GZIP_BYTES + 1)
-    if len(out) > MAX_GZIP_BYTES:
-        raise ValueError(f"decompresses to more than {MAX_GZIP_BYTES} bytes")
-    return out
-
-
-def read_pickle(path: Path, *, gz: bool = False) -> Any:
-    """Load a (optionally gzip) pickle of dicts/lists/arrays; any failure is an InputError."""
-    try:
-        raw = path.read_bytes()
-        if gz or raw[:2] == b"\x1f\x8b":
-            raw = _gunzip(raw)
-        return _NumpyUnpickler(io.BytesIO(raw), encoding="latin1").load()
-    except OSError as exc:
-        raise InputError(path, None, f"cannot read file: {exc.strerror or exc}") from None
-    except Exception as exc:  # pickle raises many types on corrupt input
-        raise InputError(path, None, f"unreadable pickle: {type(exc).__name__}: {_brief(exc)}") from None
+def read_pickle(path: Path, *, gz: bool = False, budget: Budget | None = None) -> Any:
+    """A (optionally gzip) pickle of plain data and numeric arrays, read by `safe_pickle` within
+    `budget` (default: what `io.max_frames` allows); any failure is an InputError."""
+    return safe_pickle.read(path, budget or pickle_budget(), gz=gz)
 
 
 def _npy_header(fh: Any) -> tuple[tuple[int, ...], np.dtype]:
@@ -153,9 +87,22 @@ def read_npy(path: Path, limits: Any = None) -> np.ndarray:
         raise InputError(path, None, f"truncated or corrupt npy: {_brief(exc)}") from None
 
 
+#: What converting a field to an array raises on ragged, deeply nested or oversized values.
+_ARRAY_ERRORS = (TypeError, ValueError, OverflowError, RecursionError, MemoryError)
+
+
+def _array(data: dict[str, Any], key: str, path: Path | str) -> np.ndarray:
+    """`data[key]` as an array; values that do not form one are an InputError naming the field."""
+    try:
+        return np.asarray(data[key])
+    except _ARRAY_ERRORS as exc:
+        raise InputError(path, key, f"not a numeric array (type {type(data[key]).__name__}: "
+                                    f"{type(exc).__name__}: {_brief(exc)[:160]})") from None
+
+
 def _refuse_kind(data: dict[str, Any], key: str, path: Path) -> None:
     """Bool and complex values convert to float silently (True → 1.0, imaginary part dropped)."""
-    kind = np.asarray(data[key]).dtype.kind
+    kind = _array(data, key, path).dtype.kind
     if kind in "bc":
         name = "bool" if kind == "b" else "complex"
         raise InputError(path, key, f"{name} values are refused (expected real numbers)")
@@ -169,7 +116,7 @@ def field(data: dict[str, Any], key: str, path: Path, *, width: int | None = Non
     _refuse_kind(data, key, path)
     try:
         arr = np.asarray(data[key], dtype=np.float64)
-    except (TypeError, ValueError):
+    except _ARRAY_ERRORS:
         raise InputError(path, key, f"not numeric (type {type(data[key]).__name__})") from None
     if width is not None and (arr.ndim != 2 or arr.shape[1] != width):
         raise InputError(path, key, f"expected shape (T, {width}), got {arr.shape}")
@@ -186,9 +133,9 @@ def scalar(data: dict[str, Any], keys: tuple[str, ...], path: Path, default: flo
         if key in data:
             _refuse_kind(data, key, path)
             try:
-                value = float(np.asarray(data[key]).reshape(-1)[0])
+                value = float(_array(data, key, path).reshape(-1)[0])
             except (TypeError, ValueError, IndexError):
-                raise InputError(path, key, f"not a number: {data[key]!r}") from None
+                raise InputError(path, key, f"not a number: {reprlib.repr(data[key])}") from None
             if not np.isfinite(value) or value <= 0:
                 raise InputError(path, key, f"must be > 0, got {value}")
             return value
@@ -212,7 +159,7 @@ def text(data: dict[str, Any], key: str, default: str, path: Path | None = None)
     """A string field (numpy 0-d string arrays included); non-text values are an InputError."""
     if key not in data:
         return default
-    arr = np.asarray(data[key]).reshape(-1)
+    arr = _array(data, key, path or "<data>").reshape(-1)
     if not arr.size:
         return default
     if arr.dtype.kind not in "USO":

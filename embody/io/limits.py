@@ -13,10 +13,27 @@ import numpy as np
 
 from embody.config.io import IOConfig
 from embody.errors import InputError
+from embody.io.safe_pickle import Budget
 
 DEFAULT = IOConfig()
 #: Widest per-frame layout read (SignAvatars, 182) rounded up: bounds any one array's size.
 VALUES_PER_FRAME = 256
+
+
+#: Input bytes a motion pickle may take per value it may hold: float64 arrays take 8, pickled
+#: lists of floats 9, protocol-0 text floats up to ~25 (those reach only part of the bound).
+PICKLE_BYTES_PER_VALUE = 16
+#: Largest pickle read at all (decompressed, for gzip files).
+MAX_PICKLE_BYTES = 1 << 30
+
+
+def pickle_budget(limits: IOConfig | None = None) -> Budget:
+    """What a motion pickle may hold: the values `max_frames` frames can hold, checked on the
+    stream before anything is built (so no list or shared reference expands past it)."""
+    limits = limits or DEFAULT
+    values = limits.max_frames * VALUES_PER_FRAME
+    return Budget(max_bytes=min(MAX_PICKLE_BYTES, PICKLE_BYTES_PER_VALUE * values + (1 << 20)),
+                  max_elements=values, max_rows=limits.max_frames)
 
 
 def check_array_header(path: Path | str, key: str, shape: tuple[int, ...],
@@ -31,10 +48,11 @@ def check_array_header(path: Path | str, key: str, shape: tuple[int, ...],
                                     f"{limits.max_frames} frames can hold")
 
 
-def check_frame_count(path: Path | str, frames: int, limits: IOConfig | None = None) -> None:
+def check_frame_count(path: Path | str, frames: int, limits: IOConfig | None = None,
+                      key: str = "frames") -> None:
     limits = limits or DEFAULT
     if frames > limits.max_frames:
-        raise InputError(path, "frames", f"{frames} frames exceeds io.max_frames={limits.max_frames}")
+        raise InputError(path, key, f"{frames} frames exceeds io.max_frames={limits.max_frames}")
 
 
 def check_fps(path: Path | str, fps: float, limits: IOConfig | None = None) -> None:

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
+
 from embody.config.io import IOConfig
 from embody.errors import InputError
 from embody.io import amass, arrays, signavatars, soke
 from embody.io.conventions import Overrides
 from embody.io.fields import read_npz, read_pickle
-from embody.io.limits import check_frame_count, check_motion
+from embody.io.limits import check_frame_count, check_motion, pickle_budget
 from embody.motion import Motion
 
 #: Suffixes a dataset folder treats as one motion file each.
@@ -77,8 +79,11 @@ def _load(path: Path, overrides: Overrides, limits: IOConfig | None) -> Motion:
         if "smplx_root_pose" in data:
             raise InputError(path, None, "a single per-frame file: load its sequence folder instead")
         return arrays.read(path, data, overrides)
-    data = read_pickle(path)
+    data = read_pickle(path, budget=pickle_budget(limits))
     if signavatars.is_signavatars(data):
+        smplx = data["smplx"]
+        if isinstance(smplx, (list, tuple)) or (isinstance(smplx, np.ndarray) and smplx.ndim):
+            check_frame_count(path, len(smplx), limits, "smplx")  # before the float64 copy
         return signavatars.read(path, data, overrides)
     if isinstance(data, dict) and "smplx_root_pose" in data:
         raise InputError(path, None, "a single SOKE frame: load its sequence folder instead")

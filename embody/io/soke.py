@@ -19,6 +19,7 @@ import numpy as np
 from embody.errors import InputError
 from embody.io.conventions import Overrides, Setting, normalise
 from embody.io.fields import field, read_npz, read_pickle
+from embody.io.limits import pickle_budget
 from embody.motion import NUM_JOINTS, Motion, MotionSource
 
 SPLITS = ("train", "val", "test")
@@ -48,6 +49,9 @@ HOW2SIGN_FPS = Setting(24.0, "default: How2Sign frame naming; SOKE resamples How
 PHOENIX_FPS = Setting(25.0, "default: Phoenix-2014T frame naming; its video is 25 fps")
 CSL_DAILY_FPS = Setting(30.0, "default: per-frame folder without a known naming; "
                               "CSL-Daily (SOKE's main set) video is 30 fps")
+#: A split file lists names and texts, not frames: the default bounds apply whatever
+#: `io.max_frames` a run sets (a short `max_frames` must not refuse a long split list).
+SPLIT_BUDGET = pickle_budget()
 CAMERA_UP = Setting("camera", "default: video fits are in the camera frame (y down)")
 RELATIVE_HANDS = Setting("relative", "default: SOKE-style fits store mean-relative hands")
 
@@ -144,7 +148,7 @@ def read_split(root: Path, split: str) -> list[dict[str, Any]]:
     path = root / f"csl_clean.{split}"
     if not path.is_file():
         raise InputError(path, None, "split file not found")
-    entries = read_pickle(path, gz=True)
+    entries = read_pickle(path, gz=True, budget=SPLIT_BUDGET)
     if not isinstance(entries, list) or not all(isinstance(e, dict) and "name" in e for e in entries):
         raise InputError(path, "name", "expected a list of dicts with 'name' and 'text'")
     return entries
