@@ -395,7 +395,7 @@ RETARGET = Step("retarget", "16", ("body", "robot", "ik"), _retarget, _ik_soluti
 # v18: the contact phase's narrower proxy blocks (retarget v16) in every round's solve.
 # v19: the critic's sheets draw the reference as the render step does (render v4's bound skin),
 #      not from skinned vertices: the same picture up to edge pixels.
-REFINE = Step("refine", "19", ("body", "robot", "ik", "render", "critic"), _refine,
+REFINE = Step("refine", "20", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
