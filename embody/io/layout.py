@@ -12,8 +12,8 @@ lying on its back or with wrong fingers, silently. The data says it too:
   `hand_mean`, a relaxed curl), "absolute" ones are the pose itself. Each non-thumb finger's curl
   is measured along the mean's own axes under both readings. A reading that bends fingers
   backwards (total curl under −0.5 rad) or past a fist (over 4.7 rad) in more than 5 % of
-  samples is refuted: relative hands read as absolute bend back wherever the hand is flatter
-  than the mean. With neither refuted, a relative reading whose median curl is 1.7× the mean's
+  samples is refuted (when both are, one with at most a third of the other's such samples
+  stands): relative hands read as absolute bend back wherever the hand is flatter than the mean. With neither refuted, a relative reading whose median curl is 1.7× the mean's
   or more (every frame near a fist) points to absolute hands. Nothing else decides: flat-handed
   absolute signing looks like relaxed relative hands, so then the data cannot tell.
 
@@ -93,8 +93,9 @@ def detect_hands(pose: np.ndarray) -> Finding | None:
     refuted = [k for k in readings if bad[k] > REFUTED_SHARE]
     if len(refuted) == 1:
         return Finding(next(k for k in readings if k not in refuted), detail)
-    if refuted:
-        return Finding(None, detail)
+    if refuted:  # both: a reading with a third of the other's impossible samples still stands
+        low, high = sorted(readings, key=bad.__getitem__)
+        return Finding(low if 3 * bad[low] <= bad[high] else None, detail)
     if not refuted and median["relative"] >= DOUBLE_CURL:
         return Finding("absolute", detail)
     return Finding(None, detail)
