@@ -128,3 +128,26 @@ def test_embody_files_are_not_rejudged(tmp_path):
     m = load(tmp_path / "y.npz", hands="absolute")
     back = load(save(m, tmp_path / "own.npz"))
     assert "check" not in back.source.provenance
+
+
+def test_run_summary_names_each_layout_warning_once(tmp_path):
+    """The source step's metrics carry a clip's warnings; the run's closing summary groups the
+    same warning over every sequence it concerns (said once, not once per file)."""
+    from types import SimpleNamespace
+
+    from embody.flows.verdicts import layout_warnings as run_warnings, verdict_summary
+    from embody.tasks.stages import SOURCE
+
+    pose, transl = _motion(5)
+    sequences = {}
+    for sid in ("a", "b"):
+        _beat2(tmp_path / f"{sid}.npz", pose, transl, model=False)
+        sequences[sid] = {"status": "ok", "metrics": {"source": SOURCE.metrics(load(tmp_path / f"{sid}.npz"))}}
+    _beat2(tmp_path / "c.npz", pose, transl, model=True)
+    sequences["c"] = {"status": "ok", "metrics": {"source": SOURCE.metrics(load(tmp_path / "c.npz"))}}
+    assert "layout_warnings" not in sequences["c"]["metrics"]["source"]
+    manifest = SimpleNamespace(sequences=sequences)
+    grouped = run_warnings(manifest)
+    assert [(g["count"], g["ids"]) for g in grouped] == [(2, ["a", "b"]), (2, ["a", "b"])]
+    assert "--up-axis y" in grouped[0]["warning"] and "--hands relative" in grouped[1]["warning"]
+    assert verdict_summary(manifest)["layout_warnings"] == grouped
