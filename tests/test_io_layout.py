@@ -151,3 +151,13 @@ def test_run_summary_names_each_layout_warning_once(tmp_path):
     assert [(g["count"], g["ids"]) for g in grouped] == [(2, ["a", "b"]), (2, ["a", "b"])]
     assert "--up-axis y" in grouped[0]["warning"] and "--hands relative" in grouped[1]["warning"]
     assert verdict_summary(manifest)["layout_warnings"] == grouped
+
+
+def test_the_same_finding_on_two_clips_is_one_warning(tmp_path):
+    """Warnings name no clip and no measurement, so a run over many clips says each once."""
+    texts = set()
+    for seed in (6, 7):
+        pose, transl = _motion(seed)
+        _beat2(tmp_path / f"{seed}.npz", pose, transl, model=False)
+        texts |= set(layout_warnings(load(tmp_path / f"{seed}.npz").source.provenance))
+    assert len(texts) == 2

@@ -91,14 +91,16 @@ def layout_check(pose: np.ndarray, up_axis: Setting, hands: Setting,
         if given is not None:
             continue
         label = "up axis" if name == "up_axis" else "hand convention"
+        # the text names no clip and no measurement, so a run can say each warning once;
+        # the measurement is `detail` (inspect prints it)
         if finding.value is None and found.origin.startswith("default"):
             warnings.append(f"{label} {found.value!r} is a default ({found.origin}) that the data "
-                            f"cannot confirm ({finding.detail}); if the motion looks wrong, "
-                            f"{flag} {choices} (io.{name}) settles it")
+                            f"cannot confirm; if the motion looks wrong, {flag} {choices} "
+                            f"(io.{name}) settles it")
         elif finding.value is not None and finding.value != found.value:
             warnings.append(f"{label}: the file says {found.value!r} ({found.origin}) but the data "
-                            f"says {finding.value!r} ({finding.detail}); {flag} {finding.value} "
-                            f"(io.{name}) reads it as the data says, {flag} {found.value} keeps it")
+                            f"says {finding.value!r}; {flag} {finding.value} (io.{name}) reads it "
+                            f"as the data says, {flag} {found.value} keeps it")
     if out:
         out["warnings"] = warnings
     return out
