@@ -2,7 +2,8 @@
 
 Uses no embody code: the robot YAML is read with PyYAML, the MJCF is loaded from the MuJoCo
 Menagerie wheel with `mujoco` directly, and every file is read with its consumer's layout (npz
-`q`; csv columns after `time`; GMR pickle `dof_pos`; BeyondMimic csv columns 7: as float32). At
+`q`; csv columns after `time`; GMR pickle `dof_pos`; BeyondMimic csv columns 7: as float32, the
+G1 joints in BeyondMimic's `csv_to_npz.py` order, plus the side file's joints by name). At
 every exported sample it counts:
   * penetrating contacts (`mj_collision`, dist < 0) between collision geoms (the YAML's
     `collision.geom_groups`) of different, non-adjacent bodies, outside the exclusions the YAML
@@ -35,6 +36,17 @@ import pandas as pd
 import yaml
 
 ROBOTS = Path(__file__).resolve().parents[1] / "embody" / "configs" / "robots"
+#: BeyondMimic's G1 joint list (HybridRobotics/whole_body_tracking `scripts/csv_to_npz.py`).
+BEYONDMIMIC_G1_JOINTS = (
+    "left_hip_pitch_joint", "left_hip_roll_joint", "left_hip_yaw_joint", "left_knee_joint",
+    "left_ankle_pitch_joint", "left_ankle_roll_joint", "right_hip_pitch_joint",
+    "right_hip_roll_joint", "right_hip_yaw_joint", "right_knee_joint", "right_ankle_pitch_joint",
+    "right_ankle_roll_joint", "waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint",
+    "left_shoulder_pitch_joint", "left_shoulder_roll_joint", "left_shoulder_yaw_joint",
+    "left_elbow_joint", "left_wrist_roll_joint", "left_wrist_pitch_joint", "left_wrist_yaw_joint",
+    "right_shoulder_pitch_joint", "right_shoulder_roll_joint", "right_shoulder_yaw_joint",
+    "right_elbow_joint", "right_wrist_roll_joint", "right_wrist_pitch_joint",
+    "right_wrist_yaw_joint")
 
 
 def load_model(robot: str) -> tuple[mujoco.MjModel, dict]:
@@ -45,7 +57,7 @@ def load_model(robot: str) -> tuple[mujoco.MjModel, dict]:
     return mujoco.MjModel.from_xml_path(str(root / spec["mjcf"]["file"])), spec
 
 
-def read_q(path: Path, fmt: str) -> np.ndarray:
+def read_q(path: Path, fmt: str, names: list[str]) -> np.ndarray:
     if fmt == "npz":
         with np.load(path) as z:
             return np.asarray(z["q"], dtype=np.float64)
@@ -54,8 +66,14 @@ def read_q(path: Path, fmt: str) -> np.ndarray:
     if fmt == "gmr":
         with open(path, "rb") as f:
             return np.asarray(pickle.load(f)["dof_pos"], dtype=np.float64)
-    if fmt == "beyondmimic":
-        return np.loadtxt(path, delimiter=",", ndmin=2).astype(np.float32)[:, 7:].astype(np.float64)
+    if fmt == "beyondmimic":  # its G1 joints in its order, the rest in the side file, by name
+        body = np.loadtxt(path, delimiter=",", ndmin=2).astype(np.float32)[:, 7:].astype(np.float64)
+        if len(names) == body.shape[1]:
+            return body
+        side = pd.read_csv(path.with_name(path.name.removesuffix(".csv") + ".extra_joints.csv"))
+        columns = {**dict(zip(BEYONDMIMIC_G1_JOINTS, body.T)),
+                   **{n: side[n].to_numpy(np.float64) for n in side.columns}}
+        return np.stack([columns[n] for n in names], axis=1)
     raise SystemExit(f"unknown format {fmt}")
 
 
@@ -108,7 +126,7 @@ def main() -> int:
     entries = meta["sequences"][: args.limit] if args.limit else meta["sequences"]
     totals = {"pen": 0, "lim": 0, "vel": 0, "bad": 0, "samples": 0}
     for e in entries:
-        q = read_q(args.library / e["file"], meta["format"])
+        q = read_q(args.library / e["file"], meta["format"], names)
         rate = 1.0 / float(e["dt"])
         pen = 0
         for qt in q:

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from typing import Any, Iterable, Mapping
 
-__all__ = ["VALIDATION_KEYS", "VERDICTS", "export_valid", "plural", "run_verdicts",
+__all__ = ["VALIDATION_KEYS", "VERDICTS", "export_valid", "in_default_export", "plural", "run_verdicts",
            "sequence_verdicts", "verdict_line", "violations"]
 
 #: Validation counters (from `embody.retarget.validation.validation_counts`) that must all be
@@ -72,26 +72,51 @@ def sequence_verdicts(seq: Mapping[str, Any]) -> dict[str, bool | None]:
     return {"processed_ok": ok, "export_valid": valid, "critic_accepted": accepted}
 
 
+def _flag(value: Any) -> bool | None:
+    """A verdict cell as True/False/None (NumPy bools and a table's NaN blanks included)."""
+    if value is None or (isinstance(value, float) and math.isnan(value)):
+        return None
+    return bool(value)
+
+
+def in_default_export(row: Mapping[str, Any]) -> bool:
+    """Whether `embody export` without `--include-rejected` writes this sequence: export-valid
+    and not rejected by the critic (a run without a critic rejects nothing)."""
+    return _flag(row.get("export_valid")) is True and _flag(row.get("critic_accepted")) is not False
+
+
 def run_verdicts(per_sequence: Iterable[Mapping[str, bool | None]]) -> dict[str, int | None]:
     """Counts over a run: `total` and, per verdict, how many sequences hold it (None when no
-    sequence has that verdict at all, e.g. critic_accepted of a run without a critic)."""
+    sequence has that verdict at all, e.g. critic_accepted of a run without a critic), plus
+    `default_export` (how many `embody export` writes by default) and `rejected_export_valid`
+    (export-valid sequences it leaves out because the critic rejected them)."""
     rows = list(per_sequence)
     out: dict[str, int | None] = {"total": len(rows)}
     for name in VERDICTS:
         known = [r[name] for r in rows if r.get(name) is not None]
         out[name] = sum(bool(v) for v in known) if known else None
+    out["default_export"] = sum(in_default_export(r) for r in rows)
+    out["rejected_export_valid"] = sum(_flag(r.get("export_valid")) is True
+                                       and _flag(r.get("critic_accepted")) is False for r in rows)
     return out
 
 
 def verdict_line(counts: Mapping[str, int | None]) -> str:
-    """One human line: "24/24 processed ok · 19/24 export-valid · 16/24 critic-accepted"."""
+    """One human line: "24/24 processed ok · 19/24 export-valid · 16/24 critic-accepted", plus
+    what the default export leaves out of the export-valid ones and how to include them."""
     total = counts.get("total") or 0
     parts = []
     for name, label in (("processed_ok", "processed ok"), ("export_valid", "export-valid"),
                         ("critic_accepted", "critic-accepted")):
         value = counts.get(name)
         parts.append(f"{label} n/a" if value is None else f"{value}/{total} {label}")
-    return " · ".join(parts)
+    line = " · ".join(parts)
+    skipped = counts.get("rejected_export_valid") or 0
+    if skipped:
+        line += (f" · {counts.get('default_export') or 0}/{total} in the default export: "
+                 f"{skipped} export-valid {'sequence' if skipped == 1 else 'sequences'} the critic "
+                 "rejected left out (`embody export --include-rejected` includes them)")
+    return line
 
 
 def plural(n: int, noun: str, many: str | None = None) -> str:

@@ -109,7 +109,13 @@ def _load_source(ctx: Context, inputs: dict[str, Any]) -> Motion:
 
 
 def _source_metrics(motion: Motion) -> dict[str, Any]:
-    return {"frames": motion.num_frames, "fps": motion.fps}
+    from embody.io.conventions import layout_warnings
+
+    out: dict[str, Any] = {"frames": motion.num_frames, "fps": motion.fps}
+    warnings = layout_warnings(motion.source.provenance)
+    if warnings:  # the run's closing summary names each once (`flows.verdicts.layout_warnings`)
+        out["layout_warnings"] = " | ".join(warnings)
+    return out
 
 
 def _collide(ctx: Context, inputs: dict[str, Any]) -> Any:
@@ -325,7 +331,7 @@ def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
 
 
 # v2: per-dataset default frame rates, detected up axis / hands (BEAT2), `io` overrides.
-SOURCE = Step("source", "2", ("io",), _load_source, Motion.from_arrays, metrics=_source_metrics)
+SOURCE = Step("source", "3", ("io",), _load_source, Motion.from_arrays, metrics=_source_metrics)
 # v2: mesh-level penetration depth before/after; depth-driven optimiser.
 # v3: limb-core capsules separate crossed arms; depth judged on the blended whole.
 # v4: depth-guided polish (frames the mesh judge finds > collision.depth_polish deep).
@@ -396,7 +402,7 @@ RETARGET = Step("retarget", "17", ("body", "robot", "ik"), _retarget, _ik_soluti
 # v18: the contact phase's narrower proxy blocks (retarget v16) in every round's solve.
 # v19: the critic's sheets draw the reference as the render step does (render v4's bound skin),
 #      not from skinned vertices: the same picture up to edge pixels.
-REFINE = Step("refine", "19", ("body", "robot", "ik", "render", "critic"), _refine,
+REFINE = Step("refine", "20", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.

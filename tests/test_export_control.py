@@ -14,6 +14,7 @@ import pytest
 
 from embody.cli import main
 from embody.config.ik import IKConfig
+from embody.export.formats import beyondmimic_columns, read_joint_positions
 from embody.export.library import Trajectory, check_library, export_library
 from embody.retarget.control import control_trajectory
 from embody.retarget.ik import solve
@@ -157,7 +158,7 @@ def test_check_revalidates_library(robot, passing, tmp_path, fmt, capsys):
         _trajectory(robot, bad).save(path.with_suffix(""), "csv")
     else:
         rows = np.loadtxt(path, delimiter=",")
-        rows[:, 7:] = bad
+        rows[:, 7:] = bad[:, beyondmimic_columns(robot.joint_names)[0]]
         np.savetxt(path, rows, delimiter=",")
     capsys.readouterr()
     assert main(["export", "--check", str(tmp_path)]) == 1
@@ -194,12 +195,18 @@ def test_beyondmimic_csv_round_trip(robot, passing, tmp_path):
     qc = control_trajectory(robot, q, fps, RATE)
     path = _trajectory(robot, qc).save(tmp_path / "m", "beyondmimic", robot)
     motion = np.loadtxt(path, delimiter=",").astype(np.float32)
-    assert motion.shape == (len(qc), 7 + robot.n_joints)
+    body, fingers = beyondmimic_columns(robot.joint_names)
+    assert motion.shape == (len(qc), 7 + 29) and len(fingers) == 14
     base_pos, base_rot = motion[:, :3], motion[:, 3:7][:, [3, 0, 1, 2]]
     np.testing.assert_allclose(base_pos, np.tile(robot.model.qpos0[:3], (len(qc), 1)), atol=1e-6)
     np.testing.assert_allclose(base_rot, np.tile(robot.model.qpos0[3:7], (len(qc), 1)), atol=1e-6)
-    np.testing.assert_allclose(motion[:, 7:], qc, atol=1e-6)
-    assert validation_counts(robot, motion[:, 7:].astype(np.float64), RATE)["joint_limit_violations"] == 0
+    np.testing.assert_allclose(motion[:, 7:], qc[:, body], atol=1e-6)
+    extra = pd.read_csv(tmp_path / "m.extra_joints.csv")
+    assert list(extra.columns) == [robot.joint_names[i] for i in fingers]
+    np.testing.assert_allclose(extra.to_numpy(), qc[:, fingers], atol=1e-12)
+    read = read_joint_positions(path, "beyondmimic", robot.n_joints, robot.joint_names)
+    np.testing.assert_allclose(read, qc, atol=1e-6)
+    assert validation_counts(robot, read, RATE)["joint_limit_violations"] == 0
 
 
 def test_proxies_cover_fingers_against_other_palm_and_thighs(robot):

@@ -260,12 +260,15 @@ def test_export_library(run, tmp_path, fmt) -> None:
 
     from embody.verdicts import export_valid
 
-    # Default: sequences the critic rejected are left out, named as such.
+    # Default: sequences the critic rejected are left out, named as such; the default export
+    # writes exactly what the run's verdicts say it writes.
     out = tmp_path / "lib"
     assert main(["export", RUN, str(out), "--robot", ROBOT, "--store", str(run["store"]),
                  "--format", fmt]) == 1
     excluded = pd.read_csv(out / "excluded.csv").set_index("id")
     summary = json.loads((run["report"] / "summary.json").read_text())
+    written = pd.read_csv(out / "library.csv") if (out / "library.csv").stat().st_size else []
+    assert len(written) == run["summary"]["verdicts"]["default_export"] == summary["verdicts.default_export"]
     rejected = {i for i in excluded.index if "critic rejected" in excluded.loc[i, "reason"]}
     assert len(rejected) == 2 - summary["verdicts.critic_accepted"]
     # --include-rejected: exactly the export-valid sequences of the run summary are exported.

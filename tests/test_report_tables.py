@@ -75,3 +75,40 @@ def test_report_modules_do_not_import_prefect() -> None:
     code = ("import sys, embody.report, embody.report.reader, embody.cli.report, "
             "embody.cli.export, embody.cli.play; assert 'prefect' not in sys.modules")
     subprocess.run([sys.executable, "-c", code], check=True, timeout=120)
+
+
+def test_paper_cited_in_latex_and_html(table: Table, pdflatex: str, tmp_path) -> None:
+    """The tables that follow the paper cite it: a `\\cite` that BibTeX resolves from the
+    report's `references.bib` to the full reference, and the page's reference list."""
+    import dataclasses
+    import shutil
+
+    from embody.report.definitions import PAPER, paper_bibtex, paper_citation
+    from embody.report.html import render_index
+
+    cited = dataclasses.replace(table, cite=PAPER["key"])
+    assert r"\cite{khan2026sign}" in cited.to_latex() and r"\cite" not in table.to_latex()
+    cited.write(tmp_path)
+    (tmp_path / "references.bib").write_text(paper_bibtex())
+    (tmp_path / "doc.tex").write_text(
+        "\\documentclass{article}\\usepackage{booktabs}\\begin{document}\\input{t_demo.tex}"
+        "\\bibliographystyle{plain}\\bibliography{references}\\end{document}\n")
+    bibtex = shutil.which("bibtex")
+    if bibtex is None:
+        pytest.skip("bibtex is not installed (apt-get install texlive-binaries)")
+    for cmd in ([pdflatex, "-interaction=nonstopmode", "-halt-on-error", "doc.tex"],
+                [bibtex, "doc"], *[[pdflatex, "-interaction=nonstopmode", "-halt-on-error", "doc.tex"]] * 2):
+        proc = subprocess.run(cmd, cwd=tmp_path, capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stdout[-2000:]
+    bbl = " ".join((tmp_path / "doc.bbl").read_text().replace("~", " ").split())
+    for words in ("N. Khan", "K. Nakadai", "From Sign Language Generation to Humanoid Execution",
+                  "Collision Mitigation", "Intelligent Robots and Systems", "2026"):
+        assert words in bbl, words
+    assert "citation `khan2026sign' on page 1 undefined" not in (tmp_path / "doc.log").read_text().lower()
+
+    page = render_index(tmp_path, run="demo", tables={}, figures={}, summary={}, files=[],
+                        failures=[]).read_text()
+    assert 'href="#ref-paper">[1]</a>' in page and 'id="ref-paper"' in page
+    assert "T. Ashizawa, C. T. Ishi, T. Minato, and K. Nakadai" in page
+    assert "Vision–Language Guided Retargeting with Collision Mitigation" in page
+    assert paper_citation().startswith("N. Khan, B. Wu, R. Shi, B. Yen")

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import click
 
-from embody.verdicts import plural
+from embody.verdicts import export_valid, plural
 
 from embody.cli.common import emit_json, json_option
 from embody.export.formats import FORMATS
@@ -53,21 +53,29 @@ def command(args: tuple[str, ...], robot: str | None, store_root: str, fmt: str,
     run, out = args
     check_run_name(run, "RUN")
     trajectories, failed = run_trajectories(store_root, run, robot)
+    skipped_valid = 0  # export-valid sequences the default leaves out (the run's verdict line says so too)
     if not include_rejected:
         rejected = [t for t in trajectories if t.validation.get("accepted") is False]
         trajectories = [t for t in trajectories if t.validation.get("accepted") is not False]
         failed = [*failed, *((t.id, "critic rejected (--include-rejected keeps it)")
                              for t in rejected)]
+        skipped_valid = sum(export_valid(t.validation) for t in rejected)
     library, excluded = export_library(trajectories, out, fmt, failed,  # type: ignore[arg-type]
                                        robot=run_robot(store_root, run))
     if as_json:
         emit_json({"out": out, "format": fmt, "exported": library["id"].tolist(),
-                   "excluded": excluded[["id", "reason"]].to_dict("records")})
+                   "excluded": excluded[["id", "reason"]].to_dict("records"),
+                   "rejected_export_valid": skipped_valid})
     else:
         click.echo(f"exported {plural(len(library), 'trajectory', 'trajectories')} ({fmt}) to "
                    f"{out} (library.csv, library.json)")
         for row in excluded.itertuples():
             click.echo(f"excluded {row.id}: {row.reason}")
+        if skipped_valid:
+            click.echo(f"{plural(skipped_valid, 'export-valid sequence')} left out because the "
+                       "critic rejected "
+                       f"{'it' if skipped_valid == 1 else 'them'}: --include-rejected includes "
+                       f"{'it' if skipped_valid == 1 else 'them'}", err=True)
     return 1 if len(excluded) else 0
 
 

@@ -45,6 +45,10 @@ def _echo_motion(info: dict[str, Any]) -> None:
             label = {"fps": "fps from", "up_axis": "up axis", "hands": "hands from"}[name]
             value = f"{item['value']:g}" if isinstance(item["value"], float) else item["value"]
             click.echo(f"  {label:<16} {value}: {item['origin']}")
+            judged = info.get("provenance", {}).get("check", {}).get(name)
+            if judged:
+                said = judged["data"] if judged["data"] is not None else "cannot tell"
+                click.echo(f"  {'':<16} the data: {said} ({judged['detail']})")
     click.echo(f"  gender           {info['gender']}")
     click.echo("  joint ranges (angle, deg):")
     for name, r in info["joint_ranges"].items():
@@ -94,4 +98,8 @@ def command(path: str, split: str | None, fps: float | None, up_axis: str | None
         emit_json(info)
     else:
         _echo_motion(info)
+    from embody.io.conventions import layout_warnings
+
+    for warning in layout_warnings(info.get("provenance", {})):
+        click.echo(f"warning: {info['path']}: {warning}", err=True)
     return 0

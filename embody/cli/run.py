@@ -167,6 +167,10 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
     for item in summary.get("recovered", []):
         click.echo(f"warning: {item['id']}: recomputed corrupt artifact {item['artifact']}",
                    err=True)
+    for item in summary.get("layout_warnings", []):  # once per distinct warning, not per file
+        ids = ", ".join(item["ids"][:3]) + (", ..." if item["count"] > 3 else "")
+        click.echo(f"warning: {plural(item['count'], 'sequence')} ({ids}): {item['warning']}",
+                   err=True)
     if summary.get("verdicts"):  # the closing summary: three verdicts side by side
         click.echo(f"verdicts: {verdict_line(summary['verdicts'])}", err=True)
     if summary["failed"]:

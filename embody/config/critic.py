@@ -49,13 +49,17 @@ class CriticConfig(Section):
     max_angle_deg: float = Field(60.0, gt=0.0, le=180.0)
     #: Ramp length at window edges, so windowed offsets do not make the IK targets jump.
     blend_s: float = Field(0.2, ge=0.0, le=5.0)
-    #: Geometric critic: accept when every side's mean offset / arm length and yaw are below these.
+    #: Geometric critic without the human (no body or robot landmarks): accept when every
+    #: side's mean offset / arm length and yaw to the reference are below these. Each one over
+    #: its threshold is answered with its primitive (a move, a yaw turn), so a rejection always
+    #: proposes something.
     accept_position: float = Field(0.03, gt=0.0, le=1.0)
     accept_yaw_deg: float = Field(8.0, gt=0.0, le=180.0)
     #: Geometric critic against the human (landmark-relative location): accept when every side's
     #: offset from where the human's palm sits, relative to the nearest landmark, is below this
     #: many body scales (shoulder widths; 0.1 ≈ 2.4 cm on G1) and the palm normal is within
-    #: `accept_palm_deg`.
+    #: `accept_palm_deg`. A hand over either gets at least one primitive for it: a move for the
+    #: location, a turn toward the human's palm for the palm (never quantised away).
     accept_location: float = Field(0.1, gt=0.0, le=5.0)
     accept_palm_deg: float = Field(20.0, gt=0.0, le=180.0)
     #: Judge against what the robot can reach (`embody.critic.reach`): the part of a location

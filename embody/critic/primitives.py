@@ -35,12 +35,12 @@ Side = Literal["left", "right"]
 SIDES: tuple[Side, ...] = ("left", "right")
 
 _POSITION_DIRS = ("up", "down", "forward", "back", "in", "out")
-_ORIENTATION_DIRS = {"yaw": ("in", "out"), "pitch": ("up", "down"), "roll": ("in", "out")}
+ORIENTATION_DIRS = {"yaw": ("in", "out"), "pitch": ("up", "down"), "roll": ("in", "out")}
 
 POSITION_NAMES: tuple[str, ...] = tuple(
     f"move_{side}_{d}" for side in SIDES for d in _POSITION_DIRS)
 ORIENTATION_NAMES: tuple[str, ...] = tuple(
-    f"{side}_{axis}_{d}" for side in SIDES for axis, dirs in _ORIENTATION_DIRS.items()
+    f"{side}_{axis}_{d}" for side in SIDES for axis, dirs in ORIENTATION_DIRS.items()
     for d in dirs)
 
 

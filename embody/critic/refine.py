@@ -248,6 +248,8 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
                 for k, png in zip(keyframes, context.keyframe_pngs):
                     record.renders[f"keyframe_{k}"] = _store_png(png, out, f"round{index}_f{k}.png")
             action: Action = critic.critique(context)
+            if action.valid and not action.accepted and not action.primitives and not last:
+                action = _with_reason_primitives(action, context, cfg_critic)
             record.action = action.to_json()
             record.exchange = context.record
             log.info("round %d: %s %s", index, action.verdict if action.valid else "invalid",
@@ -282,6 +284,21 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
     finally:
         renders.close()
     return RefineResult(rounds, list(robot.joint_names), keyframes, cfg_critic.kind, chosen)
+
+
+def _with_reason_primitives(action: Action, context: CritiqueContext, cfg: CriticConfig) -> Action:
+    """A rejection that proposes nothing (a VLM's "revise" without primitives) gets the
+    geometric critic's primitives for the same round, measured against the same human: a
+    rejected sequence is always refined. Returned unchanged when those are empty too (the
+    offsets are under every threshold: the next round would critique the same robot)."""
+    from embody.critic.geometric import GeometricCritic
+
+    measured = GeometricCritic(cfg).critique(context)
+    if not measured.primitives:
+        return action
+    reason = (f"{action.reason} [no primitive proposed; the geometric critic's: "
+              f"{measured.reason}]").strip()
+    return dataclasses.replace(action, primitives=measured.primitives, reason=reason)
 
 
 def _chosen_round(rounds: list[RoundRecord], cfg: CriticConfig) -> int:
@@ -337,7 +354,8 @@ class _HumanJudge:
             self.hands[side] = {"landmark": names[int(counts.argmax())], "share": float(counts.max() / len(q)),
                                 "location_err": err, "location_cm": err * robot.scale * 100.0,
                                 "palm_deg": float(frames["palm_deg"][:, s].mean()),
-                                "yaw_deg": _yaw_to_human(self.human, robot, side)}
+                                "yaw_deg": _yaw_to_human(self.human, robot, side),
+                                "turn_deg": _turn_to_human(self.human, robot, side).tolist()}
         hips = [i for i, n in enumerate(names) if n.endswith("_hip")]
         offset = np.zeros((len(q), 2, 3))
         toward = np.zeros((len(q), 2, 3))  # robot palm → the robot's landmark of the human's nearest
@@ -376,6 +394,29 @@ def _yaw_to_human(human, robot, side: str) -> float:
         cross += float((r[:, 0] * h[:, 1] - r[:, 1] * h[:, 0]).sum())
         dot += float((r[:, 0] * h[:, 0] + r[:, 1] * h[:, 1]).sum())
     return float(np.degrees(np.arctan2(cross, dot)))
+
+
+def _turn_to_human(human, robot, side: str) -> np.ndarray:
+    """The rotation (rotation vector in the robot torso frame, degrees: x roll, y pitch, z yaw
+    components) that best brings the robot hand's palm normal and pointing direction onto the
+    human's, each in its own torso frame: the least-squares (Kabsch) rotation over the sequence.
+    Turning the wrist target by it (`critic.primitives`, R' = R_axis · R) addresses a palm
+    error whatever its axis; the yaw alone (`_yaw_to_human`) cannot fix a tilted palm."""
+    from scipy.spatial.transform import Rotation
+
+    s = ("left", "right").index(side)
+    tip = f"{side}_middle_tip" if human.has(f"{side}_middle_tip") and robot.has(f"{side}_middle_tip") \
+        else f"{side}_palm"
+    pairs = [(human.local(human.normals[:, s]), robot.local(robot.normals[:, s]))]
+    pairs += [tuple(t.local(t.point(tip) - t.point(f"{side}_wrist")) for t in (human, robot))]
+    h = np.concatenate([p[0] for p in pairs])
+    r = np.concatenate([p[1] for p in pairs])
+    h = h / np.maximum(np.linalg.norm(h, axis=-1, keepdims=True), 1e-12)
+    r = r / np.maximum(np.linalg.norm(r, axis=-1, keepdims=True), 1e-12)
+    u, _, vt = np.linalg.svd(r.T @ h)  # R = V diag(1, 1, det) Uᵀ maps r onto h
+    d = np.sign(np.linalg.det(vt.T @ u.T)) or 1.0
+    rot = vt.T @ np.diag([1.0, 1.0, d]) @ u.T
+    return np.degrees(Rotation.from_matrix(rot).as_rotvec())
 
 
 _TABLE_METRICS = ("wrist_mm_mean", "wrist_mm_p95", "wrist_deg_mean", "wrist_deg_p95",

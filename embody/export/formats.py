@@ -10,9 +10,13 @@
 * `beyondmimic`: the csv BeyondMimic's `scripts/csv_to_npz.py` (HybridRobotics/whole_body_tracking)
   loads with `np.loadtxt(file, delimiter=",")` and casts to float32: no header, one row per frame,
   columns root position (3) | root quaternion **xyzw** (4; it reorders `[:, [3, 0, 1, 2]]` to wxyz)
-  | joint positions in MJCF order; the frame rate is its `--input_fps` argument (default 30), so
-  the library records it. GMR's converter (`scripts/batch_gmr_pkl_to_csv.py`) writes the same
-  columns from a motion pickle (`np.savetxt(..., delimiter=",")` of float32).
+  | joint positions. It assigns `motion[:, 7:]` to the 29 G1 joints it names, in its own order
+  (`joint_pos[:, robot.find_joints(names, preserve_order=True)[0]] = motion_dof_pos`), so for a
+  robot that has all of those joints the csv carries exactly them, in that order
+  (`BEYONDMIMIC_G1_JOINTS`); the robot's other joints (the Dex3 fingers) go to a side file
+  `<name>.extra_joints.csv`: a header row of joint names, then one row per frame (radians,
+  `%.17g`), the csv's frames. A robot without BeyondMimic's G1 joints gets every joint in MJCF
+  order and no side file. The frame rate is `--input_fps` (default 30), so the library records it.
 
 Our robots' trajectories keep the floating root at its default pose (upper-body retargeting), so
 the root columns repeat MuJoCo's `qpos0` root. Each reader returns the joint array exactly as its
@@ -103,11 +107,57 @@ def _write_gmr(path: Path, q: np.ndarray, lay: Layout) -> None:
     path.write_bytes(pickle.dumps(motion, protocol=4))
 
 
+#: The G1 joints BeyondMimic's `scripts/csv_to_npz.py` names (HybridRobotics/whole_body_tracking),
+#: in its order: the csv's columns 7: are assigned to exactly these.
+BEYONDMIMIC_G1_JOINTS = (
+    "left_hip_pitch_joint", "left_hip_roll_joint", "left_hip_yaw_joint", "left_knee_joint",
+    "left_ankle_pitch_joint", "left_ankle_roll_joint",
+    "right_hip_pitch_joint", "right_hip_roll_joint", "right_hip_yaw_joint", "right_knee_joint",
+    "right_ankle_pitch_joint", "right_ankle_roll_joint",
+    "waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint",
+    "left_shoulder_pitch_joint", "left_shoulder_roll_joint", "left_shoulder_yaw_joint",
+    "left_elbow_joint", "left_wrist_roll_joint", "left_wrist_pitch_joint", "left_wrist_yaw_joint",
+    "right_shoulder_pitch_joint", "right_shoulder_roll_joint", "right_shoulder_yaw_joint",
+    "right_elbow_joint", "right_wrist_roll_joint", "right_wrist_pitch_joint", "right_wrist_yaw_joint",
+)
+#: Suffix (replacing `.csv`) of the BeyondMimic side file with the joints BeyondMimic lacks.
+BEYONDMIMIC_EXTRA_SUFFIX = ".extra_joints.csv"
+
+
+def beyondmimic_columns(joint_names: tuple[str, ...] | list[str]) -> tuple[list[int], list[int]]:
+    """Indices into `joint_names` of the csv's joint columns (in csv order) and of the side
+    file's (MJCF order; empty when the csv carries every joint)."""
+    names = list(joint_names)
+    if set(BEYONDMIMIC_G1_JOINTS) <= set(names):
+        main = [names.index(n) for n in BEYONDMIMIC_G1_JOINTS]
+    else:
+        main = list(range(len(names)))
+    chosen = set(main)
+    return main, [i for i in range(len(names)) if i not in chosen]
+
+
+def beyondmimic_extra_path(path: Path) -> Path:
+    """The side file next to a BeyondMimic csv `path`."""
+    return path.with_name(path.name.removesuffix(".csv") + BEYONDMIMIC_EXTRA_SUFFIX)
+
+
 def _write_beyondmimic(path: Path, q: np.ndarray, lay: Layout) -> None:
     t = len(q)
+    main, extra = beyondmimic_columns(lay.joint_names)
     motion = np.hstack([np.tile(lay.root_pos, (t, 1)),
-                        np.tile(lay.root_quat_wxyz[[1, 2, 3, 0]], (t, 1)), q])
+                        np.tile(lay.root_quat_wxyz[[1, 2, 3, 0]], (t, 1)), q[:, main]])
     np.savetxt(path, motion, delimiter=",", fmt="%.17g")
+    side = beyondmimic_extra_path(path)
+    if extra:
+        np.savetxt(side, q[:, extra], delimiter=",", fmt="%.17g", comments="",
+                   header=",".join(lay.joint_names[i] for i in extra))
+    else:
+        side.unlink(missing_ok=True)
+
+
+def companion_files(path: Path, fmt: ExportFormat) -> list[Path]:
+    """Files an exported `path` comes with (BeyondMimic's side file), to remove or copy with it."""
+    return [beyondmimic_extra_path(path)] if fmt == "beyondmimic" else []
 
 
 #: Largest GMR motion pickle read.
@@ -133,9 +183,32 @@ def read_gmr(path: Path) -> dict[str, Any]:
     return motion
 
 
-def read_joint_positions(path: str | Path, fmt: ExportFormat, n_joints: int) -> np.ndarray:
+def _beyondmimic_joints(path: Path, csv_q: np.ndarray, joint_names: tuple[str, ...]) -> np.ndarray:
+    """The robot's full joint array from a BeyondMimic csv's joint columns and its side file."""
+    main, extra = beyondmimic_columns(joint_names)
+    if csv_q.shape[1] != len(main):
+        raise InputError(path, None, f"expected {len(main)} joint columns after the 7 root "
+                         f"columns, got {csv_q.shape[1]}")
+    q = np.empty((len(csv_q), len(joint_names)), dtype=np.float32)
+    q[:, main] = csv_q
+    if extra:
+        side = beyondmimic_extra_path(path)
+        try:
+            table = pd.read_csv(side)
+        except (OSError, ValueError) as exc:
+            raise InputError(side, None, f"cannot read the side file: {exc}") from None
+        want = [joint_names[i] for i in extra]
+        if list(table.columns) != want or len(table) != len(csv_q):
+            raise InputError(side, None, f"expected {len(csv_q)} rows of {want}")
+        q[:, extra] = table.to_numpy(np.float64).astype(np.float32)
+    return q
+
+
+def read_joint_positions(path: str | Path, fmt: ExportFormat, n_joints: int,
+                         joint_names: tuple[str, ...] | list[str] | None = None) -> np.ndarray:
     """The joint array (T, n_joints) of an exported file, as its consumer reads it (float64 out;
-    BeyondMimic's float32 cast applied first)."""
+    BeyondMimic's float32 cast applied first). A BeyondMimic csv needs the robot's `joint_names`
+    to put its columns and its side file's back in the robot's order."""
     path = Path(path)
     if fmt == "npz":
         try:
@@ -157,6 +230,8 @@ def read_joint_positions(path: str | Path, fmt: ExportFormat, n_joints: int) -> 
         except (OSError, ValueError) as exc:
             raise InputError(path, None, f"cannot read csv: {exc}") from None
         q = motion.astype(np.float32)[:, 7:]  # csv_to_npz: torch.from_numpy(...).to(float32)
+        if joint_names is not None:
+            q = _beyondmimic_joints(path, q, tuple(joint_names))
     else:
         raise InputError(path, "format", f"unknown export format {fmt!r}")
     if q.ndim != 2 or q.shape[1] != n_joints:
@@ -171,7 +246,8 @@ FORMATS: tuple[str, ...] = tuple(WRITERS)
 #: Who reads each format (for the library index and the README).
 CONSUMERS = {"npz": "embody (play, export --check)", "csv": "spreadsheets, generic tools",
              "gmr": "GMR motion pickle (TWIST and GMR-based trainers)",
-             "beyondmimic": "BeyondMimic scripts/csv_to_npz.py (--input_fps = rate_hz)"}
+             "beyondmimic": "BeyondMimic scripts/csv_to_npz.py (--input_fps = rate_hz); joints "
+                            "it does not drive in <name>.extra_joints.csv"}
 
 
 def write_trajectory(path_stem: Path, fmt: ExportFormat, q: np.ndarray, layout: Layout) -> Path:

@@ -22,8 +22,8 @@ import pandas as pd
 from embody.csvsafe import csv_safe
 from embody.errors import InputError
 from embody.report.paths import safe_name
-from embody.export.formats import (CONSUMERS, FORMATS, ExportFormat, Layout, read_joint_positions,
-                                   root_pose, write_trajectory)
+from embody.export.formats import (CONSUMERS, FORMATS, ExportFormat, Layout, companion_files,
+                                   read_joint_positions, root_pose, write_trajectory)
 from embody.retarget.validation import VALIDATION_KEYS
 
 #: Validation counters that must be zero for a trajectory to be exported.
@@ -108,7 +108,9 @@ def _remove_previous(out_dir: Path) -> None:
     if index.is_file():
         for name in pd.read_csv(index, dtype=str, keep_default_na=False).get("file", []):
             if name and Path(name).name == name:
-                (out_dir / name).unlink(missing_ok=True)
+                old = out_dir / name  # a csv may be BeyondMimic's, with its side file
+                for stale in (old, *(companion_files(old, "beyondmimic") if old.suffix == ".csv" else [])):
+                    stale.unlink(missing_ok=True)
 
 
 def _robot_named(name: str) -> Any:
@@ -122,7 +124,7 @@ def file_validation(robot: Any, path: Path, fmt: ExportFormat, dt: float) -> dic
     """Validation counters of an exported file's joint array, read as its consumer reads it."""
     from embody.retarget.validation import validation_counts
 
-    q = read_joint_positions(path, fmt, robot.n_joints)
+    q = read_joint_positions(path, fmt, robot.n_joints, robot.joint_names)
     return validation_counts(robot, q, 1.0 / dt)
 
 
@@ -162,7 +164,8 @@ def export_library(trajectories: Iterable[Trajectory], out_dir: str | Path,
         path = traj.save(out_dir / safe_name(traj.id), fmt, rb)
         written = file_validation(rb, path, fmt, traj.dt)
         if _bad(written):
-            path.unlink()
+            for old in (path, *companion_files(path, fmt)):
+                old.unlink(missing_ok=True)
             reason = "written file fails validation: " + "; ".join(
                 f"{k}={v:g}" for k, v in _bad(written).items())
             excluded.append({**row, "status": "refused", "reason": reason})
@@ -170,7 +173,9 @@ def export_library(trajectories: Iterable[Trajectory], out_dir: str | Path,
         kept.append({**row, "status": "ok", "file": path.name,
                      **{f"validation.{k}": v for k, v in sorted(traj.validation.items())},
                      **{f"written.{k}": v for k, v in written.items()}})
+        companions = [p.name for p in companion_files(path, fmt) if p.is_file()]
         entries.append({"id": traj.id, "file": path.name, "text": traj.text, "frames": len(traj.q),
+                        **({"companion_files": companions} if companions else {}),
                         "dt": traj.dt,
                         "validation": traj.validation, "written": written})
     library = pd.DataFrame(kept, columns=None if kept else

@@ -63,6 +63,54 @@ def _pick(found: Setting, override: Any, flag: str) -> Setting:
     return Setting(override, f"override ({flag}; the source said {found.value!r}: {found.origin})")
 
 
+def layout_check(pose: np.ndarray, up_axis: Setting, hands: Setting,
+                 overrides: Overrides) -> dict[str, Any]:
+    """What the data says about the up axis and hands (`embody.io.layout`) against what the
+    file's keys or its dataset's default say, and a warning naming the override that settles
+    each disagreement, or each ambiguity of a setting nothing in the file vouches for. An
+    override given for a setting settles it; embody's own files are not re-judged.
+
+    Returns {"up_axis"|"hands": {"data", "detail"}, "warnings": [...]} for what was judged.
+    """
+    from embody.io.layout import detect_hands, detect_up_axis
+
+    pose = np.asarray(pose)
+    out: dict[str, Any] = {}
+    warnings: list[str] = []
+    for name, found, given, flag, choices, detect in (
+            ("up_axis", up_axis, overrides.up_axis, "--up-axis", "y|z|camera",
+             lambda: detect_up_axis(pose[:, 0])),
+            ("hands", hands, overrides.hands, "--hands", "absolute|relative",
+             lambda: detect_hands(pose))):
+        if "embody_meta" in found.origin:
+            continue
+        finding = detect()
+        if finding is None:
+            continue
+        out[name] = {"data": finding.value, "detail": finding.detail}
+        if given is not None:
+            continue
+        label = "up axis" if name == "up_axis" else "hand convention"
+        # the text names no clip and no measurement, so a run can say each warning once;
+        # the measurement is `detail` (inspect prints it)
+        if finding.value is None and found.origin.startswith("default"):
+            warnings.append(f"{label} {found.value!r} is a default ({found.origin}) that the data "
+                            f"cannot confirm; if the motion looks wrong, {flag} {choices} "
+                            f"(io.{name}) settles it")
+        elif finding.value is not None and finding.value != found.value:
+            warnings.append(f"{label}: the file says {found.value!r} ({found.origin}) but the data "
+                            f"says {finding.value!r}; {flag} {finding.value} (io.{name}) reads it "
+                            f"as the data says, {flag} {found.value} keeps it")
+    if out:
+        out["warnings"] = warnings
+    return out
+
+
+def layout_warnings(provenance: dict[str, Any]) -> list[str]:
+    """The layout warnings a motion's provenance carries (empty when keys and data agree)."""
+    return list(provenance.get("check", {}).get("warnings", []))
+
+
 def normalise(pose: np.ndarray, transl: np.ndarray, *, fps: Setting, up_axis: Setting,
               hands: Setting, overrides: Overrides | None = None
               ) -> tuple[np.ndarray, np.ndarray, float, str, dict[str, dict[str, Any]]]:
@@ -72,6 +120,7 @@ def normalise(pose: np.ndarray, transl: np.ndarray, *, fps: Setting, up_axis: Se
     `{"fps"|"up_axis"|"hands": {"value", "origin"}}`.
     """
     ov = overrides or Overrides()
+    check = layout_check(pose, up_axis, hands, ov)
     fps = _pick(fps, None if ov.fps is None else float(ov.fps), "--fps / io.fps")
     up_axis = _pick(up_axis, ov.up_axis, "--up-axis / io.up_axis")
     hands = _pick(hands, ov.hands, "--hands / io.hands")
@@ -81,6 +130,8 @@ def normalise(pose: np.ndarray, transl: np.ndarray, *, fps: Setting, up_axis: Se
     rotation = _ROTATION[up_axis.value]
     if rotation is not None:
         pose, transl = rotate_root(pose, transl, rotation)
-    provenance = {name: {"value": s.value, "origin": s.origin}
-                  for name, s in (("fps", fps), ("up_axis", up_axis), ("hands", hands))}
+    provenance: dict[str, Any] = {name: {"value": s.value, "origin": s.origin}
+                                  for name, s in (("fps", fps), ("up_axis", up_axis), ("hands", hands))}
+    if check:
+        provenance["check"] = check
     return pose, np.asarray(transl, dtype=np.float32), float(fps.value), str(hands.value), provenance

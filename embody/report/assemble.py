@@ -15,6 +15,7 @@ from typing import Any
 import pandas as pd
 
 from embody.report.data import RunData
+from embody.report.definitions import PAPER
 from embody.report.tables import Table
 
 PAPER_COLUMN = "Paper (reported)"
@@ -127,7 +128,7 @@ def table1(data: RunData) -> Table:
         "After": [cells[r].get("After") for r in order],
         PAPER_COLUMN: [PAPER_TABLE1.get(r) for r in order],
     })
-    return Table("table1_collision", "Table I: self-collision mitigation (SMPL-X)", frame)
+    return Table("table1_collision", "Table I: self-collision mitigation (SMPL-X)", frame, cite=PAPER["key"])
 
 
 def table2(data: RunData) -> Table:
@@ -137,7 +138,7 @@ def table2(data: RunData) -> Table:
     settings = data.ablation or {"This run": data.collision}
     frame = collision_table2(settings).reset_index()
     frame = frame.rename(columns={frame.columns[0]: "Setting"})
-    return Table("table2_ablation", "Table II: loss-term ablation", frame)
+    return Table("table2_ablation", "Table II: loss-term ablation", frame, cite=PAPER["key"])
 
 
 def _counts(frame: pd.DataFrame) -> dict[str, float]:
@@ -212,7 +213,7 @@ def table3(data: RunData) -> Table:
     frame = pd.DataFrame(rows).reindex(columns=columns)
     return Table("table3_retargeting",
                  "Table III: retargeting fidelity, IK-only vs refined",
-                 frame)
+                 frame, cite=PAPER["key"])
 
 
 #: The verdicts table's rows: label → `embody.verdicts` name.

@@ -9,6 +9,7 @@ from embody.csvsafe import csv_safe
 from embody.report import assemble, drawing, figures
 from embody.report.paths import ReportPaths, safe_name
 from embody.report.data import RunData
+from embody.report.definitions import paper_bibtex
 from embody.report.html import render_index
 from embody.report.tables import Table
 
@@ -118,6 +119,8 @@ def write_report(data: RunData, out_dir: str | Path) -> ReportPaths:
     sequences = out_dir / "sequences.csv"
     per_sequence = data.per_sequence()
     csv_safe(per_sequence).to_csv(sequences, index=False, lineterminator="\n", float_format="%.10g")
+    references = out_dir / "references.bib"  # what the LaTeX tables' \cite keys resolve to
+    references.write_text(paper_bibtex(), encoding="utf-8")
     summary = assemble.summary(data, tables)
     summary_path = out_dir / "summary.json"
     summary_path.write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
@@ -131,10 +134,11 @@ def write_report(data: RunData, out_dir: str | Path) -> ReportPaths:
                  "error"] = top
     index = render_index(out_dir, run=data.name,
                          tables={n: (tables[n], written[n]) for n in tables},
-                         figures=figs, summary=summary, files=[sequences, summary_path],
+                         figures=figs, summary=summary,
+                         files=[sequences, summary_path, references],
                          failures=data.failures, sequences=per_sequence, links=links,
                          figure_rule=data.figure_rule, robot=data.robot)
-    _remember(out_dir, [index, sequences, summary_path,
+    _remember(out_dir, [index, sequences, summary_path, references,
                         *(p for files in written.values() for p in files.values()),
                         *(p for ps in figs.values() for p in ps),
                         *(p for seq in links.values() for p in seq.values())])

@@ -9,18 +9,17 @@ from __future__ import annotations
 from embody.verdicts import VERDICTS
 
 __all__ = ["COLLISION_MODEL", "COLUMNS", "METRICS", "PAPER", "ROBOT_NOTES", "VERDICT_DEFINITIONS",
-           "paper_citation", "robot_note"]
+           "paper_bibtex", "paper_citation", "robot_note"]
 
-#: The paper whose tables these are. Its title and venue are not recorded anywhere in this
-#: repository or its docs, and a search of public pages for the method it describes (checked
-#: 2026-11-23) found no match, so it is cited the way the docs describe it (never invented).
+#: The paper whose tables these are (the project's issue 36 names it).
 PAPER = {
-    "title": None,
-    "venue": None,
-    "described_as": "the paper this pipeline reproduces: generated sign-language SMPL-X motion "
-                    "retargeted to a humanoid robot, with a volumetric self-collision loss "
-                    "(VolumetricSMPL) in SMPL-X space and a vision-language-model critic that "
-                    "answers with control primitives",
+    "key": "khan2026sign",
+    "title": "From Sign Language Generation to Humanoid Execution: Vision–Language Guided "
+             "Retargeting with Collision Mitigation",
+    "authors": ("N. Khan", "B. Wu", "R. Shi", "B. Yen", "T. Ashizawa", "C. T. Ishi", "T. Minato",
+                "K. Nakadai"),
+    "venue": "IEEE/RSJ International Conference on Intelligent Robots and Systems (IROS)",
+    "year": 2026,
 }
 
 #: The volumetric body model whose self-collision loss the paper uses (title and venue checked).
@@ -127,9 +126,18 @@ COLUMNS = {
 
 
 def paper_citation() -> str:
-    """The paper as the page cites it: title and venue when known, else as the docs name it."""
-    if PAPER["title"]:
-        venue = f", {PAPER['venue']}" if PAPER["venue"] else ""
-        return f"“{PAPER['title']}”{venue}"
-    return (f"{PAPER['described_as']} (its title and venue are not recorded in this repository "
-            f"and could not be found; its collision loss is that of {COLLISION_MODEL})")
+    """The paper as a reference list prints it: authors, “title,” venue, year."""
+    authors = ", ".join(PAPER["authors"][:-1]) + ", and " + PAPER["authors"][-1]
+    return f"{authors}, “{PAPER['title']},” in {PAPER['venue']}, {PAPER['year']}."
+
+
+def paper_bibtex() -> str:
+    """The paper as a BibTeX `@inproceedings` entry (ASCII, so pdflatex needs no unicode setup)."""
+    title = PAPER["title"].replace("–", "--")
+    authors = " and ".join(PAPER["authors"])
+    return (f"@inproceedings{{{PAPER['key']},\n"
+            f"  author    = {{{authors}}},\n"
+            f"  title     = {{{{{title}}}}},\n"
+            f"  booktitle = {{{PAPER['venue']}}},\n"
+            f"  year      = {{{PAPER['year']}}},\n"
+            f"}}\n")

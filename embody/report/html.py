@@ -16,7 +16,7 @@ from urllib.parse import quote
 
 import pandas as pd
 
-from embody.report.definitions import (COLUMNS, METRICS, VERDICT_DEFINITIONS, paper_citation,
+from embody.report.definitions import (COLUMNS, METRICS, PAPER, VERDICT_DEFINITIONS, paper_citation,
                                        robot_note)
 from embody.report.tables import Table, format_cell
 
@@ -184,9 +184,9 @@ def render_index(out_dir: Path, *, run: str, tables: dict[str, tuple[Table, dict
              f"<title>embody report: {esc(run)}</title><style>{_STYLE}</style></head><body>",
              f"<h1>embody report: {esc(run)}</h1>",
              *([f'<p class="note">Robot: {esc(robot)}.</p>'] if robot else []),
-             f'<p class="note">Tables I–III follow {esc(paper_citation())}. Its published '
-             "figures are in Table I's “Paper (reported)” column; every other number is "
-             "computed from this run's stored results.</p>"]
+             '<p class="note">Tables I–III follow the paper <a href="#ref-paper">[1]</a>. Its '
+             "published figures are in Table I's “Paper (reported)” column; every other number "
+             "is computed from this run's stored results.</p>"]
     parts.append("<h2>Tables</h2>")
     for name, (table, paths) in tables.items():
         parts.append(f'<div class="scroll">{table.to_html()}</div>')
@@ -227,6 +227,9 @@ def render_index(out_dir: Path, *, run: str, tables: dict[str, tuple[Table, dict
     parts.append("<h2>Files</h2><ul>")
     parts += [f"<li>{_link(p, out_dir)}</li>" for p in files]
     parts.append("</ul>")
+    parts.append("<h2>References</h2>")
+    parts.append(f'<ol class="references"><li id="ref-paper">{esc(paper_citation())} '
+                 f"(BibTeX key <code>{esc(PAPER['key'])}</code>)</li></ol>")
     parts.append(_SORT)
     parts.append("</body></html>\n")
     path = out_dir / "index.html"

@@ -65,6 +65,9 @@ class Table:
     name: str
     title: str
     frame: pd.DataFrame
+    #: BibTeX key of the work the table follows: the LaTeX caption ends in `\cite{key}`
+    #: (the report writes the entry to `references.bib`).
+    cite: str = ""
 
     def cells(self) -> list[list[str]]:
         return [[format_cell(v) for v in row] for row in self.frame.itertuples(index=False)]
@@ -90,10 +93,11 @@ class Table:
     def to_latex(self) -> str:
         """A booktabs `table` environment; compiles with only the booktabs package."""
         spec = "l" + "r" * (len(self.header) - 1)
+        cite = rf" (after~\cite{{{self.cite}}})" if self.cite else ""
         body = [" & ".join(latex_escape(c) for c in r) + r" \\" for r in self.cells()]
         return "\n".join([
             r"\begin{table}[t]", r"\centering",
-            rf"\caption{{{latex_escape(self.title)}}}", rf"\label{{tab:{self.name}}}",
+            rf"\caption{{{latex_escape(self.title)}{cite}}}", rf"\label{{tab:{self.name}}}",
             rf"\begin{{tabular}}{{{spec}}}", r"\toprule",
             " & ".join(rf"\textbf{{{latex_escape(h)}}}" for h in self.header) + r" \\",
             r"\midrule", *body, r"\bottomrule", r"\end{tabular}", r"\end{table}", "",
