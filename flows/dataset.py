@@ -392,8 +392,11 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
 def _dataset_flow(dataset: str, split: str | None = None, config: dict[str, Any] | None = None,
                  pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
     """Prefect entry point; `config` is the full config as JSON data (deployments need JSON)."""
+    from embody.flows.env import sigterm_inside_flow
+
     cfg = Config.model_validate(config or {})
-    return run_dataset(dataset, cfg=cfg, split=split, pipeline=pipeline, progress=progress)
+    with sigterm_inside_flow():
+        return run_dataset(dataset, cfg=cfg, split=split, pipeline=pipeline, progress=progress)
 
 
 _dataset_flow.__name__ = _dataset_flow.__qualname__ = "dataset_flow"  # deployments' entrypoint

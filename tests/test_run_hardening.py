@@ -274,3 +274,83 @@ def test_the_next_run_stops_servers_orphaned_by_sigkill(tmp_path, monkeypatch, c
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+
+
+class Trickle:
+    """A real HTTP server whose every answer is one byte every 0.2 s, forever."""
+
+    def __init__(self):
+        self.requests = 0
+        outer = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self):  # noqa: N802 - http.server API
+                self.rfile.read(int(self.headers.get("Content-Length", 0)))
+                outer.requests += 1
+                try:
+                    self.send_response(200)
+                    self.send_header("Content-Length", "1000000")
+                    self.end_headers()
+                    while True:
+                        self.wfile.write(b" ")
+                        self.wfile.flush()
+                        time.sleep(0.2)
+                except OSError:
+                    pass
+
+            def log_message(self, *args):
+                pass
+
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.httpd.daemon_threads = True
+        threading.Thread(target=self.httpd.serve_forever, daemon=True).start()
+        self.origin = f"http://127.0.0.1:{self.httpd.server_address[1]}"
+
+    def close(self):
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+def test_sigterm_ends_a_run_waiting_on_a_trickling_vlm(tmp_path):
+    """`critic.vlm.timeout_s` of 10 minutes, a server that never finishes: one SIGTERM ends
+    the run (exit 130: interrupted) and its Prefect server, well before the timeout."""
+    from toy_flow import write_amass
+
+    data = write_amass(tmp_path / "data", 1, frames=4)
+    store = tmp_path / "store"
+    vlm = Trickle()
+    env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_API_URL", "PREFECT_HOME")}
+    env.update(PYTHONPATH=os.pathsep.join(sys.path), EMBODY_VLM_API_KEY="k")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from embody.cli import main; sys.exit(main())",
+         "run", str(data), "--store", str(store), "--name", "slow", "--critic", "vlm",
+         "--no-progress", "--set", f"critic.vlm.base_url={vlm.origin}/v1",
+         "--set", "critic.vlm.timeout_s=600", "--set", "critic.vlm.max_retries=0", *CHEAP],
+        env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while vlm.requests == 0 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert vlm.requests == 1, proc.stderr.read() if proc.poll() is not None else "no request"
+        pidfiles = list((store / "prefect" / "embody-servers").glob("*.json"))
+        server = json.loads(pidfiles[0].read_text())["server"]
+        os.kill(proc.pid, signal.SIGTERM)
+        try:
+            code = proc.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            code = None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        vlm.close()
+    assert code is not None, "one SIGTERM did not end a run waiting on the VLM"
+    assert code in (130, 143), (code, proc.stderr.read()[-2000:])
+    deadline = time.monotonic() + 10
+    while _alive(server) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    alive = _alive(server)
+    if alive:
+        os.kill(server, signal.SIGKILL)
+    assert not alive, "the Prefect server outlived the run"
+    assert not any(p.exists() for p in pidfiles)
