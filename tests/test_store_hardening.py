@@ -410,3 +410,21 @@ def test_a_refused_dataset_leaves_nothing_in_the_store(tmp_path, monkeypatch, ca
     store.mkdir()  # an existing store: still nothing added
     assert main(["run", str(empty), "--store", str(store), "--no-progress"]) == 2
     assert list(store.iterdir()) == []
+
+
+def test_a_mistyped_embody_meta_fails_its_sequence_in_a_run_naming_the_field(tmp_path):
+    """`run` no longer accepts `{"meta": {"artifacts": "xyz"}}` silently: the source step fails
+    that sequence with the one-line error naming file and field; the others go on."""
+    from embody.io import load_dataset
+
+    data = _write_amass(tmp_path / "data")
+    with np.load(data / "seq001.npz") as z:
+        arrays = dict(z)
+    np.savez(data / "seq001.npz", **arrays,
+             embody_meta=np.array(json.dumps({"meta": {"artifacts": "xyz"}})))
+    refs = list(load_dataset(data))
+    ctx = Context(cfg=Config(), store_root=str(tmp_path / "store"), run="r")
+    recs = _chain(ctx, refs, (SOURCE,))
+    assert [r["status"] for r in recs] == ["ok", "failed"]
+    assert "seq001.npz: field 'embody_meta.meta.artifacts'" in recs[1]["error"]
+    assert len(recs[1]["error"].splitlines()) == 1
