@@ -354,3 +354,49 @@ def test_sigterm_ends_a_run_waiting_on_a_trickling_vlm(tmp_path):
         os.kill(server, signal.SIGKILL)
     assert not alive, "the Prefect server outlived the run"
     assert not any(p.exists() for p in pidfiles)
+
+
+# -- a full disk under the default layout (Prefect's SQLite in <store>/prefect) -----------------------
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 48 MB tmpfs (needs root and mount rights; skipped where mounting is refused)."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    made = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=48m", "tmpfs", str(mount)],
+                          capture_output=True, text=True)
+    if made.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {made.stderr.strip()}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+
+
+@pytest.mark.parametrize("free_kb", [512, 2048])
+def test_a_full_disk_under_prefects_database_ends_in_a_summary(small_disk, tmp_path, free_kb):
+    """The store (and Prefect's database in it) on a disk with `free_kb` left: 512 KB fails
+    before the flow (one line), 2 MB during it (Prefect's server answers 500s, its SQLite full);
+    either way exit 1 with what is known, no traceback (there were 28)."""
+    from toy_flow import write_amass
+
+    data = write_amass(tmp_path / "data", 2, frames=4)
+    st = os.statvfs(small_disk)
+    filler = small_disk / "filler"
+    with open(filler, "wb") as f:
+        os.posix_fallocate(f.fileno(), 0, st.f_bavail * st.f_frsize - free_kb * 1024)
+    env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_API_URL", "PREFECT_HOME")}
+    env["PYTHONPATH"] = os.pathsep.join(sys.path)
+    out = subprocess.run(
+        [sys.executable, "-c", "import sys; from embody.cli import main; sys.exit(main())",
+         "run", str(data), "--store", str(small_disk / "store"), "--no-progress",
+         "--set", "run.report=false", *CHEAP],
+        env=env, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 1, out.stderr[-3000:]
+    assert "Traceback" not in out.stderr, out.stderr[-3000:]
+    assert len(out.stderr.splitlines()) <= 20, out.stderr[-3000:]
+    assert "no space left on device" in (out.stdout + out.stderr).lower()
+    if "sequences ok" in out.stdout:  # the flow ran: its summary and failures are complete
+        assert "verdicts:" in out.stderr
+        assert "failed:" in out.stderr or "error:" in out.stderr
+    else:
+        assert out.stderr.strip().splitlines()[-1].startswith("error: ")
