@@ -400,3 +400,45 @@ def test_a_full_disk_under_prefects_database_ends_in_a_summary(small_disk, tmp_p
         assert "failed:" in out.stderr or "error:" in out.stderr
     else:
         assert out.stderr.strip().splitlines()[-1].startswith("error: ")
+
+
+_STUCK = """
+import os, sys, time
+from embody.flows.env import on_sigterm, register_server
+on_sigterm(grace_s=float(sys.argv[1]))
+register_server(pid=os.getpid(), home=sys.argv[2])  # a pidfile, as a run with a server has
+ready = False
+while True:
+    try:
+        if not ready:
+            ready = True
+            print("ready", flush=True)
+        time.sleep(3600)
+    except KeyboardInterrupt:  # work that swallows the interrupt (or cannot see it)
+        print("interrupted", flush=True)
+"""
+
+
+@pytest.mark.parametrize("grace_s", [600.0, 0.5])
+def test_a_second_sigterm_or_the_grace_period_ends_a_stuck_process(tmp_path, grace_s):
+    """A process that does not unwind on SIGTERM exits 143 on the second SIGTERM (grace 600 s)
+    or once the grace period passes (0.5 s), its pidfile removed."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    proc = subprocess.Popen([sys.executable, "-c", _STUCK, str(grace_s), str(tmp_path)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        pidfile = tmp_path / "embody-servers" / f"{proc.pid}.json"
+        assert pidfile.is_file()
+        os.kill(proc.pid, signal.SIGTERM)
+        assert proc.stdout.readline().strip() == "interrupted", proc.stderr.read()[-2000:]
+        if grace_s > 60:
+            assert proc.poll() is None  # the first SIGTERM left it to unwind
+            os.kill(proc.pid, signal.SIGTERM)
+        code = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert code == 143 and "stopped (SIGTERM)" in proc.stderr.read()
+    assert not pidfile.exists()
