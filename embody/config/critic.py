@@ -20,8 +20,6 @@ class VLMConfig(Section):
     #: Longest one request may take, from connecting to the last byte of the answer (a
     #: deadline over all reads, not per read: a server trickling bytes cannot stretch it).
     timeout_s: float = Field(60.0, gt=0.0, le=3600.0)
-    #: Largest answer read (bytes); a longer one fails the request without being held in memory.
-    max_response_bytes: int = Field(4_000_000, ge=1024, le=1_000_000_000)
     max_retries: int = Field(3, ge=0, le=20)
     backoff_s: float = Field(1.0, ge=0.0, le=60.0)
     max_backoff_s: float = Field(30.0, ge=0.0, le=600.0)

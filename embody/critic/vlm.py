@@ -15,7 +15,8 @@ refused, so the Authorization header never travels to another host or scheme.
 
 Bounds: `timeout_s` is a deadline over the whole request (a watchdog shuts the request's socket
 down when it passes, so a server trickling a byte at a time cannot hold a run), the answer is
-read in chunks and refused past `max_response_bytes`, and `abort_requests` (called on SIGTERM)
+read in chunks and refused past `MAX_RESPONSE_BYTES` (a fixed bound rather than a config key,
+which would enter the refine step's content key), and `abort_requests` (called on SIGTERM)
 ends every request in flight at once.
 """
 
@@ -69,6 +70,8 @@ class _NoRedirect(urllib.request.HTTPRedirectHandler):
 
 
 _CHUNK = 64 * 1024
+#: Largest answer read (bytes): a reply of `max_tokens` ≤ 32,768 tokens is well under 1 MB.
+MAX_RESPONSE_BYTES = 4_000_000
 
 
 class _Deadline:
@@ -162,13 +165,13 @@ def _read_capped(resp: Any, limit: int, url: str) -> bytes:
     length = resp.headers.get("Content-Length")
     if length is not None and length.strip().isdigit() and int(length) > limit:
         raise VLMError(f"VLM endpoint {url} answered {int(length):,} bytes, more than "
-                       f"critic.vlm.max_response_bytes ({limit:,})")
+                       f"the {limit:,} accepted")
     body = bytearray()
     while chunk := resp.read(_CHUNK):
         body += chunk
         if len(body) > limit:
-            raise VLMError(f"VLM endpoint {url} answered more than "
-                           f"critic.vlm.max_response_bytes ({limit:,} bytes)")
+            raise VLMError(f"VLM endpoint {url} answered more than the {limit:,} bytes "
+                           "accepted")
     return bytes(body)
 
 
@@ -210,8 +213,10 @@ def check_config(cfg: VLMConfig) -> None:
 class VLMClient:
     """Chat Completions over `urllib`; one instance per run so the request budget is per run."""
 
-    def __init__(self, cfg: VLMConfig, *, sleep: Callable[[float], None] = time.sleep) -> None:
+    def __init__(self, cfg: VLMConfig, *, sleep: Callable[[float], None] = time.sleep,
+                 max_response_bytes: int = MAX_RESPONSE_BYTES) -> None:
         self.cfg = cfg
+        self.max_response_bytes = max_response_bytes
         self.requests_sent = 0
         self._sleep = sleep
         check_base_url(cfg)
@@ -255,7 +260,7 @@ class VLMClient:
                 with deadline:
                     req = urllib.request.Request(url, data=body, headers=headers, method="POST")
                     with _opener(deadline).open(req, timeout=self.cfg.timeout_s) as resp:
-                        raw = _read_capped(resp, self.cfg.max_response_bytes, url)
+                        raw = _read_capped(resp, self.max_response_bytes, url)
                         status = resp.status
                 if deadline.expired:  # the body ended because the watchdog closed the socket
                     raise TimeoutError(f"no complete answer within {self.cfg.timeout_s:g} s")
