@@ -10,15 +10,18 @@ from __future__ import annotations
 
 import errno
 import functools
+import os
 import queue
 import re
 import time
 from collections import deque
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
 from embody.config import Config
-from embody.errors import ConfigError
+from embody.errors import ConfigError, EmbodyError
 from embody.flows.progress import Progress
 from embody.flows.verdicts import verdict_summary
 from embody.verdicts import sequence_verdicts
@@ -32,6 +35,31 @@ __all__ = ["check_run_reuse", "dataset_flow", "default_run_name", "resolve_datas
            "run_flow", "write_tables"]
 
 _SAVE_EVERY_S = 1.0
+#: Below this many free bytes where Prefect keeps its database, its failures read as a full disk.
+_FULL_BYTES = 1 << 20
+#: The summaries of the flows this process ran, by run name: `run_flow` still returns one when
+#: Prefect fails after the flow itself finished (e.g. recording its end in a full database).
+_SUMMARIES: dict[str, dict[str, Any]] = {}
+
+
+class OrchestrationError(EmbodyError):
+    """Prefect (its server or its database) failed before the run could record anything."""
+
+
+def orchestration_failure(exc: BaseException, store_root: str | Path,
+                          what: str = "Prefect failed") -> str:
+    """One line for a failure of Prefect's API or server: a full disk under its database (a
+    500 from its server says no more) is named as such."""
+    home = Path(os.environ.get("PREFECT_HOME") or Path(store_root) / "prefect")
+    try:
+        st = os.statvfs(home if home.exists() else store_root)
+        full = st.f_bavail * st.f_frsize < _FULL_BYTES
+    except OSError:
+        full = False
+    if full or getattr(exc, "errno", None) == errno.ENOSPC:
+        return f"{what}: no space left on device (under {home})"
+    text = " ".join(str(exc).split())
+    return f"{what}: {type(exc).__name__}: {text[:200]}"
 
 
 def resolve_dataset(dataset: str | Path | None, cfg: Config) -> Path:
@@ -226,6 +254,13 @@ class _Driver:
         self._fill()
         self._save()
 
+    def abandon(self, error: str) -> None:
+        """The orchestration failed mid-run: every sequence not finished fails with `error`
+        (what finished stays recorded)."""
+        for seq in self.manifest.sequences.values():
+            if seq["status"] == "pending":
+                seq.update(status="failed", error=error, failed_step=seq["failed_step"] or "prefect")
+
     def _save(self, force: bool = False) -> None:
         """Save the manifest at most every `_save_every` s; a full disk is reported, not fatal."""
         if not force and time.monotonic() - self._saved <= self._save_every:
@@ -381,19 +416,31 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
     driver = _Driver(pipeline, ctx, manifest, bar, max_inflight=2 * cfg.run.workers,
                      workers=cfg.run.workers)
     from embody.tasks.workers import worker_pool
+    failure = None
     with worker_threads(cfg.run.workers), worker_pool(ctx, pipeline):
-        driver.run(batches)
-    return finish_run(store, run, manifest, cfg, dataset=dataset, split=split, t0=t0,
-                      computed=driver.computed,
-                      shared={n: r.get("key") for n, r in driver.shared.items()}, prefect=True,
-                      errors=[driver.save_error] if driver.save_error else [])
+        try:
+            driver.run(batches)
+        except Exception as exc:  # Prefect's API failed (its database's disk full, ...)
+            failure = orchestration_failure(exc, store.root, "not finished: Prefect failed")
+            driver.abandon(failure)
+    summary = finish_run(store, run, manifest, cfg, dataset=dataset, split=split, t0=t0,
+                         computed=driver.computed,
+                         shared={n: r.get("key") for n, r in driver.shared.items()},
+                         prefect=True, errors=[driver.save_error] if driver.save_error else [])
+    if failure is not None:
+        summary["errors"].append(failure)
+    _SUMMARIES[run] = summary
+    return summary
 
 
 def _dataset_flow(dataset: str, split: str | None = None, config: dict[str, Any] | None = None,
                  pipeline: Pipeline | None = None, progress: bool = False) -> dict[str, Any]:
     """Prefect entry point; `config` is the full config as JSON data (deployments need JSON)."""
+    from embody.flows.env import sigterm_inside_flow
+
     cfg = Config.model_validate(config or {})
-    return run_dataset(dataset, cfg=cfg, split=split, pipeline=pipeline, progress=progress)
+    with sigterm_inside_flow():
+        return run_dataset(dataset, cfg=cfg, split=split, pipeline=pipeline, progress=progress)
 
 
 _dataset_flow.__name__ = _dataset_flow.__qualname__ = "dataset_flow"  # deployments' entrypoint
@@ -444,6 +491,34 @@ def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
         except Exception:  # a bad model is each sequence's error, reported by its step
             pass
 
-    with prefect_api(warm=warm):
-        return prefect_flow().with_options(task_runner=make_task_runner(cfg.run))(
-            str(dataset), split, cfg.model_dump(mode="json"), pipeline, progress)
+    run = run_name(cfg, dataset, split)
+    _SUMMARIES.pop(run, None)
+    try:
+        with prefect_api(warm=warm), _quiet_prefect():
+            return prefect_flow().with_options(task_runner=make_task_runner(cfg.run))(
+                str(dataset), split, cfg.model_dump(mode="json"), pipeline, progress)
+    except Exception as exc:  # Prefect itself failed: its server, its database, its API
+        summary = _SUMMARIES.pop(run, None)
+        if summary is None:
+            raise OrchestrationError(orchestration_failure(
+                exc, cfg.run.store, "the run could not start or finish under Prefect")) from None
+        summary["errors"].append(orchestration_failure(
+            exc, cfg.run.store, "Prefect could not record the run's end"))
+        return summary
+
+
+@contextmanager
+def _quiet_prefect() -> Iterator[None]:
+    """Prefect's flow and task run loggers off for the flow: every failure they would print
+    (with a traceback, once per retry of its API) reaches the run's summary instead."""
+    import logging
+
+    loggers = [logging.getLogger(n) for n in ("prefect.flow_runs", "prefect.task_runs")]
+    levels = [lg.level for lg in loggers]
+    for lg in loggers:
+        lg.setLevel(logging.CRITICAL + 1)
+    try:
+        yield
+    finally:
+        for lg, level in zip(loggers, levels):
+            lg.setLevel(level)

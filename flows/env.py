@@ -5,7 +5,9 @@ Prefect reads its settings from the environment when it is imported, so these ar
 `PREFECT_HOME`) wins.
 
 The ephemeral Prefect server is a child process that Prefect stops at interpreter exit. SIGTERM
-is turned into the same exit path as Ctrl-C (`on_sigterm`), and each run leaves a pidfile
+is turned into the same exit path as Ctrl-C (`on_sigterm`): VLM requests in flight are ended at
+once, and a run that has not exited `grace_s` later, or gets a second SIGTERM, stops its Prefect
+server and exits (143) without waiting for its worker threads. Each run leaves a pidfile
 (`$PREFECT_HOME/embody-servers/<pid>.json`) naming its server and itself, so after a SIGKILL
 the next run over the same store finds the orphaned server and stops it (`stop_orphans`).
 """
@@ -17,10 +19,13 @@ import json
 import os
 import signal
 import sys
+import threading
 import time
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Any, Iterator
 
-__all__ = ["configure", "on_sigterm", "register_server", "stop_orphans"]
+__all__ = ["configure", "on_sigterm", "register_server", "sigterm_inside_flow", "stop_orphans"]
 
 _DEFAULTS = {
     "DO_NOT_TRACK": "1",
@@ -33,6 +38,8 @@ _DEFAULTS = {
     "PREFECT_SERVER_REGISTER_BLOCKS_ON_START": "false",
 }
 _PIDS = "embody-servers"
+#: Pidfiles this process wrote (removed at exit, or by `_hard_exit`).
+_PIDFILES: list[Path] = []
 
 
 def configure(store_root: str | Path) -> None:
@@ -48,15 +55,97 @@ def configure(store_root: str | Path) -> None:
               file=sys.stderr)
 
 
-def on_sigterm() -> None:
-    """SIGTERM raises KeyboardInterrupt in the main thread: the same cleanup as Ctrl-C (the
-    ephemeral server is stopped at exit). Only the main thread may install handlers."""
-    def handler(signum: int, frame: object) -> None:
-        raise KeyboardInterrupt(f"signal {signum}")
+#: Seconds a SIGTERMed run may take to unwind (finishing the step calls in flight) before it
+#: exits without them.
+SIGTERM_GRACE_S = 10.0
+
+
+def _abort_requests() -> None:
+    """End the VLM requests in flight (a request may otherwise wait `critic.vlm.timeout_s`)."""
+    vlm = sys.modules.get("embody.critic.vlm")
+    if vlm is not None:
+        vlm.abort_requests()
+
+
+def _hard_exit(code: int = 143) -> None:
+    """Stop this process's Prefect server, remove its pidfile and exit now; worker threads
+    are not waited for (worker processes die with their parent)."""
+    ephemeral = sys.modules.get("embody.flows.ephemeral")
+    server = ephemeral.running_server() if ephemeral is not None else None
     try:
-        signal.signal(signal.SIGTERM, handler)
+        if server is not None:
+            server.stop()
+        for path in _PIDFILES:
+            path.unlink(missing_ok=True)
+        print("stopped (SIGTERM): work in flight abandoned", file=sys.stderr)
+        sys.stdout.flush()
+        sys.stderr.flush()
+    finally:
+        os._exit(code)
+
+
+_SIGTERM: dict[str, Any] = {"installed": False, "received": 0, "relay": False,
+                            "grace_s": SIGTERM_GRACE_S}
+
+
+def _on_signal() -> None:
+    """What every SIGTERM does first: end VLM requests, then arm the grace timer (first
+    signal) or exit now (second)."""
+    _SIGTERM["received"] += 1
+    _abort_requests()
+    if _SIGTERM["received"] > 1:
+        _hard_exit()
+    timer = threading.Timer(_SIGTERM["grace_s"], _hard_exit)
+    timer.daemon = True
+    timer.start()
+
+
+def _handler(signum: int, frame: object) -> None:
+    if _SIGTERM["relay"]:  # Prefect's flow engine re-sends the SIGTERM it took over
+        _SIGTERM["relay"] = False
+    else:
+        _on_signal()
+    raise KeyboardInterrupt(f"signal {signum}")
+
+
+def on_sigterm(grace_s: float = SIGTERM_GRACE_S) -> None:
+    """SIGTERM raises KeyboardInterrupt in the main thread: the same cleanup as Ctrl-C (the
+    ephemeral server is stopped at exit). VLM requests in flight end at once; if the process
+    is still there `grace_s` later (a step call that cannot be interrupted), or on a second
+    SIGTERM, it exits through `_hard_exit`. Only the main thread may install handlers."""
+    _SIGTERM["grace_s"] = grace_s
+    try:
+        signal.signal(signal.SIGTERM, _handler)
     except ValueError:  # not the main thread
-        pass
+        return
+    _SIGTERM["installed"] = True
+
+
+@contextmanager
+def sigterm_inside_flow() -> Iterator[None]:
+    """Prefect's flow engine installs its own SIGTERM handler for the flow's duration (it
+    raises `TerminationSignal`, then waits for the task runner's calls in flight). Where
+    `on_sigterm` is in force, the flow's handler is chained after `_on_signal`, so a SIGTERM
+    during the flow also ends VLM requests and arms the grace timer."""
+    if not _SIGTERM["installed"] or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    prev = signal.getsignal(signal.SIGTERM)
+    if prev is _handler or not callable(prev):
+        yield
+        return
+
+    def chained(signum: int, frame: Any) -> None:
+        _on_signal()
+        _SIGTERM["relay"] = True
+        prev(signum, frame)
+
+    signal.signal(signal.SIGTERM, chained)
+    try:
+        yield
+    finally:
+        if signal.getsignal(signal.SIGTERM) is chained:
+            signal.signal(signal.SIGTERM, prev)
 
 
 def register_server(pid: int | None = None, home: str | Path | None = None) -> Path | None:
@@ -75,6 +164,7 @@ def register_server(pid: int | None = None, home: str | Path | None = None) -> P
                                 "home": str(Path(home).expanduser().resolve()),
                                 "time": time.time()}))
     atexit.register(lambda: path.unlink(missing_ok=True))
+    _PIDFILES.append(path)
     return path
 
 

@@ -131,6 +131,11 @@ class EphemeralServer:
         self._error: str | None = None
 
     @property
+    def log_path(self) -> Path:
+        """The server's stdout and stderr (`$PREFECT_HOME/server.log`)."""
+        return self.home / "server.log"
+
+    @property
     def api_url(self) -> str:
         return f"http://127.0.0.1:{self.port}/api"
 
@@ -147,11 +152,19 @@ class EphemeralServer:
         assert spec is not None and spec.origin is not None, "prefect is not installed"
         app_dir = str(Path(spec.origin).parent.parent)
         self.port = free_port()
-        self.proc = subprocess.Popen(
-            [sys.executable, "-m", "uvicorn", "--app-dir", app_dir, "--factory",
-             "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port",
-             str(self.port), "--log-level", "error", "--lifespan", "on"],
-            env=self._child_env())
+        try:  # the server's own log (its errors repeat per retried request): not the run's stderr
+            log = open(self.log_path, "wb")
+        except OSError:
+            log = subprocess.DEVNULL  # type: ignore[assignment]
+        try:
+            self.proc = subprocess.Popen(
+                [sys.executable, "-m", "uvicorn", "--app-dir", app_dir, "--factory",
+                 "prefect.server.api.server:create_app", "--host", "127.0.0.1", "--port",
+                 str(self.port), "--log-level", "error", "--lifespan", "on"],
+                env=self._child_env(), stdout=log, stderr=log)
+        finally:
+            if log is not subprocess.DEVNULL:
+                log.close()
         self._pidfile = register_server(self.proc.pid, self.home)
 
     def _child_env(self) -> dict[str, str]:
@@ -187,7 +200,7 @@ class EphemeralServer:
                     self._spawn()
                     continue
                 self._error = (f"the Prefect server (PREFECT_HOME={self.home}) exited with code "
-                               f"{code} while starting")
+                               f"{code} while starting (its log: {self.log_path})")
                 return
             if self._get("health"):
                 if not self.seeded:

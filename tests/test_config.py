@@ -105,3 +105,46 @@ def test_models_are_frozen():
     cfg = Config()
     with pytest.raises(Exception):
         cfg.run.workers = 5  # type: ignore[misc]
+
+
+def _alias_bomb(levels: int, width: int = 9) -> str:
+    """`run.name: [&a [x]*9, &b [*a]*9, ...]`: a few hundred bytes, 9**levels nodes expanded."""
+    items = [f"&l0 [{', '.join(['x'] * width)}]"]
+    items += [f"&l{i} [{', '.join([f'*l{i - 1}'] * width)}]" for i in range(1, levels)]
+    return f"run:\n  name: [{', '.join(items)}]\n"
+
+
+@pytest.mark.parametrize("levels", [6, 10])  # 0.5 M nodes; 3.5 G nodes (GBs when expanded)
+def test_alias_bomb_in_a_valid_key_is_refused_in_one_short_line(tmp_path, capsys, levels):
+    path = tmp_path / "bomb.yaml"
+    path.write_text(_alias_bomb(levels))
+    assert len(path.read_bytes()) < 1000
+    assert main(["config", "--config", str(path)]) == 2
+    captured = capsys.readouterr()
+    err = captured.err.strip()
+    assert len(err.splitlines()) == 1 and len(err) < 300, err[:300]
+    assert "bomb.yaml" in err and "nodes" in err and captured.out == ""
+
+
+def test_alias_bomb_in_set_and_recursive_alias_are_refused(tmp_path, capsys):
+    bomb = _alias_bomb(8).split("name: ", 1)[1].strip()
+    assert main(["config", "--set", f"run.name={bomb}"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and len(err) < 300 and "'run.name'" in err
+    path = tmp_path / "loop.yaml"
+    path.write_text("run:\n  name: &a [1, *a]\n")
+    assert main(["config", "--config", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "loop.yaml" in err and "contains it" in err
+
+
+def test_plain_anchors_still_work_and_long_values_are_quoted_short(tmp_path, capsys):
+    path = tmp_path / "anchors.yaml"
+    path.write_text("run:\n  workers: &w 3\n  batch_size: *w\n")
+    cfg = _effective(capsys, "--config", str(path))
+    assert cfg["run"]["workers"] == 3 and cfg["run"]["batch_size"] == 3
+    path = tmp_path / "long.yaml"  # no alias, 60k items: the error quotes a few of them
+    path.write_text("run:\n  name: [" + ", ".join(["xy"] * 60_000) + "]\n")
+    assert main(["config", "--config", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and len(err) < 400 and "'run.name'" in err, err[:400]

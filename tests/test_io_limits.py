@@ -134,6 +134,27 @@ def test_malformed_embody_meta_is_one_line_exit_2(tmp_path, capsys, meta):
     assert len(err.splitlines()) == 1 and "m.npz: field 'embody_meta'" in err
 
 
+@pytest.mark.parametrize("meta,field", [
+    ({"artifacts": "xyz"}, "artifacts"), ({"gloss": 5}, "gloss"), ({"text": ["a"]}, "text"),
+    ({"artifacts": [{"kind": "jitter", "start": "0", "end": 4}]}, "artifacts"),
+    ({"seed": True}, "seed"), ({"signs": [{"gloss": 1}]}, "signs")])
+def test_mistyped_embody_meta_fields_are_one_line_exit_2(tmp_path, capsys, meta, field):
+    path = _amass(tmp_path / "m.npz", embody_meta=np.array(json.dumps({"meta": meta})))
+    assert main(["inspect", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and f"m.npz: field 'embody_meta.meta.{field}'" in err, err
+    with pytest.raises(InputError) as exc:
+        load(path)
+    assert exc.value.field == f"embody_meta.meta.{field}"
+
+
+def test_well_typed_embody_meta_and_unknown_keys_load(tmp_path):
+    meta = {"text": "hello", "gloss": ["HELLO"], "seed": 3, "note": {"free": [1, "x"]},
+            "artifacts": [{"kind": "jitter", "start": 0, "end": 4, "sigma_rad": 0.1}]}
+    path = _amass(tmp_path / "m.npz", embody_meta=np.array(json.dumps({"meta": meta})))
+    assert load(path).meta == meta
+
+
 def test_non_utf8_config_file_is_one_line_exit_2(tmp_path, capsys):
     cfg = tmp_path / "bad.yaml"
     cfg.write_bytes(b"io:\n  max_frames: 10 # caf\xe9\n")

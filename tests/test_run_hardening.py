@@ -274,3 +274,171 @@ def test_the_next_run_stops_servers_orphaned_by_sigkill(tmp_path, monkeypatch, c
             if proc.poll() is None:
                 proc.kill()
                 proc.wait()
+
+
+class Trickle:
+    """A real HTTP server whose every answer is one byte every 0.2 s, forever."""
+
+    def __init__(self):
+        self.requests = 0
+        outer = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def do_POST(self):  # noqa: N802 - http.server API
+                self.rfile.read(int(self.headers.get("Content-Length", 0)))
+                outer.requests += 1
+                try:
+                    self.send_response(200)
+                    self.send_header("Content-Length", "1000000")
+                    self.end_headers()
+                    while True:
+                        self.wfile.write(b" ")
+                        self.wfile.flush()
+                        time.sleep(0.2)
+                except OSError:
+                    pass
+
+            def log_message(self, *args):
+                pass
+
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.httpd.daemon_threads = True
+        threading.Thread(target=self.httpd.serve_forever, daemon=True).start()
+        self.origin = f"http://127.0.0.1:{self.httpd.server_address[1]}"
+
+    def close(self):
+        self.httpd.shutdown()
+        self.httpd.server_close()
+
+
+def test_sigterm_ends_a_run_waiting_on_a_trickling_vlm(tmp_path):
+    """`critic.vlm.timeout_s` of 10 minutes, a server that never finishes: one SIGTERM ends
+    the run (exit 130: interrupted) and its Prefect server, well before the timeout."""
+    from toy_flow import write_amass
+
+    data = write_amass(tmp_path / "data", 1, frames=4)
+    store = tmp_path / "store"
+    vlm = Trickle()
+    env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_API_URL", "PREFECT_HOME")}
+    env.update(PYTHONPATH=os.pathsep.join(sys.path), EMBODY_VLM_API_KEY="k")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from embody.cli import main; sys.exit(main())",
+         "run", str(data), "--store", str(store), "--name", "slow", "--critic", "vlm",
+         "--no-progress", "--set", f"critic.vlm.base_url={vlm.origin}/v1",
+         "--set", "critic.vlm.timeout_s=600", "--set", "critic.vlm.max_retries=0", *CHEAP],
+        env=env, cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 300
+        while vlm.requests == 0 and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.2)
+        assert vlm.requests == 1, proc.stderr.read() if proc.poll() is not None else "no request"
+        pidfiles = list((store / "prefect" / "embody-servers").glob("*.json"))
+        server = json.loads(pidfiles[0].read_text())["server"]
+        os.kill(proc.pid, signal.SIGTERM)
+        try:
+            code = proc.wait(timeout=120)
+        except subprocess.TimeoutExpired:
+            code = None
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        vlm.close()
+    assert code is not None, "one SIGTERM did not end a run waiting on the VLM"
+    assert code in (130, 143), (code, proc.stderr.read()[-2000:])
+    deadline = time.monotonic() + 10
+    while _alive(server) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    alive = _alive(server)
+    if alive:
+        os.kill(server, signal.SIGKILL)
+    assert not alive, "the Prefect server outlived the run"
+    assert not any(p.exists() for p in pidfiles)
+
+
+# -- a full disk under the default layout (Prefect's SQLite in <store>/prefect) -----------------------
+@pytest.fixture
+def small_disk(tmp_path):
+    """A 48 MB tmpfs (needs root and mount rights; skipped where mounting is refused)."""
+    mount = tmp_path / "disk"
+    mount.mkdir()
+    made = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=48m", "tmpfs", str(mount)],
+                          capture_output=True, text=True)
+    if made.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs here: {made.stderr.strip()}")
+    try:
+        yield mount
+    finally:
+        subprocess.run(["umount", "-l", str(mount)], check=False)
+
+
+@pytest.mark.parametrize("free_kb", [512, 2048])
+def test_a_full_disk_under_prefects_database_ends_in_a_summary(small_disk, tmp_path, free_kb):
+    """The store (and Prefect's database in it) on a disk with `free_kb` left: 512 KB fails
+    before the flow (one line), 2 MB during it (Prefect's server answers 500s, its SQLite full);
+    either way exit 1 with what is known, no traceback (there were 28)."""
+    from toy_flow import write_amass
+
+    data = write_amass(tmp_path / "data", 2, frames=4)
+    st = os.statvfs(small_disk)
+    filler = small_disk / "filler"
+    with open(filler, "wb") as f:
+        os.posix_fallocate(f.fileno(), 0, st.f_bavail * st.f_frsize - free_kb * 1024)
+    env = {k: v for k, v in os.environ.items() if k not in ("PREFECT_API_URL", "PREFECT_HOME")}
+    env["PYTHONPATH"] = os.pathsep.join(sys.path)
+    out = subprocess.run(
+        [sys.executable, "-c", "import sys; from embody.cli import main; sys.exit(main())",
+         "run", str(data), "--store", str(small_disk / "store"), "--no-progress",
+         "--set", "run.report=false", *CHEAP],
+        env=env, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 1, out.stderr[-3000:]
+    assert "Traceback" not in out.stderr, out.stderr[-3000:]
+    assert len(out.stderr.splitlines()) <= 20, out.stderr[-3000:]
+    assert "no space left on device" in (out.stdout + out.stderr).lower()
+    if "sequences ok" in out.stdout:  # the flow ran: its summary and failures are complete
+        assert "verdicts:" in out.stderr
+        assert "failed:" in out.stderr or "error:" in out.stderr
+    else:
+        assert out.stderr.strip().splitlines()[-1].startswith("error: ")
+
+
+_STUCK = """
+import os, sys, time
+from embody.flows.env import on_sigterm, register_server
+on_sigterm(grace_s=float(sys.argv[1]))
+register_server(pid=os.getpid(), home=sys.argv[2])  # a pidfile, as a run with a server has
+ready = False
+while True:
+    try:
+        if not ready:
+            ready = True
+            print("ready", flush=True)
+        time.sleep(3600)
+    except KeyboardInterrupt:  # work that swallows the interrupt (or cannot see it)
+        print("interrupted", flush=True)
+"""
+
+
+@pytest.mark.parametrize("grace_s", [600.0, 0.5])
+def test_a_second_sigterm_or_the_grace_period_ends_a_stuck_process(tmp_path, grace_s):
+    """A process that does not unwind on SIGTERM exits 143 on the second SIGTERM (grace 600 s)
+    or once the grace period passes (0.5 s), its pidfile removed."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(sys.path))
+    proc = subprocess.Popen([sys.executable, "-c", _STUCK, str(grace_s), str(tmp_path)],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        pidfile = tmp_path / "embody-servers" / f"{proc.pid}.json"
+        assert pidfile.is_file()
+        os.kill(proc.pid, signal.SIGTERM)
+        assert proc.stdout.readline().strip() == "interrupted", proc.stderr.read()[-2000:]
+        if grace_s > 60:
+            assert proc.poll() is None  # the first SIGTERM left it to unwind
+            os.kill(proc.pid, signal.SIGTERM)
+        code = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert code == 143 and "stopped (SIGTERM)" in proc.stderr.read()
+    assert not pidfile.exists()

@@ -339,3 +339,92 @@ def test_sequences_csv_cells_are_never_formulas(tmp_path):
     row = pd.read_csv(tmp_path / "runs" / "r" / "sequences.csv").iloc[0]
     assert row["error"].startswith("'=") and row["source.note"] == "'@SUM(A1)"
     assert row["source.n"] == -3 and "\n=" not in text and ",=" not in text
+
+
+# -- one run name, two datasets at once (issue 34 item 5) --------------------------------------------
+_HOLD = """
+import sys, time
+from pathlib import Path
+from embody.store.claims import claimed
+with claimed(Path(sys.argv[1]), {"dataset": sys.argv[2], "split": None,
+                                  "robot": "unitree_g1_dex3"}):
+    print("claimed", flush=True)
+    time.sleep(120)
+"""
+
+
+def test_a_live_run_of_the_name_over_other_data_refuses_the_second(tmp_path, capsys):
+    """Run A (a real process holding its claim, as `embody run` does from before its first
+    write to its exit) has not written its manifest yet; run B, same --name, another dataset,
+    is refused with one line and writes nothing; same-data runs share the name; once A is gone
+    the name is free."""
+    import subprocess
+    import sys
+
+    from embody.store.claims import claimed
+
+    a_data, b_data = _write_amass(tmp_path / "a"), _write_amass(tmp_path / "b")
+    store = tmp_path / "store"
+    run_dir = store.resolve() / "runs" / "shared"
+    proc = subprocess.Popen([sys.executable, "-c", _HOLD, str(run_dir), str(a_data.resolve())],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "claimed"
+        assert main(["run", str(b_data), "--store", str(store), "--name", "shared",
+                     "--no-progress"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "'run.name'" in err, err
+        assert str(a_data.resolve()) in err and f"pid {proc.pid}" in err
+        assert not (run_dir / "manifest.json").exists() and not (store / "prefect").exists()
+        with claimed(run_dir, {"dataset": str(a_data.resolve()), "split": None,
+                               "robot": "unitree_g1_dex3"}):
+            pass  # the same data shares the name, as before
+        with pytest.raises(ConfigError, match="robot 'unitree_g1_dex3'"):
+            with claimed(run_dir, {"dataset": str(a_data.resolve()), "split": None,
+                                   "robot": "unitree_h1"}):
+                pass
+    finally:
+        proc.kill()
+        proc.wait()
+    with claimed(run_dir, {"dataset": str(b_data.resolve()), "split": None,
+                           "robot": "unitree_g1_dex3"}):
+        pass  # A died: the kernel dropped its lock, the name is free
+    claim = json.loads((store / "runs" / ".locks" / "shared.claim.json").read_text())
+    assert claim["dataset"] == str(b_data.resolve())
+
+
+def test_a_refused_dataset_leaves_nothing_in_the_store(tmp_path, monkeypatch, capsys):
+    """Datasets refused when they are listed (exit 2): no store folder, no Prefect home."""
+    monkeypatch.chdir(tmp_path)
+    store = tmp_path / "store"
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    outside = tmp_path / "lists" / "list.csv"
+    outside.parent.mkdir()
+    outside.write_text("path,text\n../a/seq000.npz,hello\n")
+    _write_amass(tmp_path / "a")
+    for dataset in (empty, tmp_path / "missing", outside):
+        assert main(["run", str(dataset), "--store", str(store), "--no-progress"]) == 2
+        assert len(capsys.readouterr().err.strip().splitlines()) == 1
+        assert not store.exists(), sorted(str(p) for p in store.rglob("*"))
+    store.mkdir()  # an existing store: still nothing added
+    assert main(["run", str(empty), "--store", str(store), "--no-progress"]) == 2
+    assert list(store.iterdir()) == []
+
+
+def test_a_mistyped_embody_meta_fails_its_sequence_in_a_run_naming_the_field(tmp_path):
+    """`run` no longer accepts `{"meta": {"artifacts": "xyz"}}` silently: the source step fails
+    that sequence with the one-line error naming file and field; the others go on."""
+    from embody.io import load_dataset
+
+    data = _write_amass(tmp_path / "data")
+    with np.load(data / "seq001.npz") as z:
+        arrays = dict(z)
+    np.savez(data / "seq001.npz", **arrays,
+             embody_meta=np.array(json.dumps({"meta": {"artifacts": "xyz"}})))
+    refs = list(load_dataset(data))
+    ctx = Context(cfg=Config(), store_root=str(tmp_path / "store"), run="r")
+    recs = _chain(ctx, refs, (SOURCE,))
+    assert [r["status"] for r in recs] == ["ok", "failed"]
+    assert "seq001.npz: field 'embody_meta.meta.artifacts'" in recs[1]["error"]
+    assert len(recs[1]["error"].splitlines()) == 1

@@ -41,6 +41,12 @@ class FakeServer:
                 status, text, headers, delay = (server.script.pop(0) if server.script
                                                 else (500, "script exhausted", {}, 0.0))
                 time.sleep(delay)
+                if callable(text):  # the answer writes itself (trickles, floods)
+                    try:
+                        text(self)
+                    except (BrokenPipeError, ConnectionResetError):
+                        pass
+                    return
                 try:
                     self.send_response(status)
                     for k, v in headers.items():
@@ -233,3 +239,90 @@ def test_fidelity_numbers_reach_the_prompt(server, key):
     VLMCritic(_cfg(server)).critique(_context())
     user = server.requests[0]["body"]["messages"][1]["content"]
     assert "Measured" not in " ".join(p["text"] for p in user if p["type"] == "text")
+
+
+# -- hostile servers: trickled and oversized answers --------------------------------------------------
+def _trickle_headers(handler):
+    """The status line one byte at a time, forever: every read returns within the timeout."""
+    while True:
+        for byte in b"HTTP/1.1 200 OK\r\nX-Slow: ":
+            handler.wfile.write(bytes([byte]))
+            handler.wfile.flush()
+            time.sleep(0.1)
+        while True:
+            handler.wfile.write(b"a")
+            handler.wfile.flush()
+            time.sleep(0.1)
+
+
+def _trickle_body(handler):
+    """Headers at once, then a byte of an endless body every 0.1 s."""
+    handler.send_response(200)
+    handler.send_header("Content-Type", "application/json")
+    handler.send_header("Content-Length", "1000000")
+    handler.end_headers()
+    while True:
+        handler.wfile.write(b" ")
+        handler.wfile.flush()
+        time.sleep(0.1)
+
+
+def _in_thread(fn):
+    """Run `fn` in a daemon thread; what it returned or raised, or None if still running at 60 s
+    (a request the deadline does not end would run forever against these servers)."""
+    out: dict = {}
+
+    def target():
+        try:
+            out["value"] = fn()
+        except BaseException as exc:  # noqa: BLE001 - handed to the test
+            out["error"] = exc
+    t = threading.Thread(target=target, daemon=True)
+    t.start()
+    t.join(60)
+    return None if t.is_alive() else out
+
+
+@pytest.mark.parametrize("answer", [_trickle_headers, _trickle_body])
+def test_timeout_is_a_deadline_over_the_whole_request(server, key, answer):
+    server.script.append((200, answer, {}, 0.0))
+    client = VLMClient(_cfg(server, timeout_s=1.0, max_retries=0))
+    out = _in_thread(lambda: client.chat({"model": "m", "messages": []}))
+    assert out is not None, "a trickling server held the request past its deadline"
+    assert isinstance(out.get("error"), VLMError), out
+    assert "no complete answer within 1 s" in str(out["error"])
+
+
+def _flood(handler, total=64 * 2**20, declare=False):
+    """A 64 MB answer, with or without a Content-Length; counts what it managed to send."""
+    handler.send_response(200)
+    handler.send_header("Content-Type", "application/json")
+    if declare:
+        handler.send_header("Content-Length", str(total))
+    handler.end_headers()
+    chunk = b"[" * 65536
+    handler.server.sent = 0
+    while handler.server.sent < total:
+        handler.wfile.write(chunk)
+        handler.server.sent += len(chunk)
+
+
+@pytest.mark.parametrize("declare", [False, True])
+def test_an_oversized_answer_is_refused_without_reading_it_whole(server, key, declare):
+    server.script.append((200, lambda h: _flood(h, declare=declare), {}, 0.0))
+    client = VLMClient(_cfg(server, max_retries=0), max_response_bytes=100_000)
+    with pytest.raises(VLMError, match="100,000"):
+        client.chat({"model": "m", "messages": []})
+    deadline = time.monotonic() + 30
+    while getattr(server.httpd, "sent", None) is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    time.sleep(0.5)  # the server writes until it notices the client left
+    assert server.httpd.sent < 32 * 2**20  # the client stopped reading long before the end
+
+
+def test_a_normal_answer_still_fits_and_parses(server, key):
+    server.reply(VALID)
+    client = VLMClient(_cfg(server), max_response_bytes=2048)
+    reply, attempts = client.chat({"model": "m", "messages": []})
+    assert json.loads(reply["choices"][0]["message"]["content"])["verdict"] == "revise"
+    assert attempts == [{"status": 200}]

@@ -41,6 +41,16 @@ def cli() -> None:
     """Turn generated SMPL-X signing into validated robot joint trajectories."""
 
 
+#: Longest error line printed: a message quoting hostile input stays readable.
+MAX_ERROR_CHARS = 1000
+
+
+def one_line(exc: BaseException) -> str:
+    """The error's message on one line of at most `MAX_ERROR_CHARS` characters."""
+    text = " ".join(str(exc).split())
+    return text if len(text) <= MAX_ERROR_CHARS else text[: MAX_ERROR_CHARS - 3] + "..."
+
+
 def main(argv: list[str] | None = None) -> int:
     """Entry point: maps embody's errors onto the exit-code convention with one-line messages."""
     try:
@@ -54,10 +64,10 @@ def main(argv: list[str] | None = None) -> int:
         exc.show()
         return 2
     except (InputError, ConfigError, UsageError) as exc:
-        click.echo(f"error: {exc}", err=True)
+        click.echo(f"error: {one_line(exc)}", err=True)
         return 2
     except EmbodyError as exc:
-        click.echo(f"error: {exc}", err=True)
+        click.echo(f"error: {one_line(exc)}", err=True)
         return 1
     code = rv if isinstance(rv, int) else 0
     if argv is None:

@@ -90,12 +90,12 @@ def check_up_front(cfg: Config, dataset: str | None) -> None:
 
 def prepare(dataset: str | None, split: str | None, cfg: Config, overwrite: bool = False) -> Path:
     """Validate config and resolve and list the dataset before Prefect starts, so bad input
-    fails fast (exit 2); a reused run name of another robot or dataset is refused."""
+    fails fast (exit 2) with nothing created in the store (Prefect's home included: the caller
+    configures it once the dataset is accepted); a reused run name of another robot or dataset
+    is refused."""
     from embody.io import load_dataset
-    from embody.flows.env import configure
 
     check_up_front(cfg, dataset)
-    configure(cfg.run.store)
     from embody.flows.dataset import check_run_reuse, resolve_dataset, run_name
     path = resolve_dataset(dataset, cfg)
     load_dataset(path, split, cfg.io)
@@ -126,9 +126,7 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
     DATASET is a folder of motion files, a SOKE root (with --split) or a CSV manifest. Reruns
     are cheap: every step is cached by content key, so only what changed is recomputed.
     """
-    import errno
-
-    from embody.flows.env import on_sigterm
+    from embody.flows.env import configure, on_sigterm
 
     cfg = config_from_options(config_files, sets, **options)
     say = (lambda text: click.echo(f"embody run: {text}", err=True)) if progress else (
@@ -136,7 +134,28 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
     say(f"starting: dataset {dataset or 'synthetic (default)'}, robot {cfg.robot.name}, "
         f"store {cfg.run.store}")
     path = prepare(dataset, split, cfg, overwrite)
-    on_sigterm()  # SIGTERM cleans up like Ctrl-C: the ephemeral Prefect server is stopped
+    with claim_run(path, split, cfg):
+        configure(cfg.run.store)
+        on_sigterm()  # SIGTERM cleans up like Ctrl-C: the ephemeral Prefect server is stopped
+        return _run(path, split, cfg, say, progress, as_json)
+
+
+def claim_run(path: Path, split: str | None, cfg: Config) -> Any:
+    """The run name claimed for this dataset, split and robot while the run lasts (`store.claims`):
+    a concurrent run of the name over other data is refused (exit 2) before anything is written."""
+    from embody.flows.dataset import run_name
+    from embody.store.claims import claimed
+
+    run_dir = Path(cfg.run.store).expanduser().resolve() / "runs" / run_name(cfg, path, split)
+    return claimed(run_dir, {"dataset": str(Path(path).expanduser().resolve()), "split": split,
+                             "robot": cfg.robot.name})
+
+
+def _run(path: Path, split: str | None, cfg: Config, say: Any, progress: bool,
+         as_json: bool) -> int:
+    """The run itself, once its input is accepted and its name claimed."""
+    import errno
+
     say("checking the store for results of every step")
     from embody.flows.warm import run_cached
 

@@ -6,6 +6,7 @@ Every error names the dotted key and is a `ConfigError` (exit 2 in the CLI).
 from __future__ import annotations
 
 import copy
+import reprlib
 import os
 from pathlib import Path
 from typing import Any, Iterable
@@ -23,6 +24,7 @@ from embody.config.io import IOConfig
 from embody.config.render import RenderConfig
 from embody.config.robot import RobotConfig
 from embody.config.run import DebugConfig, RunConfig
+from embody.config.yamlload import YAMLBudgetError, load_yaml
 from embody.errors import ConfigError
 
 __all__ = ["Config", "Section", "canonical_json", "load_config", "configs_dir", "parse_set"]
@@ -61,7 +63,9 @@ def _read_yaml(path: Path) -> dict[str, Any]:
     except UnicodeDecodeError as exc:
         raise ConfigError(str(path), f"not UTF-8 text (byte {exc.start})") from None
     try:
-        data = yaml.safe_load(text) or {}
+        data = load_yaml(text) or {}
+    except YAMLBudgetError as exc:
+        raise ConfigError(str(path), f"refused: {exc}") from None
     except yaml.YAMLError as exc:
         # PyYAML's message spans several lines with a caret; errors here are one line.
         mark = getattr(exc, "problem_mark", None)
@@ -93,7 +97,9 @@ def parse_set(item: str) -> dict[str, Any]:
     if len(parts) < 2:
         raise ConfigError(dotted, "--set key must be section.key")
     try:
-        value = yaml.safe_load(raw)
+        value = load_yaml(raw)
+    except YAMLBudgetError as exc:
+        raise ConfigError(dotted, f"--set value refused: {exc}") from None
     except yaml.YAMLError:
         value = raw
     nested: dict[str, Any] = {parts[-1]: value}
@@ -141,4 +147,15 @@ def load_config(
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
         extra = f" ({len(exc.errors()) - 1} more)" if len(exc.errors()) > 1 else ""
-        raise ConfigError(key, f"{msg}; got {err.get('input')!r}{extra}") from None
+        raise ConfigError(key, f"{msg}; got {shown(err.get('input'))}{extra}") from None
+
+
+def shown(value: Any, limit: int = 120) -> str:
+    """`repr(value)` cut to `limit` characters: an error line quotes the value, never a whole
+    document (a list of a million items is one line of a few dozen characters)."""
+    short = reprlib.Repr()
+    short.maxlevel, short.maxlist, short.maxdict = 3, 6, 6
+    short.maxstring = short.maxother = limit
+    text = short.repr(value)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+

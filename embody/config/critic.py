@@ -17,6 +17,8 @@ class VLMConfig(Section):
     api_key_env: str = "EMBODY_VLM_API_KEY"
     #: Local servers often need no key; when false a missing key sends no Authorization header.
     api_key_required: bool = True
+    #: Longest one request may take, from connecting to the last byte of the answer (a
+    #: deadline over all reads, not per read: a server trickling bytes cannot stretch it).
     timeout_s: float = Field(60.0, gt=0.0, le=3600.0)
     max_retries: int = Field(3, ge=0, le=20)
     backoff_s: float = Field(1.0, ge=0.0, le=60.0)

@@ -12,16 +12,24 @@ Key hygiene: the key is stripped and validated when the client is built (a key r
 secret file often ends in a newline, and `http.client` would echo `Bearer <key>` in its
 error); every exception leaving `chat` is re-raised as a scrubbed `VLMError`; redirects are
 refused, so the Authorization header never travels to another host or scheme.
+
+Bounds: `timeout_s` is a deadline over the whole request (a watchdog shuts the request's socket
+down when it passes, so a server trickling a byte at a time cannot hold a run), the answer is
+read in chunks and refused past `MAX_RESPONSE_BYTES` (a fixed bound rather than a config key,
+which would enter the refine step's content key), and `abort_requests` (called on SIGTERM)
+ends every request in flight at once.
 """
 
 from __future__ import annotations
 
 import base64
 import hashlib
+import http.client
 import json
 import logging
 import os
 import socket
+import threading
 import time
 import urllib.error
 import urllib.request
@@ -61,7 +69,110 @@ class _NoRedirect(urllib.request.HTTPRedirectHandler):
         return None  # urllib then raises the 3xx as an HTTPError
 
 
-_OPENER = urllib.request.build_opener(_NoRedirect)
+_CHUNK = 64 * 1024
+#: Largest answer read (bytes): a reply of `max_tokens` ≤ 32,768 tokens is well under 1 MB.
+MAX_RESPONSE_BYTES = 4_000_000
+
+
+class _Deadline:
+    """One request's deadline: at `seconds` from now (monotonic) the sockets it opened are shut
+    down, which ends any read blocked on them; `abort` does the same at once."""
+
+    def __init__(self, seconds: float) -> None:
+        self.seconds = seconds
+        self.expired = self.aborted = False
+        self._socks: list[socket.socket] = []
+        self._lock = threading.Lock()
+        self._timer = threading.Timer(seconds, self._expire)
+        self._timer.daemon = True
+
+    def __enter__(self) -> "_Deadline":
+        with _ACTIVE_LOCK:
+            if _ABORTED.is_set():
+                raise VLMError("VLM request not sent: the run is being stopped")
+            _ACTIVE.add(self)
+        self._timer.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._timer.cancel()
+        with _ACTIVE_LOCK:
+            _ACTIVE.discard(self)
+
+    def _shut(self) -> None:
+        for sock in self._socks:
+            try:
+                sock.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+
+    def _expire(self) -> None:
+        with self._lock:
+            self.expired = True
+            self._shut()
+
+    def abort(self) -> None:
+        with self._lock:
+            self.aborted = self.expired = True
+            self._shut()
+
+    def track(self, sock: socket.socket) -> socket.socket:
+        with self._lock:
+            self._socks.append(sock)
+            if self.expired:
+                self._shut()
+        return sock
+
+    def connection(self, http_class: Any) -> Callable[..., http.client.HTTPConnection]:
+        """`http_class` whose sockets this deadline tracks (for urllib's `do_open`)."""
+        def make(*args: Any, **kwargs: Any) -> http.client.HTTPConnection:
+            conn = http_class(*args, **kwargs)
+            create = conn._create_connection
+            conn._create_connection = lambda *a, **k: self.track(create(*a, **k))
+            return conn
+        return make
+
+
+_ACTIVE: set[_Deadline] = set()
+_ACTIVE_LOCK = threading.Lock()
+_ABORTED = threading.Event()
+
+
+def abort_requests() -> None:
+    """End every VLM request in flight now and refuse new ones (the process is stopping)."""
+    with _ACTIVE_LOCK:
+        _ABORTED.set()
+        active = list(_ACTIVE)
+    for deadline in active:
+        deadline.abort()
+
+
+def _opener(deadline: _Deadline) -> urllib.request.OpenerDirector:
+    """urllib without redirects, whose HTTP(S) connections `deadline` can shut down."""
+    class HTTP(urllib.request.HTTPHandler):
+        def do_open(self, http_class, req, **kw):  # noqa: ANN001
+            return super().do_open(deadline.connection(http_class), req, **kw)
+
+    class HTTPS(urllib.request.HTTPSHandler):
+        def do_open(self, http_class, req, **kw):  # noqa: ANN001
+            return super().do_open(deadline.connection(http_class), req, **kw)
+
+    return urllib.request.build_opener(_NoRedirect, HTTP, HTTPS)
+
+
+def _read_capped(resp: Any, limit: int, url: str) -> bytes:
+    """The response body, read in chunks; VLMError as soon as it passes `limit` bytes."""
+    length = resp.headers.get("Content-Length")
+    if length is not None and length.strip().isdigit() and int(length) > limit:
+        raise VLMError(f"VLM endpoint {url} answered {int(length):,} bytes, more than "
+                       f"the {limit:,} accepted")
+    body = bytearray()
+    while chunk := resp.read(_CHUNK):
+        body += chunk
+        if len(body) > limit:
+            raise VLMError(f"VLM endpoint {url} answered more than the {limit:,} bytes "
+                           "accepted")
+    return bytes(body)
 
 
 def api_key(cfg: VLMConfig) -> str | None:
@@ -102,8 +213,10 @@ def check_config(cfg: VLMConfig) -> None:
 class VLMClient:
     """Chat Completions over `urllib`; one instance per run so the request budget is per run."""
 
-    def __init__(self, cfg: VLMConfig, *, sleep: Callable[[float], None] = time.sleep) -> None:
+    def __init__(self, cfg: VLMConfig, *, sleep: Callable[[float], None] = time.sleep,
+                 max_response_bytes: int = MAX_RESPONSE_BYTES) -> None:
         self.cfg = cfg
+        self.max_response_bytes = max_response_bytes
         self.requests_sent = 0
         self._sleep = sleep
         check_base_url(cfg)
@@ -142,18 +255,27 @@ class VLMClient:
                 raise VLMError(f"VLM request budget of {self.cfg.request_budget} exhausted")
             self.requests_sent += 1
             retry_after: float | None = None
+            deadline = _Deadline(self.cfg.timeout_s)
             try:
-                req = urllib.request.Request(url, data=body, headers=headers, method="POST")
-                with _OPENER.open(req, timeout=self.cfg.timeout_s) as resp:
-                    text = resp.read().decode("utf-8", errors="replace")
-                attempts.append({"status": resp.status})
+                with deadline:
+                    req = urllib.request.Request(url, data=body, headers=headers, method="POST")
+                    with _opener(deadline).open(req, timeout=self.cfg.timeout_s) as resp:
+                        raw = _read_capped(resp, self.max_response_bytes, url)
+                        status = resp.status
+                if deadline.expired:  # the body ended because the watchdog closed the socket
+                    raise TimeoutError(f"no complete answer within {self.cfg.timeout_s:g} s")
+                text = raw.decode("utf-8", errors="replace")
+                attempts.append({"status": status})
                 try:
                     return json.loads(text), attempts
                 except json.JSONDecodeError:
                     raise VLMError(f"VLM endpoint {url} answered non-JSON: "
                                    f"{self.scrub(text[:200])!r}") from None
             except urllib.error.HTTPError as exc:
-                detail = self.scrub(exc.read().decode("utf-8", errors="replace")[:300])
+                try:
+                    detail = self.scrub(exc.read(4096).decode("utf-8", errors="replace")[:300])
+                except (OSError, http.client.HTTPException):
+                    detail = ""
                 attempts.append({"status": exc.code, "error": detail})
                 if 300 <= exc.code < 400:
                     raise VLMError(f"VLM endpoint {url} answered a redirect (HTTP {exc.code}); "
@@ -163,8 +285,12 @@ class VLMClient:
                     raise VLMError(f"VLM endpoint {url} answered HTTP {exc.code}: {detail}") from None
                 retry_after = _retry_after(exc.headers.get("Retry-After"))
                 failure = f"HTTP {exc.code}"
-            except (urllib.error.URLError, socket.timeout, TimeoutError, ConnectionError) as exc:
+            except (urllib.error.URLError, OSError, http.client.HTTPException) as exc:
+                if deadline.aborted:
+                    raise VLMError("VLM request aborted: the run is being stopped") from None
                 reason = getattr(exc, "reason", exc)
+                if deadline.expired:
+                    reason = TimeoutError(f"no complete answer within {self.cfg.timeout_s:g} s")
                 failure = self.scrub(f"{type(reason).__name__}: {reason}")
                 attempts.append({"status": None, "error": failure})
             if attempt == self.cfg.max_retries:
@@ -174,6 +300,8 @@ class VLMClient:
                 delay = min(max(delay, retry_after), self.cfg.max_backoff_s)
             log.warning("VLM request failed (%s); retrying in %.2fs", failure, delay)
             self._sleep(delay)
+            if _ABORTED.is_set():
+                raise VLMError("VLM request aborted: the run is being stopped")
         raise AssertionError("unreachable")
 
 

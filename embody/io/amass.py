@@ -77,7 +77,7 @@ def read(path: Path, data: dict[str, Any] | None = None,
             raise InputError(path, META_KEY, "expected a JSON object with an object 'meta'")
         if info.get("up_axis", "y") != "y" or info.get("hand_convention", "absolute") != "absolute":
             raise InputError(path, META_KEY, "embody files must be y-up with absolute hands")
-        meta, fmt = dict(info.get("meta", {})), "embody"
+        meta, fmt = check_meta(info.get("meta", {}), path), "embody"
         up = Setting("y", f"data: {META_KEY}")
         hands = Setting("absolute", f"data: {META_KEY}")
     elif is_beat2(data):
@@ -94,6 +94,51 @@ def read(path: Path, data: dict[str, Any] | None = None,
                   gender=text(data, "gender", "neutral", path),
                   source=MotionSource(str(path), fmt, hand_convention, provenance),  # type: ignore[arg-type]
                   meta=meta)
+
+
+def _is_int(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _str_list(value: Any) -> bool:
+    return isinstance(value, list) and all(isinstance(v, str) for v in value)
+
+
+def _artifact_list(value: Any) -> bool:
+    return isinstance(value, list) and all(
+        isinstance(a, dict) and isinstance(a.get("kind"), str) and _is_int(a.get("start"))
+        and _is_int(a.get("end")) for a in value)
+
+
+def _sign_list(value: Any) -> bool:
+    return isinstance(value, list) and all(
+        isinstance(s, dict) and isinstance(s.get("gloss", ""), str)
+        and _is_int(s.get("start", 0)) and _is_int(s.get("end", 0)) for s in value)
+
+
+#: The `meta` keys embody reads (inspect, the dataset, the critic's prompt, synth's tables),
+#: each with its check and what it must be; other keys are carried along unread.
+_META_FIELDS: dict[str, tuple[Any, str]] = {
+    "id": (lambda v: isinstance(v, str), "a string"),
+    "text": (lambda v: isinstance(v, str), "a string"),
+    "gloss": (_str_list, "a list of strings"),
+    "artifacts": (_artifact_list, "a list of objects with a string 'kind' and integer "
+                                  "'start' and 'end'"),
+    "signs": (_sign_list, "a list of objects with a string 'gloss' and integer 'start' and 'end'"),
+    "seed": (_is_int, "an integer"),
+    "index": (_is_int, "an integer"),
+    "generator": (lambda v: isinstance(v, str), "a string"),
+}
+
+
+def check_meta(meta: dict[str, Any], path: str | Path) -> dict[str, Any]:
+    """The `meta` of an `embody_meta` with the keys embody reads type-checked: InputError
+    naming `embody_meta.meta.<key>` (exit 2), not a traceback wherever the value is used."""
+    for key, (ok, what) in _META_FIELDS.items():
+        if key in meta and not ok(meta[key]):
+            raise InputError(path, f"{META_KEY}.meta.{key}",
+                             f"must be {what}, got {type(meta[key]).__name__}")
+    return dict(meta)
 
 
 def _numpy_json(value: Any) -> Any:

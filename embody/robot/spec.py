@@ -84,10 +84,14 @@ class RobotSpec(_Strict):
 
 def read_spec(path: Path) -> RobotSpec:
     """Parse and validate a robot YAML; every error names `<file>:<dotted key>`."""
+    from embody.config.yamlload import YAMLBudgetError, load_yaml
+
     try:
-        data = yaml.safe_load(Path(path).read_text())
+        data = load_yaml(Path(path).read_text())
     except OSError as exc:
         raise ConfigError(str(path), f"cannot read robot definition: {exc.strerror or exc}") from None
+    except YAMLBudgetError as exc:
+        raise ConfigError(str(path), f"refused: {exc}") from None
     except yaml.YAMLError as exc:
         raise ConfigError(str(path), f"not valid YAML: {exc}") from None
     if not isinstance(data, dict):
