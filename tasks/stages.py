@@ -330,97 +330,32 @@ def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
                    {"location_landmark": names})
 
 
-# v2: per-dataset default frame rates, detected up axis / hands (BEAT2), `io` overrides.
+# The motion, y-up with absolute hands; frame rate, up axis and hands from the file, the
+# dataset's documented default, or the `io` overrides.
 SOURCE = Step("source", "3", ("io",), _load_source, Motion.from_arrays, metrics=_source_metrics)
-# v2: mesh-level penetration depth before/after; depth-driven optimiser.
-# v3: limb-core capsules separate crossed arms; depth judged on the blended whole.
-# v4: depth-guided polish (frames the mesh judge finds > collision.depth_polish deep).
-# v5: point-level broad-phase candidates between refreshes (s4-colspeed); per-frame Adam second
-#     moment, step-size decay once clear, λ growth 1.2 (s4-colquality).
-# v6: mesh-judged pull-back of the correction (s6-adam).
-# v7: the pull-back's search is regula falsi from the known ends, not bisection (s7-colfast).
-# v8: the optimiser stops one refresh after every frame is clear (`early_stop_stall` 1; s9-adamfast).
-# v9: lambda_growth 1.3; exact energy gathers (s10-adam).
-# v10: the optimiser's broad phase, narrow-phase selection, point depths and FK compiled (numba),
-#      the last two with hand-written gradients: equal to float32 rounding, so other Adam paths
-#      (s13-adamstep).
-# v11: the optimiser's refresh frame by frame (`collision.refresh`): a frame keeps its candidate
-#      rows while its points moved < half the margin; the capsule term compiled; the objective's
-#      gradient by hand on the CPU (`collision.objective`), no autograd graph (s13-adam3).
-# v12: the pull-back's search steps on by twice its last move instead of halving the bracket,
-#      and smooths s(t) over 0.1 s, not 0.25 s (`pull_back_window_s`): lower Pose MSE (s14-pull).
+# The collision-mitigated motion: masked Adam on the volumetric energy, depth-guided polish and a
+# mesh-judged pull-back; metrics include the mesh penetration depth before and after.
 COLLIDE = Step("collide", "12", ("body", "collision"), _collide, _collision_result, (SOURCE,))
+# Betas and scale fitted to the robot's proportions, once per robot and body (shared).
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
-# v3: hand-hand and hand-chest clearance at hand scale (targets.hand_gap, retarget/hand_clearance.py).
-# v4: hand clearance's exact cull (a few planes' lower bound against the gap): same rows to ~1e-17,
-#     which moves the chaotic solve off a bad basin on synth seq 3 (21 self-contact frames → 0).
-# v5: up to 32 contact-repair passes (was 12; `retarget.control.PASSES`).
-# v6: the IK's damping floor (`retarget.ik.LAMBDA_MIN`): fewer rejected trials, slightly other solves.
-# v7: a human palm resting on the body, facing it, with a free thumb folds the robot thumb along
-#     the palm (`hands.fold_thumbs`; location-preserving targets only): the opposite-shoulder sign;
-#     hand-face clearance at hand scale too (`Targets.hand_gap` (T,5), `hand_clearance.CHANNELS`).
-# v8: finger targets rate-limited (`hands.rate_limit`), the IK's contact phase on MuJoCo's leaked
-#     contacts (`ik.resolve_contacts`) and short contact runs bridged before the repair (s8-agree);
-#     faster IK kernels (hand clearance culled by cluster balls, Jacobians as z·(x×n) − n·(z×o)):
-#     the same rows to ~1e-15, which moves some chaotic solves into another basin (s8-ikspeed).
-# v9: the contact phase on windows around the contacts (`ik.contact_window`, edges held) and on
-#     the control-rate samples between frames (`ik.contact_samples`): other solves where hands pass (s9-ikwin).
-# v10: contact repair inside trust radii (`retarget.control.TRUST_DEG`), a bounded active-set
-#      step, the bridge's push kept near its neighbours; the export's wider bridge (s11-separate).
-# v11: a touching sample on a run at the velocity limit is cleared inside its neighbours' reach
-#      (`control._within_velocity`; synth seq 15's 50 Hz export was left touching).
-# v12: contact rounds end when MuJoCo finds them clear, with the proxies' rows at the samples
-#      (`ik.contact_stop`, `ik.contact_sample_proxies`), judged after the velocity clamp (s11-iksamples).
-# v13: a contact round that stops improving MuJoCo's deepest contact ends the contact phase
-#      (`ik.contact_stall`, `ik.contact_stall_mm`; s12).
-# v14: the human's hand gaps (`targets.hand_gaps`) from the float64 subset skinning
-#      (`metrics.embodiments._SubsetSkin`; within 1e-7 m of the float32 blend's).
-# v15: the sphere/hull proxy rows compiled (`retarget.proxy_hulls`): the same rows to round-off
-#      (~1e-16), solutions within ~5e-13 rad, not bit for bit (s12-nbproxy).
-# v16: the contact phase's proxy rows at the samples packed per frame (`Residuals._sample_rows`)
-#      and its proxy block cut to the proxy frames' width (`Residuals._exact_rows`): the same
-#      Gauss-Newton blocks to round-off, solutions within ~6e-13 rad (s13-ikevals).
-# v17: smoothness, velocity hinge and cold-start stride per second, not per frame (other rates than 30 fps).
+# The whole-sequence IK solution on location-preserving targets (contact phase on MuJoCo's contacts,
+# the 50 Hz control-rate array repaired at every sample), with its validation counts.
 RETARGET = Step("retarget", "17", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
-# v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
-# v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
-# v6: the export's contact repair gets up to 32 passes (was 12).
-# v7: the critic judges against what the robot can reach (`critic.reach`), palm against the human.
-# v8: the IK's damping floor (`retarget.ik.LAMBDA_MIN`) changes every solve slightly.
-# v9: the thumb fold and hand-face clearance (retarget v7); the critic's face room from hand_gap.
-# v10: the IK's contact phase, bridge and finger rate limit, and the faster IK kernels (retarget v8)
-#      in every round's solve.
-# v11: the windowed contact phase with midpoints (retarget v9) in every round's solve.
-# v12: the local contact repair (retarget v10) in every round's solve and its 50 Hz export.
-# v13: the repair at the velocity limit (retarget v11).
-# v14: the s11 contact phase (retarget v12) in every round's solve.
-# v15: the stalled-contact stop (retarget v13) in every round's solve.
-# v16: retarget v14's targets.
-# v17: the compiled sphere/hull proxy rows (retarget v15) in every round's solve.
-# v18: the contact phase's narrower proxy blocks (retarget v16) in every round's solve.
-# v19: the critic's sheets draw the reference as the render step does (render v4's bound skin),
-#      not from skinned vertices: the same picture up to edge pixels.
+# Every critic round's IK solution, action and comparison sheet; the chosen round's control-rate
+# array and wrist positions, which `metrics` reuses.
 REFINE = Step("refine", "20", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
-# v2: previews at the source frame rate, 480 px high; sheets supersampled.
-# v3: coarser draw meshes (robot 8 mm, reference body 20 mm, hands 6 mm).
-# v4: the reference body drawn as a MuJoCo skin (bone poses), its legs left out; robot meshes
-#     outside the hands on 16 mm; previews at 15 fps, cropped to what the bodies reach.
+# The comparison sheet and the 15 fps preview of the reference (a MuJoCo skin) and the robot.
 RENDER = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
               (COLLIDE, SHAPE_FIT, RETARGET), metrics=_render_metrics, files=_robot_files)
 RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
-# v5: the exported control-rate array (validated), sign fidelity on that array, the report's wrist tracks.
-# v6: location agreement with ties (and the exact figure), contact events; IK-only baseline reuse.
-# v7: robot contacts: MuJoCo's false 0.0 distances of separated meshes recomputed (convex_distance).
-# v8: the human contacts from the float64 subset skinning (retarget v14).
-# v9: the human contacts measured relative to the pelvis (`embodiments.rootless_transforms`, shared
-#     with the targets' hand gaps, s15-speed): the same on the synthetic set (no root motion), within
-#     ~1e-7 m where the root moves (the body's float32 rest shape).
+# The exported control-rate array with its validation counts and jerk, sign fidelity of the three
+# Table III rows on that array against the mitigated human, and the report's wrist tracks.
 METRICS = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
 METRICS_REFINED = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,

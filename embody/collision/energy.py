@@ -115,10 +115,8 @@ _models: weakref.WeakKeyDictionary[BodyModel, dict[tuple, CollisionModel]] = \
     weakref.WeakKeyDictionary()
 #: Points per broad-phase chunk.
 CHUNK_SIZE = 24
-#: The broad phase keeps as candidates the points within this many times its margin of a
-#: piece: the optimiser re-evaluates only them until the next refresh, and points move
-#: between refreshes (the chunk rows this replaced kept whole chunks, a few cm across;
-#: 1x changed the optimiser's step counts on the benchmark more than 2x did).
+#: Candidates are the points within this many broad-phase margins of a piece: points move
+#: between refreshes, and until the next one the optimiser re-evaluates only candidates.
 _POINT_SLACK = 2.0
 
 

@@ -255,11 +255,11 @@ def _bumps(need: np.ndarray, window: int) -> np.ndarray:
     return out
 
 
-#: The pull-back's search stops on a frame once its bracket on s is this narrow (the bisection
-#: it replaced resolved 0.1/32 ≈ 0.003; Pose MSE ∝ s², so 0.003 moves it by < 1e-4 at 0.02)...
+#: The pull-back's search stops on a frame once its bracket on s is this narrow (Pose MSE ∝ s²,
+#: so 0.003 moves a 0.02 Pose MSE by < 1e-4)...
 _S_TOL = 0.003
-#: ...or once the clear end is within this (m) of the depth limit (≈ 0.002 in s on the
-#: synthetic set, where the depth grows ~130 mm per unit of s past the contact).
+#: ...or once the clear end is within this (m) of the depth limit (≈ 0.002 in s where the depth
+#: grows ~130 mm per unit of s past the contact).
 _D_TOL = 2.5e-4
 #: After two moves of the same bracket end, the next step is this many times its last move.
 _GROW = 2.0

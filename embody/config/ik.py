@@ -20,9 +20,8 @@ class IKConfig(Section):
     # --- IK costs (targets in metres / radians, torso frame) ---
     #: Wrist position. 1 lets the location-preserving terms (hand points, hand clearance) and the
     #: regularisers shape where the hand goes relative to the robot's own face and body; plain
-    #: tracking of the human's wrists wants it 80× heavier (`configs/ik/tracking.yaml`: 4.15 →
-    #: 1.01 mm on benchmarks/ik_vs_mink.py). Here, 20× heavier raised the sign-fidelity location
-    #: error 0.097 → 0.118-0.128 body scales (docs/performance.md, s17-track).
+    #: tracking of the human's wrists wants it 80× heavier (`configs/ik/tracking.yaml`), which
+    #: costs sign-fidelity location error here.
     w_wrist_pos: float = Field(1.0, ge=0)
     #: Wrist orientation error (rad², rotation vector) against position (m²).
     w_wrist_rot: float = Field(0.02, ge=0)
@@ -36,10 +35,7 @@ class IKConfig(Section):
     w_smooth: float = Field(0.02, ge=0)
     #: Third differences of q (rad², jerk, what the jerk metric measures): frequency-aware
     #: smoothness, penalising slow signing motion less than Δ² does for the same jerk. Off by
-    #: default: on benchmarks/ik_vs_mink.py's 4 sequences w_smooth 0 + w_jerk 0.05 halves the jerk
-    #: (1291 → 640) at the same all-frame wrist error (4.97 → 4.98 mm) but raises it on frames
-    #: mink reaches cleanly (1.41 → 1.78 mm); smoothness is not what costs accuracy there (the
-    #: velocity limits, the collision margin and the cold start's basin are).
+    #: default: it halves the jerk but loses accuracy on frames that are easy to reach.
     w_jerk: float = Field(0.0, ge=0)
     #: Pull of the arm joints towards the robot's `rest` pose: resolves redundancy gently.
     w_posture: float = Field(1e-5, ge=0)
@@ -53,8 +49,7 @@ class IKConfig(Section):
     #: Self-collision penalty on the proxies.
     w_collision: float = Field(20.0, ge=0)
     #: Clearance (m) the collision proxies must keep. 15 mm, not 8: the proxies are sampled points
-    #: and ≤32-plane polytopes, so MuJoCo's exact meshes touch between points at smaller margins
-    #: (benchmarks/ik_self_collision.py: 136 → 48 self-collision frames on the 24-sequence run).
+    #: and ≤32-plane polytopes, so MuJoCo's exact meshes touch between points at smaller margins.
     collision_margin: float = Field(0.015, ge=0, le=0.1)
     # --- location-preserving targets (embody/retarget/targets.py) ---
     #: Blend each wrist target towards a landmark-anchored one near the face and body.
@@ -105,22 +100,19 @@ class IKConfig(Section):
     #: FK backend of the solver's residuals and geometric Jacobians: the pytorch-kinematics chain
     #: (cut down to the bodies the costs use, all frames in one batched call per iteration) or the
     #: NumPy `KinematicTree`. Both give the same FK (≤1e-9 m, ~1e-15 in practice) and the same
-    #: solution (tested). pk is the default because it costs little: whole G1 solves run at
-    #: 287 vs 342 frames/s with the tree (1.19×, benchmarks/ik_vs_mink.py, one CPU thread), well
-    #: within the 1.5× we accept for solving on the real pk kinematics; "tree" is the fast path.
+    #: solution (tested). pk is the default because it costs little (the tree is ~1.2× faster,
+    #: within the 1.5× accepted for solving on the real pk kinematics); "tree" is the fast path.
     kinematics: Literal["pytorch_kinematics", "tree"] = "pytorch_kinematics"
     #: Cold start: iterations that track with only `tracking_collision` before the full term comes on.
     tracking_iterations: int = Field(12, ge=0, le=10_000)
     #: Collision weight of the tracking phase, as a fraction of `w_collision`. A faint penalty
     #: (1e-3) leaves the way to the targets free but stops hands from being planted inside each
-    #: other, which the full term cannot undo later (48 → 9 frames; 0 leaves 3×, 1e-2 costs 40%
-    #: more wrist error: hands block each other on their way out of the rest pose).
+    #: other, which the full term cannot undo later (0 leaves more contacts; stronger ones make
+    #: hands block each other on their way out of the rest pose).
     tracking_collision: float = Field(0.001, ge=0, le=1)
     #: Cold start, between tracking and the full term: `ramp_iterations` at this fraction of
-    #: `w_collision` (a continuation step: on benchmarks/ik_vs_mink.py's 4 sequences tracking 12 +
-    #: ramp 0.1×6 gives 3.85 mm all-frame wrist error vs 4.46 for tracking 8 alone, jerk 1066 vs
-    #: 1135, 0 contacts either way; tracking 16 alone reaches 3.94 but leaves 8 control-rate
-    #: contact frames after the repair). 0 iterations: no ramp.
+    #: `w_collision`: a continuation step that tracks closer and smoother than a longer tracking
+    #: phase alone. 0 iterations: no ramp.
     ramp_collision: float = Field(0.1, ge=0, le=1)
     ramp_iterations: int = Field(6, ge=0, le=10_000)
     #: Cold start: the tracking and ramp phases run on every `coarse_stride`-th frame of a 30 fps
@@ -131,10 +123,8 @@ class IKConfig(Section):
     iterations: int = Field(24, ge=1, le=10_000)
     #: Polish phase after the full one (cold or warm): where the proxies press, they make way for
     #: MuJoCo's exact contacts (`retarget.exact_contacts`) at `polish_margin`, so hands and arms may
-    #: come as close to each other and the body as the targets ask. Off by default: on
-    #: benchmarks/ik_vs_mink.py 8 iterations take the all-frame wrist error from 3.94 to 3.12 mm
-    #: (feasible frames 1.33 → 1.22, jerk 1017 → 843, 0 contacts) for ~1.5× the CPU time, which
-    #: puts the solve behind mink's (docs/performance.md, 2026-11-26 s4-ikacc). 0: no polish.
+    #: come as close to each other and the body as the targets ask. Off by default: closer
+    #: tracking near contact for ~1.5× the solve's CPU time. 0: no polish.
     polish_iterations: int = Field(0, ge=0, le=10_000)
     #: Clearance (m) the polish phase keeps between MuJoCo's collision geoms (counted pairs only).
     polish_margin: float = Field(0.002, ge=0, le=0.05)
@@ -143,52 +133,49 @@ class IKConfig(Section):
     #: keep the proxies' rows (MuJoCo is the costly part; 0.003 halves its frames, same accuracy).
     polish_near: float = Field(0.003, ge=0, le=0.1)
     polish_pad: int = Field(2, ge=0, le=1000)
-    #: Factor on `w_smooth`/`w_jerk` in the polish phase (the basin is chosen): 0.3 takes the
-    #: polished feasible-frame error from 1.22 to 0.96 mm, but the jerk from 843 to 1162.
+    #: Factor on `w_smooth`/`w_jerk` in the polish phase (the basin is chosen): lower tracks
+    #: closer for more jerk.
     polish_smooth: float = Field(1.0, ge=0, le=1)
     #: Contact phase after the solve (`ik.resolve_contacts`): where MuJoCo finds the proxies leaked
     #: (a counted contact), up to `contact_rounds` LM phases of `contact_iterations` each with
     #: MuJoCo's own contacts at `contact_margin` and weight `w_contact` on those frames (±
     #: `contact_pad`), so the contact is resolved jointly with tracking and smoothness instead
-    #: of by the per-frame push of the repair (synth seq 6: 30-80° repair changes → ≤ 47°,
-    #: location agreement 26 → 38 of 41 frames). 0 rounds: off.
+    #: of by the per-frame push of the repair, which turns joints by tens of degrees. 0 rounds:
+    #: off.
     contact_rounds: int = Field(3, ge=0, le=100)
     contact_iterations: int = Field(30, ge=1, le=10_000)
     contact_pad: int = Field(3, ge=0, le=1000)
     w_contact: float = Field(2000.0, ge=0)
-    #: Clearance (m) the contact phase asks between MuJoCo's geoms (the polish's 2 mm). 1 cm,
-    #: meant as room for the control-rate samples between resolved frames, lost agreement on
-    #: benchmarks/fidelity.py (94.8 → 92.7 %) and did not calm the export's repair.
+    #: Clearance (m) the contact phase asks between MuJoCo's geoms (the polish's 2 mm); a wider
+    #: one costs location agreement without calming the export's repair.
     contact_margin: float = Field(0.002, ge=0, le=0.05)
     #: The contact phase moves only the frames within this many frames of a contact (the next
     #: `ik.HELD` held, the rest untouched): its cost scales with the contacts, not the sequence.
     contact_window: int = Field(10, ge=0, le=100_000)
     #: Also check (and resolve) the control-rate samples between frames (`control_rate_hz`): hands
     #: that pass through each other between two clear frames are otherwise found only by the
-    #: export, whose per-sample repair moved synth seqs 15-16's arms 73-101°.
+    #: export, whose per-sample repair can turn the arms far from the solve.
     contact_samples: bool = True
     #: End a contact round at the first accepted step after which MuJoCo finds nothing touching
     #: on the window's frames and samples (velocity-clamped, as exported); the first round not
     #: on `tolerance` (later ones still): the rounds' LM steps oscillate round the contact set
     #: (each costing MuJoCo rows at every checked frame and sample), and a first round stopped on
     #: the tolerance with contacts left handed them to the repair. Off: rounds run to the
-    #: tolerance or `contact_iterations` (before s11).
+    #: tolerance or `contact_iterations`.
     contact_stop: bool = True
     #: End a contact round, and the contact phase, when MuJoCo's deepest penetration on the
     #: checked frames and samples has not improved by `contact_stall_mm` over the last
-    #: `contact_stall` evaluations: a contact the window cannot route round (interlocked fingers,
-    #: benchmark seq 0: stuck at 12 mm for 20 evaluations and a second round) is the repair's,
-    #: and its rounds were 38 % of our IK CPU time on benchmarks/ik_vs_mink.py. 0: off.
+    #: `contact_stall` evaluations: a contact the window cannot route round (interlocked
+    #: fingers) is the repair's, and rounds spent on it are wasted. 0: off.
     contact_stall: int = Field(6, ge=0, le=10_000)
     contact_stall_mm: float = Field(0.5, ge=0, le=100)
     #: The contact phase's samples between frames also get the proxies' rows (hinged at
     #: `contact_sample_margin`), not only MuJoCo's: MuJoCo's rows exist only for pairs already
     #: within `contact_margin`, so a step that cleared one pair ran into the next and was
-    #: rejected; the proxies see a pair coming (benchmarks/ik_vs_mink.py, s11: LM evaluations
-    #: 244 → 188 and MuJoCo calls 8818 → 5891 on its 4 sequences, 0 touching 50 Hz samples).
+    #: rejected; the proxies see a pair coming (fewer LM evaluations and MuJoCo calls).
     contact_sample_proxies: bool = True
     #: Clearance (m) the proxies' rows at samples ask (≤ the proxies' `collision_margin`): the
-    #: full 15 mm pushed hands apart between frames (wrist 4.03 → 4.23 mm); 8 mm: 4.10 mm.
+    #: full margin pushes hands apart between frames.
     contact_sample_margin: float = Field(0.008, ge=0, le=0.05)
     #: Stop a phase once an accepted step lowers the cost by less than this fraction.
     tolerance: float = Field(3e-3, ge=0, le=1)

@@ -1,27 +1,25 @@
-"""Differentiable forward kinematics: a pytorch-kinematics chain built from the MJCF.
+"""Differentiable forward kinematics: a pytorch-kinematics chain built from MuJoCo's compiled model.
 
-`build_chain_from_mjcf` (pytorch-kinematics 0.10) needs a small adapter, documented here:
+The frame tree is built here from the `MjModel` the robot already loaded, not with
+pytorch-kinematics' `build_chain_from_mjcf`, whose faults this avoids:
 
-* mujoco is pinned below 3.12 (its joint-type map breaks on newer enums): done in pyproject.
-* The robot has a free joint, so the chain is rooted at `body=<root body>`; the free joint is
-  dropped and the root sits at its MJCF default pose (as MuJoCo with qpos0).
-* Mesh files would resolve against the current directory (fix: `assets=` bytes). The chain needs
-  only the kinematic tree, so we strip mesh geoms and mesh assets from the XML instead, which
-  also skips MuJoCo's mesh compilation (≈3 s for G1); the MJCF's `<inertial>` keeps it valid.
-* Unlimited joints get (0, 0) limits there: limits always come from the MuJoCo model instead.
-* A non-zero `<joint pos>` gives wrong FK (the pivot offset is applied but never undone): we
-  refuse such models with a ConfigError. Menagerie's G1 and H1 have none (checked at load).
-* Link offsets and axes are parsed into float32 `Transform3d`s, so even a float64 chain is off
-  by ~4e-8 m: they are re-seated from the MuJoCo model in float64 (FK then agrees with
-  `mj_kinematics` to ~1e-15). Sites (never used) are dropped on the way.
+* its joint-type map is keyed by `mjtJoint` members, which numpy joint types from mujoco>=3.12
+  no longer hash equal to (`KeyError: np.int32(3)`); here the type is compared by value;
+* it recompiles the MJCF with meshes resolved against the current directory;
+* it parses offsets and axes into float32: here they are MuJoCo's float64 body poses and joint
+  axes, so FK agrees with `mj_kinematics` to ~1e-15.
+
+The chain is rooted at the robot's root body with its free joint dropped (the root sits at its
+MJCF default pose, as MuJoCo with qpos0). pytorch-kinematics 0.10 applies a non-zero
+`<joint pos>` without undoing it, so such models are refused (`check_joint_pivots`); Menagerie's
+G1 and H1 have none. Joint limits always come from the MuJoCo model, not from the chain.
 
 Joint order of every tensor is the robot's (MuJoCo qpos order without the free joint); the
-chain's own order is mapped once at construction.
+chain's own order (depth first, children in body-id order) is mapped once at construction.
 """
 
 from __future__ import annotations
 
-import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import mujoco
@@ -34,16 +32,6 @@ from pytorch_kinematics.transforms import Transform3d
 from embody.errors import ConfigError
 
 
-def _tree_only_xml(mjcf_path: Path) -> str:
-    """The MJCF without meshes: bodies, joints and primitive geoms only."""
-    root = ET.parse(mjcf_path).getroot()
-    for parent in root.iter():
-        for child in list(parent):
-            if child.tag == "mesh" or (child.tag == "geom" and "mesh" in child.attrib):
-                parent.remove(child)
-    return ET.tostring(root, encoding="unicode")
-
-
 def check_joint_pivots(model: mujoco.MjModel, where: str) -> None:
     """pytorch-kinematics mishandles non-zero hinge pivots: refuse instead of computing wrong FK."""
     for j in range(model.njnt):
@@ -52,22 +40,37 @@ def check_joint_pivots(model: mujoco.MjModel, where: str) -> None:
                                      "which pytorch-kinematics 0.10 handles wrongly")
 
 
-def _seat(frame: Frame, model: mujoco.MjModel, keep: set[str]) -> Frame:
-    """A copy of pk's frame tree with MuJoCo's float64 body offsets and joint axes, restricted to
-    the bodies in `keep` (sites, never in it, are left out)."""
-    b = model.body(frame.name).id
+#: MuJoCo joint type (by value) -> pytorch-kinematics joint type; free and ball joints have none.
+_JOINT_TYPES = {int(mujoco.mjtJoint.mjJNT_HINGE): "revolute", int(mujoco.mjtJoint.mjJNT_SLIDE): "prismatic"}
+
+
+def _frame(model: mujoco.MjModel, body: int, keep: set[int], where: str, root: bool = False) -> Frame:
+    """The pk frame of `body` and its descendants in `keep`, with MuJoCo's float64 body offset and
+    joint axis (the root's own joint, the free one, is dropped)."""
     rot = np.zeros(9)
-    mujoco.mju_quat2Mat(rot, model.body_quat[b])
+    mujoco.mju_quat2Mat(rot, model.body_quat[body])
     offset = np.eye(4)
-    offset[:3, :3], offset[:3, 3] = rot.reshape(3, 3), model.body_pos[b]
-    link = Link(frame.name, offset=Transform3d(matrix=torch.tensor(offset), dtype=torch.float64))
-    joint = frame.joint
-    if joint.joint_type != "fixed":
-        j = model.joint(joint.name).id
-        joint = Joint(joint.name, joint_type=joint.joint_type, axis=model.jnt_axis[j].copy(),
-                      dtype=torch.float64, limits=joint.limits)
-    out = Frame(frame.name, link=link, joint=joint)
-    out.children = [_seat(c, model, keep) for c in frame.children if c.name in keep]
+    offset[:3, :3], offset[:3, 3] = rot.reshape(3, 3), model.body_pos[body]
+    name = model.body(body).name
+    link = Link(name, offset=Transform3d(matrix=torch.tensor(offset), dtype=torch.float64))
+    njnt = int(model.body_jntnum[body])
+    if root:
+        joint = Joint()
+    elif njnt == 0:
+        joint = Joint(name + "_fixed_joint")
+    elif njnt == 1:
+        j = int(model.body_jntadr[body])
+        kind = _JOINT_TYPES.get(int(model.jnt_type[j]))
+        if kind is None:
+            raise ConfigError(where, f"joint {model.joint(j).name!r}: only hinge and slide joints "
+                                     "below the root body are supported")
+        joint = Joint(model.joint(j).name, joint_type=kind, axis=model.jnt_axis[j].copy(),
+                      dtype=torch.float64, limits=(model.jnt_range[j][0], model.jnt_range[j][1]))
+    else:
+        raise ConfigError(where, f"body {name!r} has {njnt} joints; one joint per body is supported")
+    out = Frame(name, link=link, joint=joint)
+    out.children = [_frame(model, c, keep, where) for c in range(body + 1, model.nbody)
+                    if c in keep and int(model.body_parentid[c]) == body]
     return out
 
 
@@ -75,9 +78,10 @@ class Kinematics:
     """Batched FK of named links, root-frame transforms (B, L, 4, 4) in float64."""
 
     def __init__(self, mjcf_path: Path, model: mujoco.MjModel, root_body: str, joint_names: list[str]) -> None:
-        parsed = pk.build_chain_from_mjcf(_tree_only_xml(mjcf_path), body=root_body)
         self.model = model
-        self.root = _seat(parsed._root, model, {model.body(b).name for b in range(model.nbody)})
+        self.where = str(mjcf_path)
+        self.root_id = model.body(root_body).id
+        self.root = _frame(model, self.root_id, set(range(model.nbody)), self.where, root=True)
         self.chain = pk.Chain(self.root, dtype=torch.float64)
         chain_joints = self.chain.get_joint_parameter_names()
         missing = set(joint_names) ^ set(chain_joints)
@@ -89,7 +93,8 @@ class Kinematics:
 
     def subchain(self, bodies: list[str]) -> pk.Chain:
         """The chain cut down to `bodies` (a connected set holding the root): FK computes only them."""
-        return pk.Chain(_seat(self.root, self.model, set(bodies)), dtype=torch.float64)
+        keep = {self.model.body(b).id for b in bodies}
+        return pk.Chain(_frame(self.model, self.root_id, keep, self.where, root=True), dtype=torch.float64)
 
     def frame_indices(self, bodies: list[str]) -> torch.Tensor:
         return torch.tensor([self.chain.frame_to_idx[b] for b in bodies])

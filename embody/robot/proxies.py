@@ -37,7 +37,8 @@ def _geom_points(model: mujoco.MjModel, data: mujoco.MjData, g: int) -> np.ndarr
         local = model.mesh_vert[model.mesh_vertadr[m]: model.mesh_vertadr[m] + model.mesh_vertnum[m]]
     elif kind == mujoco.mjtGeom.mjGEOM_SPHERE:
         local = np.vstack([np.zeros(3), size[0] * np.vstack([np.eye(3), -np.eye(3)])])
-    elif kind in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER):
+    # `==`, not `in (...)`: from mujoco 3.12 a numpy int is never found in a tuple of enum members
+    elif kind == mujoco.mjtGeom.mjGEOM_CAPSULE or kind == mujoco.mjtGeom.mjGEOM_CYLINDER:
         r, h = size[0], size[1]
         ring = np.array([[r * np.cos(a), r * np.sin(a)] for a in np.linspace(0, 2 * np.pi, 8, endpoint=False)])
         local = np.vstack([np.column_stack([ring, np.full(8, z)]) for z in (-h, h)])
