@@ -1,0 +1,87 @@
+"""The same motion at any input rate: synthetic clips (seed 7, not a test's data) fed at 30 fps
+and resampled (slerp per joint) to 60 and 120 fps, each retargeted to the G1 with the default
+config (collision mitigation skipped: not what this measures).
+
+Per rate: mean jerk of the IK joints at the source rate and in the 50 Hz export, the wrist
+joints' direction reversals (share of samples), and the robot wrists' path length against the
+human's (the shape-fit wrist targets), each as a ratio to the 30 fps clip where the issue's
+targets state one (jerk within 1.5x, reversals <= 5 %, path within 1.2x of the human's).
+
+    python benchmarks/frame_rate.py [--n 3] [--seed 7] [--rates 60,120]
+
+Ends with one `RESULT` line: the worst clip's ratios at each rate.
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+
+
+def _at_rate(m, k: int):
+    from scipy.spatial.transform import Rotation, Slerp
+
+    t0 = np.arange(m.num_frames) / m.fps
+    t1 = np.arange((m.num_frames - 1) * k + 1) / (m.fps * k)
+    pose = np.stack([Slerp(t0, Rotation.from_rotvec(m.pose[:, j]))(t1).as_rotvec()
+                     for j in range(m.pose.shape[1])], 1)
+    out = m.with_pose(pose, np.zeros((len(t1), 3)))
+    out.fps = m.fps * k
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--n", type=int, default=3)
+    ap.add_argument("--seed", type=int, default=7)
+    ap.add_argument("--rates", default="60,120")
+    args = ap.parse_args()
+
+    import torch
+
+    from embody.body import load_body_model
+    from embody.config import load_config
+    from embody.metrics.trajectory import mean_jerk
+    from embody.retarget import retarget, shape_fit
+    from embody.robot import load_robot
+    from embody.synth import generate_sequence
+
+    torch.set_num_threads(1)
+    cfg = load_config()
+    body, robot = load_body_model(cfg.body), load_robot(cfg.robot)
+    fit = shape_fit(robot, body, cfg.ik)
+    wrists = [robot.joint_index(n) for n in robot.joint_names if "wrist" in n]
+    ks = [1] + [int(round(float(r) / 30.0)) for r in args.rates.split(",")]
+    worst: dict[str, float] = {}
+    for i in range(args.n):
+        clip = generate_sequence(args.seed, i)
+        base = None
+        for k in ks:
+            targets, sol = retarget(_at_rate(clip, k) if k > 1 else clip, robot, body, fit, cfg.ik)
+            q = sol.q[:, robot.ik_mask]
+            d = np.diff(sol.q[:, wrists], axis=0)
+            moving = np.abs(d[1:]) + np.abs(d[:-1]) > 1e-6
+            row = {"jerk": mean_jerk(q, sol.fps),
+                   "export_jerk": mean_jerk(sol.q_control[:, robot.ik_mask], sol.control_rate_hz),
+                   "reversals": float(((d[1:] * d[:-1] < 0) & moving).sum() / max(moving.sum(), 1)),
+                   "path": float(np.linalg.norm(np.diff(
+                       robot.link_poses(sol.q, ["left_wrist", "right_wrist"])[0], axis=0), axis=-1).sum()),
+                   "human_path": float(np.linalg.norm(np.diff(targets.wrist_pos, axis=0), axis=-1).sum())}
+            base = base or row
+            print(f"clip {i} {sol.fps:.0f} fps: jerk {row['jerk']:.0f} export jerk {row['export_jerk']:.0f} "
+                  f"wrist reversals {100 * row['reversals']:.1f} % path {row['path']:.3f} m "
+                  f"(human {row['human_path']:.3f} m)", flush=True)
+            if k == 1:
+                continue
+            fps = int(round(sol.fps))
+            for key, value in ((f"jerk_ratio_{fps}", row["jerk"] / base["jerk"]),
+                               (f"export_jerk_ratio_{fps}", row["export_jerk"] / base["export_jerk"]),
+                               (f"reversal_pct_{fps}", 100 * row["reversals"]),
+                               (f"path_over_human_{fps}", row["path"] / row["human_path"])):
+                worst[key] = max(worst.get(key, -np.inf), value)
+    print("RESULT n=%d " % args.n + " ".join(f"{k}={v:.3f}" for k, v in sorted(worst.items())), flush=True)
+
+
+if __name__ == "__main__":
+    main()
