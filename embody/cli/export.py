@@ -11,6 +11,12 @@ from embody.cli.common import emit_json, json_option
 from embody.export.formats import FORMATS
 
 
+def _shown(text: object) -> str:
+    """Text from a library or run as one printable line: control characters (ANSI escapes,
+    newlines) are shown escaped, never sent to the terminal."""
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in str(text))
+
+
 @click.command("export")
 @click.argument("args", nargs=-1, metavar="RUN OUT | --check DIR")
 @click.option("--robot", default=None, help="Robot the trajectories must be for (robot.name); "
@@ -21,7 +27,8 @@ from embody.export.formats import FORMATS
               show_default=True, help="npz (q, joint names, dt, source, validation), csv, "
               "gmr (GMR motion pickle) or beyondmimic (BeyondMimic csv_to_npz input).")
 @click.option("--check", is_flag=True, help="Re-validate the library in DIR with MuJoCo from "
-              "its files alone; exit 1 if any file fails.")
+              "its files alone; exit 1 if any file fails, 2 if the library is malformed "
+              "(see docs/security.md for what it guarantees).")
 @click.option("--include-rejected/--exclude-rejected", default=False, show_default=True,
               help="Keep sequences the critic rejected (default: exclude them, like failed "
                    "ones; runs without a critic have none).")
@@ -67,7 +74,7 @@ def command(args: tuple[str, ...], robot: str | None, store_root: str, fmt: str,
         click.echo(f"exported {plural(len(library), 'trajectory', 'trajectories')} ({fmt}) to "
                    f"{out} (library.csv, library.json)")
         for row in excluded.itertuples():
-            click.echo(f"excluded {row.id}: {row.reason}")
+            click.echo(f"excluded {_shown(row.id)}: {_shown(row.reason)}")
     return 1 if len(excluded) else 0
 
 
@@ -87,6 +94,7 @@ def _check(lib_dir: str, robot_name: str | None, as_json: bool) -> int:
     else:
         for row in table.to_dict("records"):
             counts = " ".join(f"{k}={row[k]:g}" for k in VIOLATION_KEYS if k in row and row[k] == row[k])
-            click.echo(f"{'ok  ' if row['ok'] else 'FAIL'} {row['id']}: {counts} {row['error']}".rstrip())
-        click.echo(f"checked {len(table)} files in {lib_dir}: {len(bad)} failed")
+            click.echo(f"{'ok  ' if row['ok'] else 'FAIL'} {_shown(row['id'])}: {counts} "
+                       f"{row['error']}".rstrip())
+        click.echo(f"checked {len(table)} files in {_shown(lib_dir)}: {len(bad)} failed")
     return 1 if len(bad) else 0
