@@ -30,6 +30,7 @@ import math
 import os
 import pickle
 import stat
+import warnings
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -310,7 +311,9 @@ def _read_gmr(path: Path, names: tuple[str, ...], max_frames: int) -> FileTrajec
 def _read_beyondmimic(fh: BinaryIO, path: Path, names: tuple[str, ...],
                       max_frames: int) -> FileTrajectory:
     _count_lines(fh, path, max_frames + 1)
-    motion = np.loadtxt(fh, delimiter=",", ndmin=2)
+    with warnings.catch_warnings():  # an empty file is refused below, not warned about
+        warnings.simplefilter("ignore")
+        motion = np.loadtxt(fh, delimiter=",", ndmin=2)
     if motion.ndim != 2 or motion.shape[1] != 7 + len(names):
         raise InputError(path, "columns", f"expected 7 root + {len(names)} joint columns, got "
                                           f"{motion.shape[1] if motion.ndim == 2 else motion.shape}")
