@@ -398,6 +398,14 @@ def test_malformed_index_is_one_line_exit_2(lib, case, capsys):
 
 
 @pytest.mark.parametrize("lib", ["npz"], indirect=True)
+def test_a_path_like_robot_option_is_one_line(lib, capsys):
+    capsys.readouterr()
+    rc = main(["export", "--check", str(lib), "--robot", "../../etc/x"])
+    err = capsys.readouterr().err
+    assert rc == 2 and len(err.strip().splitlines()) == 1 and "--robot" in err, err
+
+
+@pytest.mark.parametrize("lib", ["npz"], indirect=True)
 @pytest.mark.parametrize("text", [_deep(100_000), "[1, 2]", "{", "\xff\xfe".encode("latin1"),
                                   '{"format": "npz", "robot": "unitree_g1_dex3", "sequences": '
                                   + _deep(50_000) + "}"])

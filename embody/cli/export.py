@@ -83,9 +83,16 @@ def _check(lib_dir: str, robot_name: str | None, as_json: bool) -> int:
 
     robot = None
     if robot_name:
+        from pydantic import ValidationError
+
         from embody.config.robot import RobotConfig
+        from embody.errors import UsageError
         from embody.robot import load_robot
-        robot = load_robot(RobotConfig(name=robot_name))
+        try:
+            cfg = RobotConfig(name=robot_name)
+        except ValidationError:
+            raise UsageError("--robot: not a robot name ([A-Za-z0-9_.-]+)") from None
+        robot = load_robot(cfg)
     table = check_library(lib_dir, robot)
     bad = table[~table["ok"].astype(bool)]
     if as_json:
