@@ -38,8 +38,8 @@ SUFFIX = {"npz": ".npz", "csv": ".csv", "gmr": ".pkl", "beyondmimic": ".csv"}
 ELBOWS = [ROBOT.joint_index(n) for n in ("left_elbow_joint", "right_elbow_joint")]
 GARBAGE = [None, -1, 0, 1, 1e308, float("nan"), float("inf"), -0.02, 1e-9, 1e6, "x", "",
            [], {}, True, False, [0.02], {"a": 1}, "../a.npz", "/etc/passwd", "\x1b[31mred",
-           "a" * 300, 2 ** 70, "0.02", [[[[[]]]]]]
-RATES = [0.0, -0.02, 1e-9, 1e6, float("nan"), float("inf"), 0.04, 0.0200001, 0.02]
+           "a" * 300, 2 ** 70, 10 ** 400, 5e-324, -0.0, "0.02", [[[[[]]]]]]
+RATES = [0.0, -0.02, 1e-9, 1e6, float("nan"), float("inf"), 5e-324, 0.04, 0.0200001, 0.02]
 
 
 def _valid_q() -> np.ndarray:

@@ -188,7 +188,7 @@ def test_a_50hz_file_jumping_past_the_velocity_limit_fails_whatever_library_json
     _write_raw(lib, fmt, _jumping())
     rc, out, _ = _check(lib, capsys)
     assert rc == 1 and "FAIL a" in out and "velocity_violations=29" in out
-    for dt in (1e6, -0.02, 0.0, float("nan"), "0.02", True):
+    for dt in (1e6, -0.02, 0.0, float("nan"), 5e-324, 10 ** 400, "0.02", True):
         meta = _meta(lib)
         meta["sequences"][0]["dt"] = dt
         meta.pop("rate_hz", None)
@@ -307,6 +307,24 @@ def test_a_csv_of_many_rows_is_refused_while_streaming(lib, capsys):
     finally:
         tracemalloc.stop()
     assert peak < 20e6, peak
+
+
+@pytest.mark.parametrize("lib", ["csv", "beyondmimic"], indirect=True)
+@pytest.mark.parametrize("where", ["first", "last"])
+def test_a_csv_line_longer_than_a_row_is_refused_before_parsing(lib, where):
+    """One 8 MB line of a million fields (a parser would hold a million strings)."""
+    path = lib / f"a{SUFFIX[_meta(lib)['format']]}"
+    lines = path.read_bytes().splitlines(keepends=True)
+    lines[0 if where == "first" else -1] = b",".join([b"1e-5"] * 1_000_000) + b"\n"
+    path.write_bytes(b"".join(lines))
+    tracemalloc.start()
+    try:
+        with pytest.raises(InputError, match="longer than"):
+            check_library(lib, ROBOT)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak < 5e6, peak
 
 
 @pytest.mark.parametrize("lib", ["npz"], indirect=True)

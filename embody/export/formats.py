@@ -233,13 +233,17 @@ def _frames(path: Path, frames: int, max_frames: int) -> None:
         raise InputError(path, "q", f"{frames} frames exceeds io.max_frames={max_frames}")
 
 
-def _count_lines(fh: BinaryIO, path: Path, max_lines: int) -> None:
-    """Stream the file once, refusing it past `max_lines` lines (before it is parsed)."""
-    lines = 0
-    for chunk in iter(lambda: fh.read(1 << 20), b""):
-        lines += chunk.count(b"\n")
-        if lines > max_lines:
+def _scan_lines(fh: BinaryIO, path: Path, names: tuple[str, ...], max_lines: int) -> None:
+    """Stream a text file once before it is parsed, refusing it past `max_lines` lines or at a
+    line longer than a row (or the header) of this robot can be: a parser then holds at most
+    that many short rows."""
+    longest = max((len(names) + EXTRA_COLUMNS) * TEXT_BYTES_PER_VALUE,
+                  len(",".join(["time", *names]).encode("utf-8")) + 64)
+    for i, line in enumerate(iter(lambda: fh.readline(longest + 2), b"")):
+        if i >= max_lines:
             raise InputError(path, "q", f"more than {max_lines} lines (io.max_frames)")
+        if len(line) > longest:
+            raise InputError(path, f"line {i + 1}", f"longer than {longest} bytes")
     fh.seek(0)
 
 
@@ -278,7 +282,7 @@ def _read_npz(fh: BinaryIO, path: Path, names: tuple[str, ...], max_frames: int)
 
 
 def _read_csv(fh: BinaryIO, path: Path, names: tuple[str, ...], max_frames: int) -> FileTrajectory:
-    _count_lines(fh, path, max_frames + 2)
+    _scan_lines(fh, path, names, max_frames + 2)
     table = pd.read_csv(fh)
     if list(table.columns) != ["time", *names]:
         raise InputError(path, "columns", "expected time and the robot's joint names")
@@ -310,7 +314,7 @@ def _read_gmr(path: Path, names: tuple[str, ...], max_frames: int) -> FileTrajec
 
 def _read_beyondmimic(fh: BinaryIO, path: Path, names: tuple[str, ...],
                       max_frames: int) -> FileTrajectory:
-    _count_lines(fh, path, max_frames + 1)
+    _scan_lines(fh, path, names, max_frames + 1)
     with warnings.catch_warnings():  # an empty file is refused below, not warned about
         warnings.simplefilter("ignore")
         motion = np.loadtxt(fh, delimiter=",", ndmin=2)

@@ -145,7 +145,7 @@ def _rate_within(rate: float, limits: IOConfig) -> bool:
 
 
 def _same_rate(a: float, b: float) -> bool:
-    return abs(a - b) <= RATE_TOLERANCE * max(abs(a), abs(b))
+    return math.isfinite(a) and math.isfinite(b) and abs(a - b) <= RATE_TOLERANCE * max(abs(a), abs(b))
 
 
 def file_validation(robot: Any, path: Path, fmt: ExportFormat, dt: float | None,
@@ -310,8 +310,15 @@ class _Entry:
     written: dict[str, Any]
 
 
-def _is_number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool)
+def _number(value: Any) -> float | None:
+    """A JSON number as a finite float; None for anything else (bools, text, 1e999, 10**400)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if math.isfinite(number) else None
 
 
 def _plain_name(name: Any) -> bool:
@@ -331,7 +338,7 @@ def _entry(entry: Any, i: int, where: Path) -> _Entry:
     if not _plain_name(entry["file"]):
         raise InputError(where, f"{key}.file", "not a file name inside the library")
     dt = entry.get("dt")
-    if dt is not None and not (_is_number(dt) and math.isfinite(dt) and dt > 0):
+    if dt is not None and not (_number(dt) or 0) > 0:
         raise InputError(where, f"{key}.dt", f"must be a number > 0, got {dt!r:.40}")
     frames = entry.get("frames")
     if frames is not None and not (isinstance(frames, int) and not isinstance(frames, bool)):
@@ -339,7 +346,7 @@ def _entry(entry: Any, i: int, where: Path) -> _Entry:
     written = entry.get("written", {})
     if not isinstance(written, dict):
         raise InputError(where, f"{key}.written", "expected an object")
-    return _Entry(entry["id"], entry["file"], None if dt is None else float(dt), frames, written)
+    return _Entry(entry["id"], entry["file"], _number(dt), frames, written)
 
 
 def _read_index(path: Path) -> dict[str, Any]:
@@ -399,10 +406,11 @@ def check_library(lib_dir: str | Path, robot: Any | None = None,
     if not isinstance(sequences, list):
         raise InputError(meta_path, "sequences", "missing or not a list")
     entries = [_entry(e, i, meta_path) for i, e in enumerate(sequences)]
-    rate_hz = meta.get("rate_hz")
-    if rate_hz is not None and not (_is_number(rate_hz) and _rate_within(rate_hz, limits)):
+    stated = meta.get("rate_hz")
+    rate_hz = _number(stated)
+    if stated is not None and (rate_hz is None or not _rate_within(rate_hz, limits)):
         raise InputError(meta_path, "rate_hz", f"must be a number within io.min_fps..io.max_fps, "
-                                               f"got {rate_hz!r:.40}")
+                                               f"got {stated!r:.40}")
     for i, e in enumerate(entries):
         if rate_hz is not None and e.dt is not None and not _same_rate(rate_hz, 1.0 / e.dt):
             raise InputError(meta_path, f"sequences[{i}].dt", f"says {1.0 / e.dt:g} Hz, rate_hz "
@@ -413,8 +421,7 @@ def check_library(lib_dir: str | Path, robot: Any | None = None,
     for e in entries:
         dt = e.dt if e.dt is not None else (1.0 / rate_hz if rate_hz is not None else None)
         counts, frames = _file_counts(robot, root / e.file, fmt, dt, limits)  # type: ignore[arg-type]
-        agree = all(_is_number(e.written.get(k)) and float(e.written[k]) == counts[k]
-                    for k in VIOLATION_KEYS)
+        agree = all(_number(e.written.get(k)) == counts[k] for k in VIOLATION_KEYS)
         error = "" if agree else "counters differ from library.json"
         if e.frames is not None and e.frames != frames:
             error = f"{frames} frames, library.json says {e.frames}"
