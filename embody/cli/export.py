@@ -11,10 +11,12 @@ from embody.cli.common import emit_json, json_option
 from embody.export.formats import FORMATS
 
 
-def _shown(text: object) -> str:
-    """Text from a library or run as one printable line: control characters (ANSI escapes,
-    newlines) are shown escaped, never sent to the terminal."""
-    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in str(text))
+def _shown(text: object, limit: int = 200) -> str:
+    """Text from a library or run as one short printable line: control characters (ANSI
+    escapes, newlines) are shown escaped, never sent to the terminal; long text is cut."""
+    text = str(text)
+    cut = text[:limit] + ("…" if len(text) > limit else "")
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in cut)
 
 
 @click.command("export")
