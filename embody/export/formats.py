@@ -258,7 +258,7 @@ def _root(root_pos: np.ndarray, root_xyzw: np.ndarray, path: Path, keys: tuple[s
 def _read_npz(fh: BinaryIO, path: Path, names: tuple[str, ...], max_frames: int) -> FileTrajectory:
     from embody.io.fields import npz_shapes
 
-    shapes = npz_shapes(fh)  # headers only: sizes are refused before anything is inflated
+    shapes = npz_shapes(fh)  # type: ignore[arg-type]  # headers only, before anything is inflated
     for key in ("q", "dt"):
         if key not in shapes:
             raise InputError(path, key, "missing")
