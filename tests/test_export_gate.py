@@ -501,6 +501,15 @@ def test_a_full_disk_during_export_leaves_no_partial_file(tmp_path, monkeypatch,
     assert check_library(out, ROBOT)["ok"].all()
 
 
+def test_an_export_that_stops_midway_removes_what_it_wrote(tmp_path):
+    """The third trajectory is for another robot (InputError): the first two files go too."""
+    other = Trajectory(id="c", robot=ROBOT.name, joint_names=NAMES[::-1], q=_q(), dt=0.02,
+                       validation=_traj().validation)
+    with pytest.raises(InputError, match="joint_names"):
+        export_library([_traj("a"), _traj("b"), other], tmp_path, "npz", robot=ROBOT)
+    assert list(tmp_path.iterdir()) == []
+
+
 def _mount_tmpfs(folder: Path, size: str) -> bool:
     if os.geteuid() != 0 or not shutil.which("mount"):
         return False

@@ -203,8 +203,8 @@ def export_library(trajectories: Iterable[Trajectory], out_dir: str | Path,
     bounds), is listed as excluded. `failed` lists (id, reason) of sequences that never
     produced a trajectory. The previous export's files and indexes are removed first and
     library.json is written last. If a write fails (a full disk) everything this export wrote
-    is removed and an `EmbodyError` names the folder. Returns (library, excluded), the same
-    rows as the CSVs.
+    is removed and an `EmbodyError` names the folder (any other error also removes them).
+    Returns (library, excluded), the same rows as the CSVs.
     """
     if fmt not in FORMATS:
         raise InputError(Path(out_dir), "format", f"unknown export format {fmt!r} (one of {FORMATS})")
@@ -220,9 +220,11 @@ def export_library(trajectories: Iterable[Trajectory], out_dir: str | Path,
             path.unlink(missing_ok=True)
         library, excl = _write_library(trajectories, out_dir, fmt, failed, robot, limits, written)
         sync_dir(out_dir)
-    except OSError as exc:
+    except BaseException as exc:  # a failed export leaves none of its files (Ctrl-C included)
         for path in written:
             path.unlink(missing_ok=True)
+        if not isinstance(exc, OSError):
+            raise
         reason = "no space left on device" if exc.errno == errno.ENOSPC else (
             exc.strerror or str(exc))
         raise EmbodyError(f"{out_dir}: cannot write the library ({reason}); the files it had "
