@@ -14,7 +14,7 @@ import pytest
 
 from embody.cli import main
 from embody.config.ik import IKConfig
-from embody.export.formats import beyondmimic_columns, read_joint_positions
+from embody.export.formats import beyondmimic_columns, read_trajectory
 from embody.export.library import Trajectory, check_library, export_library
 from embody.retarget.control import control_trajectory
 from embody.retarget.ik import solve
@@ -204,7 +204,7 @@ def test_beyondmimic_csv_round_trip(robot, passing, tmp_path):
     extra = pd.read_csv(tmp_path / "m.extra_joints.csv")
     assert list(extra.columns) == [robot.joint_names[i] for i in fingers]
     np.testing.assert_allclose(extra.to_numpy(), qc[:, fingers], atol=1e-12)
-    read = read_joint_positions(path, "beyondmimic", robot.n_joints, robot.joint_names)
+    read = read_trajectory(path, "beyondmimic", robot.joint_names, max_frames=10_000).q
     np.testing.assert_allclose(read, qc, atol=1e-6)
     assert validation_counts(robot, read, RATE)["joint_limit_violations"] == 0
 

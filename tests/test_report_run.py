@@ -304,6 +304,38 @@ def test_export_library(run, tmp_path, fmt) -> None:
                  str(run["store"])]) == 2
 
 
+def test_export_on_a_full_disk_is_one_line_and_leaves_no_file(run, tmp_path, monkeypatch,
+                                                              capsys) -> None:
+    """The disk under OUT fills after 2 KB (os.write is the OS's write: an outside fault): one
+    line, exit 1, and OUT holds nothing of the export (no truncated file, no index)."""
+    import errno
+
+    out = tmp_path / "lib"
+    out.mkdir()
+    (out / "mine.txt").write_text("keep")
+    real_write = os.write
+    left = [2000]
+
+    def write(fd: int, data) -> int:
+        if not os.readlink(f"/proc/self/fd/{fd}").startswith(str(out)):
+            return real_write(fd, data)
+        n = min(len(data), left[0])
+        if n == 0 and len(data):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        left[0] -= n
+        return real_write(fd, bytes(data[:n]))
+
+    monkeypatch.setattr(os, "write", write)
+    capsys.readouterr()
+    code = main(["export", RUN, str(out), "--robot", ROBOT, "--store", str(run["store"]),
+                 "--format", "csv", "--include-rejected"])
+    monkeypatch.undo()
+    err = capsys.readouterr().err
+    assert code == 1 and len(err.strip().splitlines()) == 1, err
+    assert "no space left on device" in err and "Traceback" not in err
+    assert sorted(p.name for p in out.iterdir()) == ["mine.txt"]
+
+
 def test_export_refuses_tampered_store(run, tmp_path) -> None:
     """A stored control-rate array edited to penetrate (its stored counters still 0) is refused:
     the export validates the file it writes, not the counters it was handed."""

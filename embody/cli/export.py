@@ -11,6 +11,14 @@ from embody.cli.common import emit_json, json_option
 from embody.export.formats import FORMATS
 
 
+def _shown(text: object, limit: int = 200) -> str:
+    """Text from a library or run as one short printable line: control characters (ANSI
+    escapes, newlines) are shown escaped, never sent to the terminal; long text is cut."""
+    text = str(text)
+    cut = text[:limit] + ("…" if len(text) > limit else "")
+    return "".join(c if c.isprintable() else ascii(c)[1:-1] for c in cut)
+
+
 @click.command("export")
 @click.argument("args", nargs=-1, metavar="RUN OUT | --check DIR")
 @click.option("--robot", default=None, help="Robot the trajectories must be for (robot.name); "
@@ -21,7 +29,8 @@ from embody.export.formats import FORMATS
               show_default=True, help="npz (q, joint names, dt, source, validation), csv, "
               "gmr (GMR motion pickle) or beyondmimic (BeyondMimic csv_to_npz input).")
 @click.option("--check", is_flag=True, help="Re-validate the library in DIR with MuJoCo from "
-              "its files alone; exit 1 if any file fails.")
+              "its files alone; exit 1 if any file fails, 2 if the library is malformed "
+              "(see docs/security.md for what it guarantees).")
 @click.option("--include-rejected/--exclude-rejected", default=False, show_default=True,
               help="Keep sequences the critic rejected (default: exclude them, like failed "
                    "ones; runs without a critic have none).")
@@ -70,7 +79,7 @@ def command(args: tuple[str, ...], robot: str | None, store_root: str, fmt: str,
         click.echo(f"exported {plural(len(library), 'trajectory', 'trajectories')} ({fmt}) to "
                    f"{out} (library.csv, library.json)")
         for row in excluded.itertuples():
-            click.echo(f"excluded {row.id}: {row.reason}")
+            click.echo(f"excluded {_shown(row.id)}: {_shown(row.reason)}")
         if skipped_valid:
             click.echo(f"{plural(skipped_valid, 'export-valid sequence')} left out because the "
                        "critic rejected "
@@ -84,9 +93,16 @@ def _check(lib_dir: str, robot_name: str | None, as_json: bool) -> int:
 
     robot = None
     if robot_name:
+        from pydantic import ValidationError
+
         from embody.config.robot import RobotConfig
+        from embody.errors import UsageError
         from embody.robot import load_robot
-        robot = load_robot(RobotConfig(name=robot_name))
+        try:
+            cfg = RobotConfig(name=robot_name)
+        except ValidationError:
+            raise UsageError("--robot: not a robot name ([A-Za-z0-9_.-]+)") from None
+        robot = load_robot(cfg)
     table = check_library(lib_dir, robot)
     bad = table[~table["ok"].astype(bool)]
     if as_json:
@@ -95,6 +111,7 @@ def _check(lib_dir: str, robot_name: str | None, as_json: bool) -> int:
     else:
         for row in table.to_dict("records"):
             counts = " ".join(f"{k}={row[k]:g}" for k in VIOLATION_KEYS if k in row and row[k] == row[k])
-            click.echo(f"{'ok  ' if row['ok'] else 'FAIL'} {row['id']}: {counts} {row['error']}".rstrip())
-        click.echo(f"checked {len(table)} files in {lib_dir}: {len(bad)} failed")
+            click.echo(f"{'ok  ' if row['ok'] else 'FAIL'} {_shown(row['id'])}: {counts} "
+                       f"{row['error']}".rstrip())
+        click.echo(f"checked {len(table)} files in {_shown(lib_dir)}: {len(bad)} failed")
     return 1 if len(bad) else 0

@@ -1,5 +1,5 @@
 """Trajectory file formats that robot learning stacks consume (see `formats`)."""
 
-from embody.export.formats import FORMATS, ExportFormat, read_joint_positions, write_trajectory
+from embody.export.formats import FORMATS, ExportFormat, read_trajectory, write_trajectory
 
-__all__ = ["FORMATS", "ExportFormat", "read_joint_positions", "write_trajectory"]
+__all__ = ["FORMATS", "ExportFormat", "read_trajectory", "write_trajectory"]

@@ -19,19 +19,26 @@
   order and no side file. The frame rate is `--input_fps` (default 30), so the library records it.
 
 Our robots' trajectories keep the floating root at its default pose (upper-body retargeting), so
-the root columns repeat MuJoCo's `qpos0` root. Each reader returns the joint array exactly as its
-consumer would see it (float32 where the consumer casts), which is what the export validates.
+the root columns repeat MuJoCo's `qpos0` root. `read_trajectory` returns the joint array exactly
+as its consumer would see it (float32 where the consumer casts), with the rate the file states,
+which is what the export and `export --check` validate. It treats the file as hostile: size and
+frame count are bounded before anything is parsed, and non-finite values, a missing or absurd
+rate, or a layout that differs from the robot's are refused (`InputError`).
 """
 
 from __future__ import annotations
 
 import io
 import json
+import math
+import os
 import pickle
+import stat
+import warnings
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Literal
+from typing import Any, BinaryIO, Callable, Literal, Sequence
 
 import mujoco
 import numpy as np
@@ -43,6 +50,18 @@ from embody.io.safe_pickle import Budget
 
 ExportFormat = Literal["npz", "csv", "gmr", "beyondmimic"]
 
+#: Bytes one value may take as text (`%.17g`: sign, 17 digits, point, exponent, delimiter):
+#: with the frame bound it bounds a trajectory file's size before it is parsed.
+TEXT_BYTES_PER_VALUE = 32
+#: Columns a file may carry besides the joints (time or root pose) and its fixed overhead
+#: (npz members' headers and metadata, the pickle's keys).
+EXTRA_COLUMNS = 8
+FILE_OVERHEAD_BYTES = 1 << 20
+#: Largest tolerated |‖quaternion‖ − 1| of a root rotation (float32 text rounds to ~1e-7).
+QUAT_NORM_TOLERANCE = 1e-3
+#: Longest joint name an npz may carry (characters): bounds the `joint_names` member.
+MAX_NAME_CHARS = 256
+
 
 @dataclass(frozen=True)
 class Layout:
@@ -53,6 +72,14 @@ class Layout:
     root_pos: np.ndarray  # (3,) world position of the floating root
     root_quat_wxyz: np.ndarray  # (4,) MuJoCo order
     meta: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class FileTrajectory:
+    """An exported file as its consumer reads it."""
+
+    q: np.ndarray  # (T, n) float64, after the consumer's own cast
+    rate_hz: float | None  # the rate the file states; None where the format has none (BeyondMimic)
 
 
 def root_pose(model: mujoco.MjModel, root_body: str) -> tuple[np.ndarray, np.ndarray]:
@@ -81,22 +108,22 @@ def _fps(dt: float) -> int | float:
     return int(round(fps)) if abs(fps - round(fps)) < 1e-9 else fps
 
 
-def _write_npz(path: Path, q: np.ndarray, lay: Layout) -> None:
+def _npz_data(q: np.ndarray, lay: Layout) -> bytes:
     arrays = {"q": q, "dt": np.float64(lay.dt), "joint_names": np.array(lay.joint_names),
               "source_id": np.array(lay.meta.get("id", "")), "robot": np.array(lay.meta.get("robot", "")),
               "text": np.array(lay.meta.get("text", "")),
               "validation": np.array(json.dumps(lay.meta.get("validation", {}), sort_keys=True,
                                                 default=float))}
-    path.write_bytes(_npz_bytes(arrays))
+    return _npz_bytes(arrays)
 
 
-def _write_csv(path: Path, q: np.ndarray, lay: Layout) -> None:
+def _csv_data(q: np.ndarray, lay: Layout) -> bytes:
     frame = pd.DataFrame(q, columns=list(lay.joint_names))
     frame.insert(0, "time", np.arange(len(q)) * lay.dt)
-    frame.to_csv(path, index=False, lineterminator="\n", float_format="%.17g")
+    return frame.to_csv(index=False, lineterminator="\n", float_format="%.17g").encode("utf-8")
 
 
-def _write_gmr(path: Path, q: np.ndarray, lay: Layout) -> None:
+def _gmr_data(q: np.ndarray, lay: Layout) -> bytes:
     t = len(q)
     motion = {"fps": _fps(lay.dt),
               "root_pos": np.tile(lay.root_pos, (t, 1)),
@@ -104,7 +131,7 @@ def _write_gmr(path: Path, q: np.ndarray, lay: Layout) -> None:
               "dof_pos": np.asarray(q, dtype=np.float64),
               "local_body_pos": None,
               "link_body_list": None}
-    path.write_bytes(pickle.dumps(motion, protocol=4))
+    return pickle.dumps(motion, protocol=4)
 
 
 #: The G1 joints BeyondMimic's `scripts/csv_to_npz.py` names (HybridRobotics/whole_body_tracking),
@@ -124,7 +151,7 @@ BEYONDMIMIC_G1_JOINTS = (
 BEYONDMIMIC_EXTRA_SUFFIX = ".extra_joints.csv"
 
 
-def beyondmimic_columns(joint_names: tuple[str, ...] | list[str]) -> tuple[list[int], list[int]]:
+def beyondmimic_columns(joint_names: Sequence[str]) -> tuple[list[int], list[int]]:
     """Indices into `joint_names` of the csv's joint columns (in csv order) and of the side
     file's (MJCF order; empty when the csv carries every joint)."""
     names = list(joint_names)
@@ -141,23 +168,30 @@ def beyondmimic_extra_path(path: Path) -> Path:
     return path.with_name(path.name.removesuffix(".csv") + BEYONDMIMIC_EXTRA_SUFFIX)
 
 
-def _write_beyondmimic(path: Path, q: np.ndarray, lay: Layout) -> None:
-    t = len(q)
-    main, extra = beyondmimic_columns(lay.joint_names)
-    motion = np.hstack([np.tile(lay.root_pos, (t, 1)),
-                        np.tile(lay.root_quat_wxyz[[1, 2, 3, 0]], (t, 1)), q[:, main]])
-    np.savetxt(path, motion, delimiter=",", fmt="%.17g")
-    side = beyondmimic_extra_path(path)
-    if extra:
-        np.savetxt(side, q[:, extra], delimiter=",", fmt="%.17g", comments="",
-                   header=",".join(lay.joint_names[i] for i in extra))
-    else:
-        side.unlink(missing_ok=True)
-
-
 def companion_files(path: Path, fmt: ExportFormat) -> list[Path]:
     """Files an exported `path` comes with (BeyondMimic's side file), to remove or copy with it."""
     return [beyondmimic_extra_path(path)] if fmt == "beyondmimic" else []
+
+
+def _beyondmimic_data(q: np.ndarray, lay: Layout) -> bytes:
+    t = len(q)
+    main, _ = beyondmimic_columns(lay.joint_names)
+    motion = np.hstack([np.tile(lay.root_pos, (t, 1)),
+                        np.tile(lay.root_quat_wxyz[[1, 2, 3, 0]], (t, 1)), q[:, main]])
+    buf = io.BytesIO()
+    np.savetxt(buf, motion, delimiter=",", fmt="%.17g")
+    return buf.getvalue()
+
+
+def _beyondmimic_extra_data(q: np.ndarray, lay: Layout) -> bytes | None:
+    """The side file's contents, or None when the csv carries every joint."""
+    _, extra = beyondmimic_columns(lay.joint_names)
+    if not extra:
+        return None
+    buf = io.BytesIO()
+    np.savetxt(buf, q[:, extra], delimiter=",", fmt="%.17g", comments="",
+               header=",".join(lay.joint_names[i] for i in extra))
+    return buf.getvalue()
 
 
 #: Largest GMR motion pickle read.
@@ -183,65 +217,217 @@ def read_gmr(path: Path) -> dict[str, Any]:
     return motion
 
 
-def _beyondmimic_joints(path: Path, csv_q: np.ndarray, joint_names: tuple[str, ...]) -> np.ndarray:
-    """The robot's full joint array from a BeyondMimic csv's joint columns and its side file."""
-    main, extra = beyondmimic_columns(joint_names)
-    if csv_q.shape[1] != len(main):
-        raise InputError(path, None, f"expected {len(main)} joint columns after the 7 root "
-                         f"columns, got {csv_q.shape[1]}")
-    q = np.empty((len(csv_q), len(joint_names)), dtype=np.float32)
-    q[:, main] = csv_q
+def max_file_bytes(n_joints: int, max_frames: int) -> int:
+    """Largest trajectory file read for a robot of `n_joints` (any format): `max_frames` rows
+    of joints plus time/root columns as text, and a fixed overhead."""
+    return max_frames * (n_joints + EXTRA_COLUMNS) * TEXT_BYTES_PER_VALUE + FILE_OVERHEAD_BYTES
+
+
+def open_regular(path: Path, max_bytes: int) -> BinaryIO:
+    """`path` opened for reading if it is a regular file (not a symlink, FIFO or device) of at
+    most `max_bytes`; anything else is an InputError, raised before a byte is read."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    except FileNotFoundError:
+        raise InputError(path, None, "missing") from None
+    except OSError as exc:
+        reason = "a symbolic link (refused)" if path.is_symlink() else exc.strerror or str(exc)
+        raise InputError(path, None, f"cannot open: {reason}") from None
+    try:
+        info = os.fstat(fd)
+        if not stat.S_ISREG(info.st_mode):
+            raise InputError(path, None, "not a regular file")
+        if info.st_size > max_bytes:
+            raise InputError(path, None, f"{info.st_size} bytes is more than the {max_bytes} a "
+                                         "trajectory of io.max_frames frames can take")
+        os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def _number_array(value: Any, path: Path, key: str, shape: Sequence[int | None]) -> np.ndarray:
+    """`value` as finite float64 of `shape` (None: any length); other dtypes (bool, complex,
+    text, objects), other shapes and NaN/inf are refused."""
+    try:
+        arr = np.asarray(value)
+    except Exception:  # an object whose conversion fails is not a number
+        raise InputError(path, key, f"not numeric (type {type(value).__name__})") from None
+    if arr.dtype.kind not in "fiu":
+        raise InputError(path, key, f"expected real numbers, got {arr.dtype} values")
+    if arr.ndim != len(shape) or any(s is not None and s != n for s, n in zip(shape, arr.shape)):
+        want = "(" + ", ".join("T" if s is None else str(s) for s in shape) + ")"
+        raise InputError(path, key, f"expected shape {want}, got {arr.shape}")
+    out = arr.astype(np.float64)
+    if not np.isfinite(out).all():
+        raise InputError(path, key, "contains non-finite values (NaN or inf)")
+    return out
+
+
+def _rate(value: Any, path: Path, key: str) -> float:
+    """A stated frame rate (Hz) or step (s) as a positive finite float (bool refused)."""
+    if isinstance(value, (bool, np.bool_)):
+        raise InputError(path, key, "expected a number, got a bool")
+    arr = _number_array(value, path, key, ()) if np.ndim(value) == 0 else None
+    if arr is None:
+        raise InputError(path, key, f"expected one number, got shape {np.shape(value)}")
+    number = float(arr)
+    if not number > 0:
+        raise InputError(path, key, f"must be > 0, got {number:g}")
+    return number
+
+
+def _frames(path: Path, frames: int, max_frames: int) -> None:
+    if frames < 1:
+        raise InputError(path, "q", "no frames")
+    if frames > max_frames:
+        raise InputError(path, "q", f"{frames} frames exceeds io.max_frames={max_frames}")
+
+
+def _scan_lines(fh: BinaryIO, path: Path, names: tuple[str, ...], max_lines: int) -> None:
+    """Stream a text file once before it is parsed, refusing it past `max_lines` lines or at a
+    line longer than a row (or the header) of this robot can be: a parser then holds at most
+    that many short rows."""
+    longest = max((len(names) + EXTRA_COLUMNS) * TEXT_BYTES_PER_VALUE,
+                  len(",".join(["time", *names]).encode("utf-8")) + 64)
+    for i, line in enumerate(iter(lambda: fh.readline(longest + 2), b"")):
+        if i >= max_lines:
+            raise InputError(path, "q", f"more than {max_lines} lines (io.max_frames)")
+        if len(line) > longest:
+            raise InputError(path, f"line {i + 1}", f"longer than {longest} bytes")
+    fh.seek(0)
+
+
+def _root(root_pos: np.ndarray, root_xyzw: np.ndarray, path: Path, keys: tuple[str, str]) -> None:
+    """The root pose must be finite (checked by the caller) and a unit quaternion."""
+    norm = np.linalg.norm(root_xyzw, axis=1)
+    if norm.size and np.abs(norm - 1.0).max() > QUAT_NORM_TOLERANCE:
+        raise InputError(path, keys[1], f"not a unit quaternion (norm {norm.min():.4g}.."
+                                        f"{norm.max():.4g})")
+
+
+def _read_npz(fh: BinaryIO, path: Path, names: tuple[str, ...], max_frames: int) -> FileTrajectory:
+    from embody.io.fields import npz_shapes
+
+    shapes = npz_shapes(fh)  # type: ignore[arg-type]  # headers only, before anything is inflated
+    for key in ("q", "dt"):
+        if key not in shapes:
+            raise InputError(path, key, "missing")
+    shape, dtype = shapes["q"]
+    if len(shape) != 2 or shape[1] != len(names) or dtype.kind not in "fiu":
+        raise InputError(path, "q", f"expected (T, {len(names)}) real numbers, got {shape} {dtype}")
+    _frames(path, shape[0], max_frames)
+    if math.prod(shapes["dt"][0]) != 1 or shapes["dt"][1].kind not in "fiu":
+        raise InputError(path, "dt", f"expected one number, got {shapes['dt'][0]} {shapes['dt'][1]}")
+    if "joint_names" in shapes:
+        shape, dtype = shapes["joint_names"]
+        if shape != (len(names),) or dtype.kind != "U" or dtype.itemsize > 4 * MAX_NAME_CHARS:
+            raise InputError(path, "joint_names", f"expected {len(names)} names, got {shape} {dtype}")
+    fh.seek(0)
+    with np.load(fh, allow_pickle=False) as z:
+        q = _number_array(z["q"], path, "q", (None, len(names)))
+        rate = 1.0 / _rate(np.asarray(z["dt"]).reshape(()), path, "dt")
+        if "joint_names" in shapes and tuple(str(n) for n in z["joint_names"]) != names:
+            raise InputError(path, "joint_names", "differ from the robot's joints")
+    return FileTrajectory(q, rate)
+
+
+def _read_csv(fh: BinaryIO, path: Path, names: tuple[str, ...], max_frames: int) -> FileTrajectory:
+    _scan_lines(fh, path, names, max_frames + 2)
+    table = pd.read_csv(fh)
+    if list(table.columns) != ["time", *names]:
+        raise InputError(path, "columns", "expected time and the robot's joint names")
+    for column in table.columns:
+        if table[column].dtype.kind not in "fiu":
+            raise InputError(path, str(column), f"not numeric ({table[column].dtype})")
+    _frames(path, len(table), max_frames)
+    time = _number_array(table["time"].to_numpy(), path, "time", (None,))
+    q = _number_array(table[list(names)].to_numpy(), path, "q", (None, len(names)))
+    rate = None
+    if len(time) >= 2:
+        step = np.diff(time)
+        dt = (time[-1] - time[0]) / (len(time) - 1)
+        if not dt > 0 or np.abs(step - dt).max() > 1e-6 * dt:
+            raise InputError(path, "time", "not evenly spaced and increasing")
+        rate = 1.0 / dt
+    return FileTrajectory(q, rate)
+
+
+def _read_gmr(path: Path, names: tuple[str, ...], max_frames: int) -> FileTrajectory:
+    motion = read_gmr(path)
+    q = _number_array(motion["dof_pos"], path, "dof_pos", (None, len(names)))
+    _frames(path, len(q), max_frames)
+    pos = _number_array(motion["root_pos"], path, "root_pos", (len(q), 3))
+    rot = _number_array(motion["root_rot"], path, "root_rot", (len(q), 4))
+    _root(pos, rot, path, ("root_pos", "root_rot"))
+    return FileTrajectory(q, _rate(motion["fps"], path, "fps"))
+
+
+def _read_beyondmimic(fh: BinaryIO, path: Path, names: tuple[str, ...],
+                      max_frames: int, side: Path | None) -> FileTrajectory:
+    main, extra = beyondmimic_columns(names)
+    _scan_lines(fh, path, names, max_frames + 1)
+    with warnings.catch_warnings():  # an empty file is refused below, not warned about
+        warnings.simplefilter("ignore")
+        motion = np.loadtxt(fh, delimiter=",", ndmin=2)
+    if motion.ndim != 2 or motion.shape[1] != 7 + len(main):
+        raise InputError(path, "columns", f"expected 7 root + {len(main)} joint columns, got "
+                                          f"{motion.shape[1] if motion.ndim == 2 else motion.shape}")
+    _frames(path, len(motion), max_frames)
+    motion = _number_array(motion.astype(np.float32), path, "rows", (None, 7 + len(main)))
+    _root(motion[:, :3], motion[:, 3:7], path, ("root_pos", "root_quat"))
+    q = np.empty((len(motion), len(names)))
+    q[:, main] = motion[:, 7:]  # csv_to_npz: torch.from_numpy(...).to(float32)
     if extra:
-        side = beyondmimic_extra_path(path)
-        try:
-            table = pd.read_csv(side)
-        except (OSError, ValueError) as exc:
-            raise InputError(side, None, f"cannot read the side file: {exc}") from None
-        want = [joint_names[i] for i in extra]
-        if list(table.columns) != want or len(table) != len(csv_q):
-            raise InputError(side, None, f"expected {len(csv_q)} rows of {want}")
-        q[:, extra] = table.to_numpy(np.float64).astype(np.float32)
-    return q
+        side = side or beyondmimic_extra_path(path)
+        want = [names[i] for i in extra]
+        with open_regular(side, max_file_bytes(len(names), max_frames)) as sh:
+            _scan_lines(sh, side, names, max_frames + 2)
+            table = pd.read_csv(sh)
+        if list(table.columns) != want or len(table) != len(motion):
+            raise InputError(side, "columns", f"expected {len(motion)} rows of {len(want)} joints "
+                                              "(the robot's joints the csv lacks)")
+        q[:, extra] = _number_array(table.to_numpy(), side, "rows", (None, len(want))
+                                    ).astype(np.float32)
+    return FileTrajectory(q, None)
 
 
-def read_joint_positions(path: str | Path, fmt: ExportFormat, n_joints: int,
-                         joint_names: tuple[str, ...] | list[str] | None = None) -> np.ndarray:
-    """The joint array (T, n_joints) of an exported file, as its consumer reads it (float64 out;
-    BeyondMimic's float32 cast applied first). A BeyondMimic csv needs the robot's `joint_names`
-    to put its columns and its side file's back in the robot's order."""
+def _one_line(exc: BaseException) -> str:
+    text = " ".join(str(exc).split()) or type(exc).__name__
+    text = "".join(c if c.isprintable() else "?" for c in text)
+    return text[:200] + ("…" if len(text) > 200 else "")
+
+
+def read_trajectory(path: str | Path, fmt: ExportFormat, joint_names: Sequence[str], *,
+                    max_frames: int, side: Path | None = None) -> FileTrajectory:
+    """An exported file as its consumer reads it, refused (`InputError`) unless it is a regular
+    file within the size and frame bounds holding finite joints of the robot's layout and,
+    where the format states one, a finite positive rate. `side`: a BeyondMimic csv's side file
+    when it is not beside `path` under its own name (a temp file being checked)."""
     path = Path(path)
-    if fmt == "npz":
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                q = np.asarray(z["q"])
-        except (OSError, ValueError, KeyError) as exc:
-            raise InputError(path, "q", f"cannot read: {exc}") from None
-    elif fmt == "csv":
-        try:
-            table = pd.read_csv(path)
-        except (OSError, ValueError) as exc:
-            raise InputError(path, None, f"cannot read csv: {exc}") from None
-        q = table.drop(columns=["time"], errors="ignore").to_numpy()
-    elif fmt == "gmr":
-        q = np.asarray(read_gmr(path)["dof_pos"])
-    elif fmt == "beyondmimic":
-        try:
-            motion = np.loadtxt(path, delimiter=",", ndmin=2)
-        except (OSError, ValueError) as exc:
-            raise InputError(path, None, f"cannot read csv: {exc}") from None
-        q = motion.astype(np.float32)[:, 7:]  # csv_to_npz: torch.from_numpy(...).to(float32)
-        if joint_names is not None:
-            q = _beyondmimic_joints(path, q, tuple(joint_names))
-    else:
+    names = tuple(joint_names)
+    if fmt not in WRITERS:
         raise InputError(path, "format", f"unknown export format {fmt!r}")
-    if q.ndim != 2 or q.shape[1] != n_joints:
-        raise InputError(path, "q", f"expected (T, {n_joints}) joint positions, got {q.shape}")
-    return q.astype(np.float64)
+    with open_regular(path, max_file_bytes(len(names), max_frames)) as fh:
+        try:
+            if fmt == "npz":
+                return _read_npz(fh, path, names, max_frames)
+            if fmt == "csv":
+                return _read_csv(fh, path, names, max_frames)
+            if fmt == "gmr":
+                return _read_gmr(path, names, max_frames)
+            return _read_beyondmimic(fh, path, names, max_frames, side)
+        except InputError as exc:  # its message may quote the file (a pickle's class names)
+            raise InputError(exc.path, exc.field, _one_line(exc.message)) from None
+        except Exception as exc:  # parsers raise many types on corrupt input
+            raise InputError(path, None, f"cannot read {fmt} file: {type(exc).__name__}: "
+                                         f"{_one_line(exc)}") from None
 
 
-WRITERS: dict[str, tuple[str, Callable[[Path, np.ndarray, Layout], None]]] = {
-    "npz": (".npz", _write_npz), "csv": (".csv", _write_csv),
-    "gmr": (".pkl", _write_gmr), "beyondmimic": (".csv", _write_beyondmimic)}
+WRITERS: dict[str, tuple[str, Callable[[np.ndarray, Layout], bytes]]] = {
+    "npz": (".npz", _npz_data), "csv": (".csv", _csv_data),
+    "gmr": (".pkl", _gmr_data), "beyondmimic": (".csv", _beyondmimic_data)}
 FORMATS: tuple[str, ...] = tuple(WRITERS)
 #: Who reads each format (for the library index and the README).
 CONSUMERS = {"npz": "embody (play, export --check)", "csv": "spreadsheets, generic tools",
@@ -250,11 +436,32 @@ CONSUMERS = {"npz": "embody (play, export --check)", "csv": "spreadsheets, gener
                             "it does not drive in <name>.extra_joints.csv"}
 
 
-def write_trajectory(path_stem: Path, fmt: ExportFormat, q: np.ndarray, layout: Layout) -> Path:
-    """Write q (T,n) in `fmt` next to `path_stem` (suffix added); returns the path."""
+def trajectory_bytes(fmt: ExportFormat, q: np.ndarray, layout: Layout) -> tuple[str, bytes]:
+    """(suffix, file contents) of q (T,n) in `fmt`."""
     if fmt not in WRITERS:
-        raise InputError(path_stem, "format", f"unknown export format {fmt!r}")
+        raise InputError("<export>", "format", f"unknown export format {fmt!r}")
     suffix, writer = WRITERS[fmt]
+    return suffix, writer(np.asarray(q, dtype=np.float64), layout)
+
+
+def companion_bytes(fmt: ExportFormat, q: np.ndarray, layout: Layout,
+                    path: Path) -> list[tuple[Path, bytes]]:
+    """(path, contents) of the files that come with `path` in `fmt` (BeyondMimic's side file
+    when the csv lacks some of the robot's joints)."""
+    if fmt != "beyondmimic":
+        return []
+    side = _beyondmimic_extra_data(np.asarray(q, dtype=np.float64), layout)
+    return [] if side is None else [(beyondmimic_extra_path(path), side)]
+
+
+def write_trajectory(path_stem: Path, fmt: ExportFormat, q: np.ndarray, layout: Layout) -> Path:
+    """Write q (T,n) in `fmt` next to `path_stem` (suffix added), atomically, with its companion
+    files written first; returns the path."""
+    from embody.export.atomic import write_atomic
+
+    suffix, data = trajectory_bytes(fmt, q, layout)
     path = path_stem.with_name(path_stem.name + suffix)
-    writer(path, np.asarray(q, dtype=np.float64), layout)
+    for side, side_data in companion_bytes(fmt, q, layout, path):
+        write_atomic(side, side_data)
+    write_atomic(path, data)
     return path
