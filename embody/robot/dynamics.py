@@ -147,13 +147,18 @@ def leg_joints(robot: Robot) -> np.ndarray:
 
 def stance_pose(robot: Robot) -> np.ndarray:
     """Leg joint values (n,) of the standing robot (other joints at the T-pose): Menagerie's
-    `stand` keyframe where the model has it, else the YAML T-pose."""
+    `stand` keyframe where the model has it, else the robot YAML's `actuation.stance.pose`,
+    else the YAML T-pose."""
     q = robot.tpose.copy()
     m = robot.model
+    legs = leg_joints(robot)
     names = [m.key(k).name for k in range(m.nkey)]
+    stance = robot.spec.actuation.stance if robot.spec.actuation is not None else None
     if "stand" in names:
-        legs = leg_joints(robot)
         q[legs] = m.key("stand").qpos[robot.qpos_adr][legs]
+    elif stance is not None and stance.pose:
+        for name, value in stance.pose.items():
+            q[robot.joint_index(name)] = value
     return q
 
 
