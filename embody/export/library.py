@@ -24,6 +24,7 @@ from embody.errors import InputError
 from embody.report.paths import safe_name
 from embody.export.formats import (CONSUMERS, FORMATS, ExportFormat, Layout, read_joint_positions,
                                    root_pose, write_trajectory)
+from embody.export.control import PHYSICS_CHECK_KEYS
 from embody.retarget.validation import VALIDATION_KEYS
 
 #: Validation counters that must be zero for a trajectory to be exported.
@@ -62,21 +63,33 @@ class Trajectory:
 
     def layout(self, robot: Any | None = None) -> Layout:
         """What the writers need besides q (root pose from the robot's MJCF, when given)."""
+        control: dict[str, np.ndarray] = {}
         if robot is not None:
             pos, quat = root_pose(robot.model, robot.spec.root_body)
+            if robot.spec.actuation is not None:
+                from embody.export.control import control_fields
+                control = control_fields(robot, self.q, self.dt)
         else:
             pos, quat = np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])
         return Layout(self.joint_names, self.dt, pos, quat,
                       {"id": self.id, "robot": self.robot, "text": self.text,
-                       "validation": self.validation})
+                       "validation": self.validation}, control)
 
     def save(self, path_stem: Path, fmt: ExportFormat = "npz", robot: Any | None = None) -> Path:
         """Write in `fmt` at `path_stem` + the format's suffix."""
         return write_trajectory(Path(path_stem), fmt, self.q, self.layout(robot))
 
     def save_npz(self, path: Path) -> Path:
-        """An `np.load`-able npz with fixed zip timestamps: equal trajectories, equal bytes."""
-        return self.save(Path(path).with_suffix(""), "npz")
+        """An `np.load`-able npz with fixed zip timestamps: equal trajectories, equal bytes; with
+        the command fields of the robot it names when that robot is known (as `export_library`)."""
+        robot = None
+        if self.robot:
+            from embody.errors import ConfigError
+            try:
+                robot = _robot_named(self.robot)
+            except ConfigError:
+                robot = None
+        return self.save(Path(path).with_suffix(""), "npz", robot)
 
     def save_csv(self, path: Path) -> Path:
         """Time column then one column per joint (radians), one row per control step."""
@@ -224,4 +237,17 @@ def check_library(lib_dir: str | Path, robot: Any | None = None) -> pd.DataFrame
         rows.append({"id": entry["id"], "file": entry["file"], **counts,
                      "ok": not _bad(counts) and agree,
                      "error": "" if agree else "counters differ from library.json"})
-    return pd.DataFrame(rows, columns=["id", "file", *VIOLATION_KEYS, "ok", "error"])
+        rows[-1].update(_physics_row(robot, path, fmt, float(entry["dt"]), rows[-1]))
+    return pd.DataFrame(rows, columns=["id", "file", *VIOLATION_KEYS, "ok", "error", *PHYSICS_CHECK_KEYS])
+
+
+def _physics_row(robot: Any, path: Path, fmt: ExportFormat, dt: float, row: dict[str, Any]) -> dict[str, Any]:
+    """The physics-valid rule on one file (`embody.export.control.physics_check`), folded into
+    its check row: `ok` also needs physics-valid, `error` says why not."""
+    from embody.export.control import physics_check
+    if robot.spec.actuation is None:
+        return {"physics_valid": None}
+    out = physics_check(robot, path, read_joint_positions(path, fmt, robot.n_joints), dt)
+    why = out.pop("physics_error", "") or ("" if out["physics_valid"] else "not physics-valid")
+    errors = "; ".join(e for e in (row.get("error", ""), why) if e)
+    return {**out, "ok": bool(row["ok"]) and bool(out["physics_valid"]), "error": errors}
