@@ -81,3 +81,13 @@ def test_check_fails_a_file_with_other_gains(tmp_path) -> None:
     _rewrite(tmp_path / "a.npz", kp=kp)
     row = check_library(tmp_path, ROBOT).iloc[0]
     assert not row["ok"] and "kp/kd" in row["error"]
+
+
+def test_play_physics_shows_the_replay(tmp_path, capsys) -> None:
+    export_library([_traj("a")], tmp_path, "npz", robot=ROBOT)
+    out = tmp_path / "replay.gif"
+    code = main(["play", str(tmp_path / "a.npz"), "--physics", "--format", "gif", "--out", str(out),
+                 "--set", "render.preview_fps=3"])
+    assert code == 0 and out.is_file() and out.stat().st_size > 0
+    text = capsys.readouterr().out
+    assert "physics:" in text and "torque over limit 0 samples" in text
