@@ -88,7 +88,8 @@ def sequence_verdicts(seq: Mapping[str, Any]) -> dict[str, bool | None]:
 
     `export_valid` reads the validation counters the pipeline's `metrics` step stored; it is
     None when that step did not run for the sequence. `critic_accepted` is None without a critic,
-    `physics_valid` (the `physics` step's figures) None when that step did not run.
+    `physics_valid` (the `physics` step's figures) None when that step did not run or had
+    nothing to replay (a robot without an `actuation` section).
     """
     ok = seq.get("status") == "ok"
     metrics = seq.get("metrics") or {}
@@ -104,7 +105,7 @@ def sequence_verdicts(seq: Mapping[str, Any]) -> dict[str, bool | None]:
     accepted = None if refine is None or "accepted" not in refine else (
         ok and bool(refine["accepted"]))
     physics = metrics.get("physics")
-    phys: bool | None = None if physics is None else (ok and physics_valid(physics))
+    phys: bool | None = None if physics is None or "skipped" in physics else (ok and physics_valid(physics))
     return {"processed_ok": ok, "export_valid": valid, "critic_accepted": accepted, "physics_valid": phys}
 
 

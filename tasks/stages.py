@@ -354,7 +354,9 @@ def _physics(ctx: Context, inputs: dict[str, Any]) -> Any:
     robot's actuation (`embody.physics`): torque, tracking, contacts, balance, and sign fidelity
     of the simulated motion against the same human track the metrics step scores."""
     from embody.device import torch_threads
-    from embody.physics import evaluate
+    from embody.physics import PhysicsResult, evaluate
+    if ctx.robot.spec.actuation is None:  # a user robot without gains: nothing to replay
+        return PhysicsResult({"skipped": "the robot YAML has no actuation section"})
     metrics = inputs["metrics"]
     q = np.asarray(metrics.arrays["q_control"], dtype=np.float64)
     rate = float(metrics.metrics.get("validation_rate_hz", metrics.metrics.get("fidelity.rate_hz", 50.0)))
@@ -515,7 +517,7 @@ def warm(ctx: Context, pipeline: Pipeline) -> None:
     if "collide" in names:  # the judge's mesh groups (per body)
         from embody.collision.depth import depth_mesh
         depth_mesh(ctx.body, ctx.cfg.collision.allow_pairs)
-    if "physics" in names:  # the robot's replay models
+    if "physics" in names and ctx.robot.spec.actuation is not None:  # the robot's replay models
         from embody.physics.replay import fixed_model, standing_model
         fixed_model(ctx.robot)
         standing_model(ctx.robot)

@@ -131,3 +131,5 @@ def test_four_verdicts():
     assert verdict_line(counts).endswith("1/5 physics-valid")
     missing = {k: v for k, v in GOOD.items() if k != "standing_holds"}
     assert sequence_verdicts(_seq(physics=missing))["physics_valid"] is False
+    skipped = {"skipped": "the robot YAML has no actuation section"}
+    assert sequence_verdicts(_seq(physics=skipped))["physics_valid"] is None
