@@ -27,7 +27,7 @@ VERDICTS = {
     "physics_valid": "processed ok and its exported trajectory, replayed in MuJoCo with the robot's "
                      "gains and effort limits, has zero samples over a torque limit, zero saturated "
                      "control steps, palm tracking p95 ≤ 10 mm, zero self-contacts in simulation, the "
-                     "ZMP ≥ 20 mm inside the feet at every sample, and standing holds",
+                     "ZMP ≥ 20 mm inside the feet at every sample, and the robot stays up standing",
 }
 
 #: The physics-valid rule on the `physics` step's metrics: key → (comparison, bound).

@@ -79,20 +79,20 @@ TABLE3_KEYS = {
 TABLE3_PHYSICS = {
     "Physics-valid (%)": ("valid", "pct"),
     "Torque > limit (samples)": ("torque_over_samples", "sum"),
-    "Peak |τ|/limit": ("torque_ratio_max", "max"),
+    "Peak torque/limit": ("torque_ratio_max", "max"),
     "Saturated steps (%)": ("saturated_steps", "steps_pct"),
     "Palm p95 sim. (mm)": ("palm_err_p95_mm", "mean"),
     "Sim. self-contacts": ("sim_contact_samples", "sum"),
     "ZMP margin min (mm)": ("zmp_margin_min_mm", "min"),
-    "Standing holds (%)": ("standing_holds", "pct"),
+    "Stays up standing (%)": ("standing_holds", "pct"),
     "Location err. sim. (mm)": ("fidelity.location_err_mm", "mean"),
 }
 #: summary.json key (under `physics.`) of each TABLE3_PHYSICS column.
 PHYSICS_SUMMARY = {
     "Physics-valid (%)": "valid_pct", "Torque > limit (samples)": "torque_over_samples",
-    "Peak |τ|/limit": "torque_ratio_max", "Saturated steps (%)": "saturated_step_pct",
+    "Peak torque/limit": "torque_ratio_max", "Saturated steps (%)": "saturated_step_pct",
     "Palm p95 sim. (mm)": "palm_p95_mm", "Sim. self-contacts": "sim_contact_samples",
-    "ZMP margin min (mm)": "zmp_margin_min_mm", "Standing holds (%)": "standing_ok_pct",
+    "ZMP margin min (mm)": "zmp_margin_min_mm", "Stays up standing (%)": "standing_ok_pct",
     "Location err. sim. (mm)": "location_err_mm",
 }
 _NUMBER = re.compile(r"[-+]?\d*\.?\d+(?:[eE][-+]?\d+)?")
