@@ -6,7 +6,8 @@ the robot's gains and effort limits), scored against the same human track as the
 Runs made before the physics step existed work too (this reads only `metrics` and `collide`).
 `seconds_per_seq` is the CPU time of `evaluate` per sequence (`time.process_time`; the human
 track is built outside it, as the pipeline's metrics step has built it when the physics step
-runs). Without --run: every run in the store.
+runs), after one untimed warm-up call per robot (its replay and collision models are built
+once per process, as the run's `warm` builds them). Without --run: every run in the store.
 
     python benchmarks/physics.py --store DIR [--run RUN ...] [--limit N]
 
@@ -48,12 +49,16 @@ def main() -> None:
         robot, body = load_robot(cfg.robot), load_body_model(cfg.body)
         seqs = [(sid, s) for sid, s in sorted(manifest.sequences.items())
                 if s["status"] == "ok" and "metrics" in s["steps"]]
+        warmed = False
         for sid, seq in seqs[: args.limit or None]:
             art = store.read("metrics", seq["steps"]["metrics"])
             stored = seq["metrics"]["metrics"]
             q = np.asarray(art.arrays["q_control"], dtype=np.float64)
             rate = float(stored["validation_rate_hz"])
             human = resample_track(human_track(load_result(store, seq, "collide").motion, body), rate)
+            if not warmed:
+                evaluate(robot, q, rate, human, cfg.fidelity)
+                warmed = True
             t0 = time.process_time()
             res = evaluate(robot, q, rate, human, cfg.fidelity)
             cpu.append(time.process_time() - t0)
