@@ -153,7 +153,8 @@ def stance_pose(robot: Robot) -> np.ndarray:
     m = robot.model
     legs = leg_joints(robot)
     names = [m.key(k).name for k in range(m.nkey)]
-    stance = robot.spec.actuation.stance if robot.spec.actuation is not None else None
+    actuation = getattr(robot.spec, "actuation", None)  # a spec from before `actuation` existed: none
+    stance = actuation.stance if actuation is not None else None
     if "stand" in names:
         q[legs] = m.key("stand").qpos[robot.qpos_adr][legs]
     elif stance is not None and stance.pose:
