@@ -133,3 +133,17 @@ def test_four_verdicts():
     assert sequence_verdicts(_seq(physics=missing))["physics_valid"] is False
     skipped = {"skipped": "the robot YAML has no actuation section"}
     assert sequence_verdicts(_seq(physics=skipped))["physics_valid"] is None
+
+
+def test_standing_holds_still_and_tips_under_a_violent_swing(tmp_path):
+    robot = _arm(tmp_path, limit=100.0, kp=3000.0, kd=60.0, rate=1000.0)
+    still = evaluate(robot, np.zeros((100, 2)), 50.0).metrics
+    assert still["standing_holds"] and still["zmp_margin_min_mm"] > 50.0
+    assert still["standing_pelvis_tilt_max_deg"] < 1.0
+    # the 2.5 kg arm whipped up and down at 3 Hz through 1.2 rad: the ZMP leaves the 0.24 m foot
+    t = np.arange(150) / 50.0
+    swing = np.stack([-1.2 * np.abs(np.sin(2 * np.pi * 1.5 * t)), np.zeros_like(t)], axis=1)
+    fast = evaluate(robot, swing, 50.0).metrics
+    assert fast["zmp_margin_min_mm"] < 0.0
+    # and the simulated robot agrees: a foot lifts and the body slides
+    assert not fast["standing_holds"] and fast["standing_foot_lift_max_mm"] > 5.0
