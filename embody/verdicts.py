@@ -1,4 +1,4 @@
-"""The three verdicts on a sequence: processed ok, export-valid, critic-accepted.
+"""The four verdicts on a sequence: processed ok, export-valid, critic-accepted, physics-valid.
 
 "Success" means three different things, so every place that counts it (the run's closing
 summary, `summary.json`, the report's first table and `embody export`) asks this module, and
@@ -10,8 +10,8 @@ from __future__ import annotations
 import math
 from typing import Any, Iterable, Mapping
 
-__all__ = ["VALIDATION_KEYS", "VERDICTS", "export_valid", "in_default_export", "plural", "run_verdicts",
-           "sequence_verdicts", "verdict_line", "violations"]
+__all__ = ["VALIDATION_KEYS", "VERDICTS", "PHYSICS_RULE", "export_valid", "in_default_export",
+           "physics_valid", "plural", "run_verdicts", "sequence_verdicts", "verdict_line", "violations"]
 
 #: Validation counters (from `embody.retarget.validation.validation_counts`) that must all be
 #: zero for a trajectory to be exported: joint-limit violations, velocity-limit violations
@@ -24,7 +24,40 @@ VERDICTS = {
                     "zero velocity-limit violations and zero MuJoCo self-collision frames "
                     "(the rule `embody export` applies)",
     "critic_accepted": "the critic accepted the final round (blank when the run had no critic)",
+    "physics_valid": "processed ok and its exported trajectory, replayed in MuJoCo with the robot's "
+                     "gains and effort limits, has zero samples over a torque limit, zero saturated "
+                     "control steps, palm tracking p95 ≤ 10 mm, zero self-contacts in simulation, the "
+                     "ZMP ≥ 20 mm inside the feet at every sample, and the robot stays up standing",
 }
+
+#: The physics-valid rule on the `physics` step's metrics: key → (comparison, bound).
+PHYSICS_RULE: dict[str, tuple[str, float]] = {
+    "torque_over_samples": ("==", 0.0),
+    "saturated_steps": ("==", 0.0),
+    "palm_err_p95_mm": ("<=", 10.0),
+    "sim_contact_samples": ("==", 0.0),
+    "zmp_margin_min_mm": (">=", 20.0),
+    "standing_holds": ("==", 1.0),
+}
+
+
+def physics_valid(physics: Mapping[str, Any]) -> bool:
+    """The physics-valid rule (PHYSICS_RULE) on one sequence's `physics` metrics; a missing or
+    non-finite figure fails it. A robot without fingers or palms has no palm figure: only the
+    rows it measures are read (a missing palm p95 on a robot without palms reads as 0 mm)."""
+    for key, (op, bound) in PHYSICS_RULE.items():
+        value = physics.get(key)
+        if value is None and key == "palm_err_p95_mm" and physics.get("palm_landmarks") == 0:
+            continue
+        try:
+            number = float(value)  # type: ignore[arg-type]
+        except (TypeError, ValueError):
+            return False
+        if not math.isfinite(number):
+            return False
+        if (op == "==" and number != bound) or (op == "<=" and number > bound) or (op == ">=" and number < bound):
+            return False
+    return True
 
 
 def violations(counters: Mapping[str, Any]) -> dict[str, Any]:
@@ -54,7 +87,9 @@ def sequence_verdicts(seq: Mapping[str, Any]) -> dict[str, bool | None]:
     """The verdicts of one run-manifest sequence entry (`{status, metrics: {step: {...}}}`).
 
     `export_valid` reads the validation counters the pipeline's `metrics` step stored; it is
-    None when that step did not run for the sequence. `critic_accepted` is None without a critic.
+    None when that step did not run for the sequence. `critic_accepted` is None without a critic,
+    `physics_valid` (the `physics` step's figures) None when that step did not run or had
+    nothing to replay (a robot without an `actuation` section).
     """
     ok = seq.get("status") == "ok"
     metrics = seq.get("metrics") or {}
@@ -69,7 +104,9 @@ def sequence_verdicts(seq: Mapping[str, Any]) -> dict[str, bool | None]:
     refine = metrics.get("refine")
     accepted = None if refine is None or "accepted" not in refine else (
         ok and bool(refine["accepted"]))
-    return {"processed_ok": ok, "export_valid": valid, "critic_accepted": accepted}
+    physics = metrics.get("physics")
+    phys: bool | None = None if physics is None or "skipped" in physics else (ok and physics_valid(physics))
+    return {"processed_ok": ok, "export_valid": valid, "critic_accepted": accepted, "physics_valid": phys}
 
 
 def _flag(value: Any) -> bool | None:
@@ -102,12 +139,13 @@ def run_verdicts(per_sequence: Iterable[Mapping[str, bool | None]]) -> dict[str,
 
 
 def verdict_line(counts: Mapping[str, int | None]) -> str:
-    """One human line: "24/24 processed ok · 19/24 export-valid · 16/24 critic-accepted", plus
-    what the default export leaves out of the export-valid ones and how to include them."""
+    """One human line: "24/24 processed ok · 19/24 export-valid · 16/24 critic-accepted ·
+    24/24 physics-valid", plus what the default export leaves out of the export-valid ones and
+    how to include them."""
     total = counts.get("total") or 0
     parts = []
     for name, label in (("processed_ok", "processed ok"), ("export_valid", "export-valid"),
-                        ("critic_accepted", "critic-accepted")):
+                        ("critic_accepted", "critic-accepted"), ("physics_valid", "physics-valid")):
         value = counts.get(name)
         parts.append(f"{label} n/a" if value is None else f"{value}/{total} {label}")
     line = " · ".join(parts)

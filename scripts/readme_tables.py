@@ -19,10 +19,11 @@ from pathlib import Path
 
 START, END = "<!-- tables:start -->", "<!-- tables:end -->"  # the main (G1) block
 TABLES = (
-    ("verdicts", "Verdicts: processed ok, export-valid, critic-accepted"),
+    ("verdicts", "Verdicts: processed ok, export-valid, critic-accepted, physics-valid"),
     ("table1_collision", "Table I: self-collision mitigation"),
     ("table2_ablation", "Table II: loss-term ablation"),
     ("table3_retargeting", "Table III: retargeting fidelity, IK-only vs refined"),
+    ("table3_physics", "Table III (physics): the final trajectory replayed in MuJoCo"),
 )
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # run from a checkout, too
 from embody.report.definitions import METRICS, VERDICT_DEFINITIONS, robot_note  # noqa: E402  (one source for page and README)

@@ -1,6 +1,6 @@
 """The default pipeline: each step is one library call plus its key ingredients.
 
-source → collide → shape_fit (shared) → retarget → [refine] → [render] → metrics. Library imports happen
+source → collide → shape_fit (shared) → retarget → [refine] → [render] → metrics → physics. Library imports happen
 inside the steps, so defining the pipeline costs nothing and never imports a stage's deps.
 """
 
@@ -19,7 +19,7 @@ from embody.motion import Motion
 from embody.tasks.pipeline import Context, Pipeline, Step
 
 __all__ = ["Metrics", "default_pipeline", "warm", "SOURCE", "COLLIDE", "SHAPE_FIT", "RETARGET",
-           "REFINE", "RENDER", "METRICS"]
+           "REFINE", "RENDER", "METRICS", "PHYSICS"]
 
 
 @dataclass
@@ -99,6 +99,31 @@ def _targets(ctx: Context, motion: Motion, fit: Any, ik: Any, remember: bool = T
         while len(_TARGETS) > _targets_size(ctx.cfg):
             _TARGETS.popitem(last=False)
     return targets
+
+
+#: Human tracks at the control rate built in this process, by content (`_human_track`).
+_HUMANS: OrderedDict[bytes, Any] = OrderedDict()
+
+
+def _human_track(ctx: Context, motion: Motion, rate: float) -> Any:
+    """The human's fidelity track resampled to `rate` Hz, built once per process for the same
+    motion and body: the metrics step builds it, the physics step scores its simulated motion
+    against the same one (~half of a sequence's fidelity cost is building it)."""
+    from embody.metrics.embodiments import human_track
+    from embody.metrics.fidelity import resample_track
+    transl = np.zeros(0) if motion.transl is None else motion.transl
+    key = _digest(motion.pose, transl, motion.betas, np.asarray([motion.fps, rate]),
+                  text=ctx.cfg.section_json("body"))
+    with _TARGETS_LOCK:
+        if key in _HUMANS:
+            _HUMANS.move_to_end(key)
+            return _HUMANS[key]
+    human = resample_track(human_track(motion, ctx.body), rate)
+    with _TARGETS_LOCK:
+        _HUMANS[key] = human
+        while len(_HUMANS) > _targets_size(ctx.cfg):
+            _HUMANS.popitem(last=False)
+    return human
 
 
 def _load_source(ctx: Context, inputs: dict[str, Any]) -> Motion:
@@ -203,13 +228,13 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     Each row is measured on its exported array (the control-rate `q_control`; the final row's is
     `final_control`, the array stored and exported), against the human track resampled to the same
     times (`resample_track`): the robot a user receives, not the source-rate solve."""
-    from embody.metrics.embodiments import human_track, scored_robot_track
-    from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with, resample_track
+    from embody.metrics.embodiments import scored_robot_track
+    from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with
     from embody.retarget import solve
     from embody.retarget.ik import same_problem
     from embody.retarget.validation import validation_counts
     motion, ik, cfg = inputs["collide"].motion, inputs["retarget"], ctx.cfg
-    human = resample_track(human_track(motion, ctx.body), ik.control_rate_hz)
+    human = _human_track(ctx, motion, ik.control_rate_hz)
     rows: dict[str, np.ndarray] = {}
     out: dict[str, Any] = {}
     if cfg.ik.location_preserving and cfg.fidelity.baseline:
@@ -330,6 +355,27 @@ def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
                    {"location_landmark": names})
 
 
+def _physics(ctx: Context, inputs: dict[str, Any]) -> Any:
+    """The exported control-rate array (`metrics`' `q_control`) replayed in MuJoCo with the
+    robot's actuation (`embody.physics`): torque, tracking, contacts, balance, and sign fidelity
+    of the simulated motion against the same human track the metrics step scores."""
+    from embody.device import torch_threads
+    from embody.physics import PhysicsResult, evaluate
+    if ctx.robot.spec.actuation is None:  # a user robot without gains: nothing to replay
+        return PhysicsResult({"skipped": "the robot YAML has no actuation section"})
+    metrics = inputs["metrics"]
+    q = np.asarray(metrics.arrays["q_control"], dtype=np.float64)
+    rate = float(metrics.metrics.get("validation_rate_hz", metrics.metrics.get("fidelity.rate_hz", 50.0)))
+    with torch_threads(1):
+        human = _human_track(ctx, inputs["collide"].motion, rate)
+        return evaluate(ctx.robot, q, rate, human, ctx.cfg.fidelity)
+
+
+def _physics_result(arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> Any:
+    from embody.physics import PhysicsResult
+    return PhysicsResult.from_arrays(arrays, attrs)
+
+
 # The motion, y-up with absolute hands; frame rate, up axis and hands from the file, the
 # dataset's documented default, or the `io` overrides.
 SOURCE = Step("source", "3", ("io",), _load_source, Motion.from_arrays, metrics=_source_metrics)
@@ -361,6 +407,12 @@ METRICS = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_
 METRICS_REFINED = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
+# v1: fixed-base and standing replay of the exported array with the robot's actuation.
+PHYSICS = Step("physics", "1", ("body", "robot", "fidelity"), _physics, _physics_result,
+               (COLLIDE, METRICS), files=_robot_files)
+PHYSICS_REFINED = Step("physics", "1", ("body", "robot", "fidelity"), _physics, _physics_result,
+                       (COLLIDE, METRICS_REFINED), files=_robot_files)
+
 
 def default_pipeline(critic: bool = False, render: bool = False) -> Pipeline:
     """The full chain; `critic` adds the refinement step after IK, `render` the comparison
@@ -371,6 +423,7 @@ def default_pipeline(critic: bool = False, render: bool = False) -> Pipeline:
     if render:
         steps.append(RENDER_REFINED if critic else RENDER)
     steps.append(METRICS_REFINED if critic else METRICS)
+    steps.append(PHYSICS_REFINED if critic else PHYSICS)
     return Pipeline(SOURCE, tuple(steps))
 
 
@@ -382,7 +435,8 @@ _WARM_MODULES = {"collide": ("embody.collision.windows", "embody.body.sparse_ski
                  "render": ("embody.render", "embody.render.record"),
                  "metrics": ("embody.metrics", "embody.metrics.fidelity",
                              "embody.metrics.embodiments", "embody.retarget.control",
-                             "embody.retarget.validation")}
+                             "embody.retarget.validation"),
+                 "physics": ("embody.physics",)}
 
 
 def warm(ctx: Context, pipeline: Pipeline) -> None:
@@ -405,6 +459,10 @@ def warm(ctx: Context, pipeline: Pipeline) -> None:
     if "collide" in names:  # the judge's mesh groups (per body)
         from embody.collision.depth import depth_mesh
         depth_mesh(ctx.body, ctx.cfg.collision.allow_pairs)
+    if "physics" in names and ctx.robot.spec.actuation is not None:  # the robot's replay models
+        from embody.physics.replay import fixed_model, standing_model
+        fixed_model(ctx.robot)
+        standing_model(ctx.robot)
     if "retarget" in names:  # the robot's proxies and hand-clearance tables (per robot)
         from types import SimpleNamespace
 

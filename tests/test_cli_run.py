@@ -60,7 +60,7 @@ def test_run_isolates_a_failure_then_resumes(prefect_harness, tmp_path, capsys, 
     assert (summary["ok"], summary["failed"]) == (1, 1)
     assert "seq001" in out.err and "InjectedFailure" in out.err  # the failure table
     assert summary["computed"] == {"source": 2, "shape_fit": 1, "collide": 1, "retarget": 1,
-                                   "refine": 1, "render": 1, "metrics": 1}
+                                   "refine": 1, "render": 1, "metrics": 1, "physics": 1}
 
     code = main([*args, "--json"])
     out = capsys.readouterr()
@@ -68,7 +68,7 @@ def test_run_isolates_a_failure_then_resumes(prefect_harness, tmp_path, capsys, 
     summary = json.loads(out.out)
     assert summary["failed"] == 0
     assert summary["computed"] == {"source": 0, "shape_fit": 0, "collide": 1, "retarget": 1,
-                                   "refine": 1, "render": 1, "metrics": 1}
+                                   "refine": 1, "render": 1, "metrics": 1, "physics": 1}
     store_ = ArtifactStore(tmp_path / "store")
     render = store_.read("render", summary_key(store_, "seq000", "render"))
     assert bytes(render.arrays["sheet_png"][:8]) == b"\x89PNG\r\n\x1a\n"

@@ -132,7 +132,7 @@ def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp
     doc = json.loads((store / "runs" / "shared" / "manifest.json").read_text())
     assert sorted(doc["sequences"]) == [f"seq{i:03d}" for i in range(8)]
     assert {s["status"] for s in doc["sequences"].values()} == {"ok"}
-    steps = {"source", "collide", "retarget", "metrics"}
+    steps = {"source", "collide", "retarget", "metrics", "physics"}
     assert all(set(s["steps"]) == steps for s in doc["sequences"].values())
     assert doc["finished"] is not None and doc["writers"] == {}
     # Racing writers may compute the same artifact, but each is published exactly once.

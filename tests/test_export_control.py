@@ -143,8 +143,11 @@ def test_check_revalidates_library(robot, passing, tmp_path, fmt, capsys):
     export_library([_trajectory(robot, control_trajectory(robot, q, fps, RATE))], tmp_path, fmt,
                    robot=robot)
     table = check_library(tmp_path, robot)
-    assert table["ok"].tolist() == [True] and table["self_collision_frames"].tolist() == [0]
-    assert main(["export", "--check", str(tmp_path)]) == 0
+    kinematic = table[["joint_limit_violations", "velocity_violations", "self_collision_frames"]].eq(0)
+    assert kinematic.all(axis=1).tolist() == [True]
+    # 0.1 s from one hand pose to the other: kinematically valid, beyond the motors (physics rule)
+    assert table["physics_valid"].tolist() == [False] and table["ok"].tolist() == [False]
+    assert table["torque_over_samples"].iloc[0] > 0
     # a received file edited to penetrate fails the check
     path = tmp_path / pd.read_csv(tmp_path / "library.csv")["file"][0]
     bad = resample(q, fps, RATE)
@@ -161,6 +164,7 @@ def test_check_revalidates_library(robot, passing, tmp_path, fmt, capsys):
         rows[:, 7:] = bad[:, beyondmimic_columns(robot.joint_names)[0]]
         np.savetxt(path, rows, delimiter=",")
     capsys.readouterr()
+    assert check_library(tmp_path, robot)["self_collision_frames"].iloc[0] > 0
     assert main(["export", "--check", str(tmp_path)]) == 1
     assert "FAIL pass" in capsys.readouterr().out
     assert main(["export", "--check", str(tmp_path / "nowhere")]) == 2

@@ -154,6 +154,10 @@ def test_tables_equal_library_metric_functions(run) -> None:
     assert verdicts["critic_accepted"] == int(lib3.loc["refined", "accepted"] * 2 + 0.5)
     t0 = pd.read_csv(run["report"] / "verdicts.csv", keep_default_na=False).set_index("Verdict")
     assert t0.loc["Export-valid", "Sequences"] == f"{verdicts['export_valid']}/3"
+    # the fourth verdict: the physics step ran on both finished sequences
+    assert verdicts["physics_valid"] is not None and 0 <= verdicts["physics_valid"] <= 2
+    assert t0.loc["Physics-valid", "Sequences"] == f"{verdicts['physics_valid']}/3"
+    assert summary["physics.valid_pct"] == pytest.approx(50.0 * verdicts["physics_valid"])
     for key in ("collision.pose_mse_median", "collision.daccel_mse_median",
                 "collision.runtime_mean_s", "retarget.refined.wrist_rot_mean_deg",
                 "retarget.limit_violations", "retarget.self_collision_frames"):
@@ -162,7 +166,7 @@ def test_tables_equal_library_metric_functions(run) -> None:
 
 def test_report_files_and_page(run) -> None:
     report = run["report"]
-    for name in ("verdicts", "table1_collision", "table3_retargeting"):
+    for name in ("verdicts", "table1_collision", "table3_retargeting", "table3_physics"):
         for ext in ("csv", "md", "tex"):
             assert (report / f"{name}.{ext}").stat().st_size > 0
         tex = (report / f"{name}.tex").read_text()
@@ -189,17 +193,20 @@ def test_report_files_and_page(run) -> None:
     from test_report_html import check_report_page
     require_tool(("chromium", "chromium-browser"), CHROMIUM_INSTALL)
     attrs = check_report_page(report / "index.html", run["tmp"],
-                              {"verdicts", "table1_collision", "table3_retargeting", "sequences"})
+                              {"verdicts", "table1_collision", "table3_retargeting", "table3_physics",
+                               "sequences"})
     links = {r["id"]: r["links"] for r in attrs["rows"]}
-    assert {len(links["seq0"]), len(links["seq1"]), len(links["seq2"])} == {4, 0}
+    # sheet, preview, wrist, location and physics plots; none for the failed sequence
+    assert {len(links["seq0"]), len(links["seq1"]), len(links["seq2"])} == {5, 0}
 
 
 def test_tex_tables_compile(run, pdflatex, tmp_path) -> None:
-    for name in ("verdicts", "table1_collision", "table3_retargeting"):
+    for name in ("verdicts", "table1_collision", "table3_retargeting", "table3_physics"):
         shutil.copy(run["report"] / f"{name}.tex", tmp_path)
     (tmp_path / "doc.tex").write_text(
         "\\documentclass{article}\\usepackage{booktabs}\\begin{document}"
-        "\\input{verdicts.tex}\\input{table1_collision.tex}\\input{table3_retargeting.tex}\\end{document}\n")
+        "\\input{verdicts.tex}\\input{table1_collision.tex}\\input{table3_retargeting.tex}"
+        "\\input{table3_physics.tex}\\end{document}\n")
     proc = subprocess.run([pdflatex, "-interaction=nonstopmode", "-halt-on-error", "doc.tex"],
                           cwd=tmp_path, capture_output=True, text=True, timeout=120)
     assert proc.returncode == 0, proc.stdout[-3000:]
@@ -415,7 +422,7 @@ def test_readme_tables_script(run, tmp_path) -> None:
     text = readme.read_text()
     assert text.startswith("intro\n<!-- tables:start -->") and text.endswith("<!-- tables:end -->\noutro\n")
     assert "old" not in text
-    for name in ("verdicts", "table1_collision", "table3_retargeting"):
+    for name in ("verdicts", "table1_collision", "table3_retargeting", "table3_physics"):
         assert (run["report"] / f"{name}.md").read_text().strip() in text
     assert "**Table II:" not in text  # no ablation run, no Table II
     assert "- **Collision energy**:" in text

@@ -90,6 +90,8 @@ def command(args: tuple[str, ...], robot: str | None, store_root: str, fmt: str,
 
 def _check(lib_dir: str, robot_name: str | None, as_json: bool) -> int:
     from embody.export.library import VIOLATION_KEYS, check_library
+    PHYSICS_FIGURES = ("torque_over_samples", "saturated_steps", "palm_err_p95_mm",
+                       "sim_contact_samples", "zmp_margin_min_mm")
 
     robot = None
     if robot_name:
@@ -111,7 +113,9 @@ def _check(lib_dir: str, robot_name: str | None, as_json: bool) -> int:
     else:
         for row in table.to_dict("records"):
             counts = " ".join(f"{k}={row[k]:g}" for k in VIOLATION_KEYS if k in row and row[k] == row[k])
+            counts += "".join(f" {k}={row[k]:g}" for k in PHYSICS_FIGURES
+                              if isinstance(row.get(k), (int, float)) and row[k] == row[k])
             click.echo(f"{'ok  ' if row['ok'] else 'FAIL'} {_shown(row['id'])}: {counts} "
-                       f"{row['error']}".rstrip())
+                       f"{_shown(row['error'])}".rstrip())
         click.echo(f"checked {len(table)} files in {_shown(lib_dir)}: {len(bad)} failed")
     return 1 if len(bad) else 0

@@ -47,6 +47,24 @@ def preview_frames(num_steps: int, dt: float, preview_fps: float, max_frames: in
     return np.unique(np.linspace(0, num_steps - 1, count).round().astype(np.int64))
 
 
+def physics_replay(robot, path: Path, q: np.ndarray, dt: float) -> np.ndarray:
+    """The simulated joints of the file's physics replay (fixed base) at its samples; prints
+    the physics-valid figures of the file (as `embody export --check` judges it)."""
+    from embody.export.control import file_commands
+    from embody.physics import evaluate
+
+    if robot.spec.actuation is None:
+        raise InputError(path, "robot", f"{robot.name} has no actuation section: no physics replay")
+    result = evaluate(robot, q, 1.0 / dt, cmd=file_commands(robot, path, q, dt))
+    m = result.metrics
+    click.echo(f"physics: {'valid' if m['valid'] else 'NOT valid'} · torque over limit "
+               f"{m['torque_over_samples']} samples · saturated {m['saturated_step_pct']:.1f} % of steps · "
+               f"palm p95 {m.get('palm_err_p95_mm', float('nan')):.1f} mm · sim contacts "
+               f"{m['sim_contact_samples']} · ZMP min {m['zmp_margin_min_mm']:.0f} mm · standing "
+               f"{'holds' if m['standing_holds'] else 'falls'}")
+    return np.asarray(result.arrays["q_sim"])
+
+
 @click.command("play")
 @click.argument("file", type=click.Path(dir_okay=False))
 @click.option("--out", type=click.Path(dir_okay=False),
@@ -55,11 +73,14 @@ def preview_frames(num_steps: int, dt: float, preview_fps: float, max_frames: in
               help="Preview format [default: render.preview_format, mp4].")
 @click.option("--viewer", is_flag=True,
               help="Play in MuJoCo's interactive viewer instead (needs a display).")
+@click.option("--physics", is_flag=True,
+              help="Show the physics replay instead: the file's commands (q, q̇, feed-forward "
+                   "torque, kp/kd) played in MuJoCo with the pelvis welded, and its figures.")
 @config_options
-def command(file: str, out: str | None, fmt: str | None, viewer: bool,
+def command(file: str, out: str | None, fmt: str | None, viewer: bool, physics: bool,
             config_files: tuple[str, ...], sets: tuple[str, ...]) -> int:
     """Render FILE (an `embody export` .npz) on its robot as an animated preview, or play it in
-    MuJoCo's interactive viewer with `--viewer`."""
+    MuJoCo's interactive viewer with `--viewer`; `--physics` shows its physics replay."""
     if viewer and not has_display():
         raise UsageError("--viewer needs a display, and none is set (DISPLAY / WAYLAND_DISPLAY); "
                          "run without --viewer to write a preview file instead")
@@ -75,6 +96,8 @@ def command(file: str, out: str | None, fmt: str | None, viewer: bool,
         raise InputError(file, "joint_names", f"not joints of {traj.robot}: {missing[:5]}")
     q = np.tile(robot.tpose, (len(traj.q), 1))
     q[:, [robot.joint_index(n) for n in traj.joint_names]] = traj.q
+    if physics:
+        q = physics_replay(robot, Path(file), q, traj.dt)
     if viewer:
         run_viewer(robot, q, traj.dt)
         return 0

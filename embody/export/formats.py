@@ -1,6 +1,8 @@
 """Writers and readers of the exported trajectory formats, one per consumer.
 
-* `npz`: embody's own (q float64, joint names, dt, source id, robot, text, validation JSON).
+* `npz`: embody's own (q float64, joint names, dt, source id, robot, text, validation JSON), plus
+  the low-level command fields when written for a robot (`embody.export.control`): `qd`, `tau_ff`
+  (T,n) and `kp`, `kd` (n,) per joint, `control_rate_hz`: what a Unitree `LowCmd` takes per motor.
 * `csv`: a `time` column then one column per joint (radians), exact float64 text (`%.17g`).
 * `gmr`: GMR's motion pickle, as GMR's own writers build it (YanjieZe/GMR
   `scripts/smplx_to_robot.py`, `scripts/bvh_to_robot.py`: `root_pos = qpos[:, :3]`,
@@ -36,7 +38,7 @@ import pickle
 import stat
 import warnings
 import zipfile
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO, Callable, Literal, Sequence
 
@@ -72,6 +74,8 @@ class Layout:
     root_pos: np.ndarray  # (3,) world position of the floating root
     root_quat_wxyz: np.ndarray  # (4,) MuJoCo order
     meta: dict[str, Any]
+    #: Low-level command arrays (`embody.export.control.CONTROL_FIELDS`); npz only.
+    control: dict[str, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -113,7 +117,8 @@ def _npz_data(q: np.ndarray, lay: Layout) -> bytes:
               "source_id": np.array(lay.meta.get("id", "")), "robot": np.array(lay.meta.get("robot", "")),
               "text": np.array(lay.meta.get("text", "")),
               "validation": np.array(json.dumps(lay.meta.get("validation", {}), sort_keys=True,
-                                                default=float))}
+                                                default=float)),
+              **{k: np.asarray(v, dtype=np.float64) for k, v in lay.control.items()}}
     return _npz_bytes(arrays)
 
 

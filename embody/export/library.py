@@ -32,6 +32,7 @@ from embody.csvsafe import csv_safe
 from embody.errors import ConfigError, EmbodyError, InputError
 from embody.report.paths import safe_name
 from embody.export.atomic import sync_dir, write_atomic
+from embody.export.control import PHYSICS_CHECK_KEYS
 from embody.export.formats import (CONSUMERS, FORMATS, ExportFormat, Layout, open_regular,
                                    read_trajectory, root_pose, trajectory_bytes, write_trajectory,
                                    companion_bytes, companion_files)
@@ -82,21 +83,33 @@ class Trajectory:
 
     def layout(self, robot: Any | None = None) -> Layout:
         """What the writers need besides q (root pose from the robot's MJCF, when given)."""
+        control: dict[str, np.ndarray] = {}
         if robot is not None:
             pos, quat = root_pose(robot.model, robot.spec.root_body)
+            if robot.spec.actuation is not None:
+                from embody.export.control import control_fields
+                control = control_fields(robot, self.q, self.dt)
         else:
             pos, quat = np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])
         return Layout(self.joint_names, self.dt, pos, quat,
                       {"id": self.id, "robot": self.robot, "text": self.text,
-                       "validation": self.validation})
+                       "validation": self.validation}, control)
 
     def save(self, path_stem: Path, fmt: ExportFormat = "npz", robot: Any | None = None) -> Path:
         """Write in `fmt` at `path_stem` + the format's suffix."""
         return write_trajectory(Path(path_stem), fmt, self.q, self.layout(robot))
 
     def save_npz(self, path: Path) -> Path:
-        """An `np.load`-able npz with fixed zip timestamps: equal trajectories, equal bytes."""
-        return self.save(Path(path).with_suffix(""), "npz")
+        """An `np.load`-able npz with fixed zip timestamps: equal trajectories, equal bytes; with
+        the command fields of the robot it names when that robot is known (as `export_library`)."""
+        robot = None
+        if self.robot:
+            from embody.errors import ConfigError
+            try:
+                robot = _robot_named(self.robot)
+            except ConfigError:
+                robot = None
+        return self.save(Path(path).with_suffix(""), "npz", robot)
 
     def save_csv(self, path: Path) -> Path:
         """Time column then one column per joint (radians), one row per control step."""
@@ -159,8 +172,10 @@ def file_validation(robot: Any, path: Path, fmt: ExportFormat, dt: float | None,
 
 
 def _file_counts(robot: Any, path: Path, fmt: ExportFormat, dt: float | None,
-                 limits: IOConfig | None, side: Path | None = None) -> tuple[dict[str, float], int]:
-    """(validation counters, frames) of an exported file; see `file_validation`."""
+                 limits: IOConfig | None, side: Path | None = None
+                 ) -> tuple[dict[str, float], int, np.ndarray, float]:
+    """(validation counters, frames, joint array, rate) of an exported file; see
+    `file_validation`."""
     from embody.retarget.validation import validation_counts
 
     limits = limits or IOConfig()
@@ -172,7 +187,7 @@ def _file_counts(robot: Any, path: Path, fmt: ExportFormat, dt: float | None,
                                        f"({limits.min_fps:g}..{limits.max_fps:g})")
     if dt is not None and not _same_rate(rate, 1.0 / dt):
         raise InputError(path, "rate", f"the file says {rate:g} Hz, library.json {1.0 / dt:g} Hz")
-    return validation_counts(robot, read.q, rate), len(read.q)
+    return validation_counts(robot, read.q, rate), len(read.q), read.q, rate
 
 
 def _bad(counts: dict[str, Any]) -> dict[str, Any]:
@@ -431,16 +446,30 @@ def check_library(lib_dir: str | Path, robot: Any | None = None,
     if entries:
         robot = _index_robot(meta, meta_path, robot)
     rows = []
-    done: dict[tuple[str, float | None], tuple[dict[str, float], int]] = {}
+    done: dict[tuple[str, float | None], tuple[dict[str, Any], int]] = {}
     for e in entries:
         dt = e.dt if e.dt is not None else (1.0 / rate_hz if rate_hz is not None else None)
         if (e.file, dt) not in done:  # a file listed many times is read and checked once
-            done[(e.file, dt)] = _file_counts(robot, root / e.file, fmt, dt, limits)  # type: ignore[arg-type]
+            counts, frames, q, rate = _file_counts(robot, root / e.file, fmt, dt, limits)  # type: ignore[arg-type]
+            done[(e.file, dt)] = ({**counts, **_physics(robot, root / e.file, q, rate)}, frames)
         counts, frames = done[(e.file, dt)]
         agree = all(_number(e.written.get(k)) == counts[k] for k in VIOLATION_KEYS)
         error = "" if agree else "counters differ from library.json"
         if e.frames is not None and e.frames != frames:
             error = f"{frames} frames, library.json says {e.frames}"
-        rows.append({"id": e.id, "file": e.file, **counts, "ok": not _bad(counts) and not error,
-                     "error": error})
-    return pd.DataFrame(rows, columns=["id", "file", *VIOLATION_KEYS, "ok", "error"])
+        physics_ok = counts.get("physics_valid") is not False
+        why = counts.get("physics_error", "") or ("" if physics_ok else "not physics-valid")
+        rows.append({"id": e.id, "file": e.file, **{k: v for k, v in counts.items() if k != "physics_error"},
+                     "ok": not _bad({k: counts[k] for k in VIOLATION_KEYS}) and not error and physics_ok,
+                     "error": "; ".join(x for x in (error, why) if x)})
+    return pd.DataFrame(rows, columns=["id", "file", *VIOLATION_KEYS, "ok", "error", *PHYSICS_CHECK_KEYS])
+
+
+def _physics(robot: Any, path: Path, q: np.ndarray, rate: float) -> dict[str, Any]:
+    """The physics-valid rule on one file's array (`embody.export.control.physics_check`):
+    its commands replayed in MuJoCo with the robot's actuation; `physics_valid` None for a
+    robot without an `actuation` section."""
+    from embody.export.control import physics_check
+    if robot.spec.actuation is None:
+        return {"physics_valid": None}
+    return physics_check(robot, path, q, 1.0 / rate)

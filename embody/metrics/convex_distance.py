@@ -76,6 +76,9 @@ def geom_distance(model, data, ga: int, gb: int, distmax: float, fromto: np.ndar
     d = float(mujoco.mj_geomDistance(model, data, ga, gb, distmax, fromto))
     if d > 0.0:
         return d
+    hulls = (mujoco.mjtGeom.mjGEOM_MESH, mujoco.mjtGeom.mjGEOM_BOX)
+    if not all(model.geom_type[g] in hulls for g in (ga, gb)):
+        return d  # a sphere or capsule (H1's hands): MuJoCo's own primitive distance is exact
     lower, upper = hull_distance(geom_points(model, data, ga), geom_points(model, data, gb))
     if lower > 0.0:
         return min(0.5 * (lower + upper), distmax)

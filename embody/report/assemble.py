@@ -75,6 +75,27 @@ TABLE3_KEYS = {
     "Self-coll. frames": "self_collision_frames", "Rounds": "rounds",
     "Accepted (%)": "accepted_pct", "N": "n",
 }
+#: Table III's physics column group (the exported array of the final row replayed in MuJoCo by
+#: the `physics` step): header → (physics metric, how sequences are pooled).
+TABLE3_PHYSICS = {
+    "Physics-valid (%)": ("valid", "pct"),
+    "Torque > limit (samples)": ("torque_over_samples", "sum"),
+    "Peak torque/limit": ("torque_ratio_max", "max"),
+    "Saturated steps (%)": ("saturated_steps", "steps_pct"),
+    "Palm p95 sim. (mm)": ("palm_err_p95_mm", "mean"),
+    "Sim. self-contacts": ("sim_contact_samples", "sum"),
+    "ZMP margin min (mm)": ("zmp_margin_min_mm", "min"),
+    "Stays up standing (%)": ("standing_holds", "pct"),
+    "Location err. sim. (mm)": ("fidelity.location_err_mm", "mean"),
+}
+#: summary.json key (under `physics.`) of each TABLE3_PHYSICS column.
+PHYSICS_SUMMARY = {
+    "Physics-valid (%)": "valid_pct", "Torque > limit (samples)": "torque_over_samples",
+    "Peak torque/limit": "torque_ratio_max", "Saturated steps (%)": "saturated_step_pct",
+    "Palm p95 sim. (mm)": "palm_p95_mm", "Sim. self-contacts": "sim_contact_samples",
+    "ZMP margin min (mm)": "zmp_margin_min_mm", "Stays up standing (%)": "standing_ok_pct",
+    "Location err. sim. (mm)": "location_err_mm",
+}
 _NUMBER = re.compile(r"[-+]?\d*\.?\d+(?:[eE][-+]?\d+)?")
 
 
@@ -168,6 +189,34 @@ def _baseline_counts(data: RunData) -> dict[str, float]:
             if f"fidelity.ik.{k}" in frame else math.nan for h, k in TABLE3_COUNTS.items()}
 
 
+def physics_figures(data: RunData) -> dict[str, float]:
+    """TABLE3_PHYSICS over the run's sequences (NaN where the physics step did not run)."""
+    frame = data.other.get("physics", pd.DataFrame())
+    out: dict[str, float] = {}
+    for header, (key, pool) in TABLE3_PHYSICS.items():
+        if key not in frame:
+            out[header] = math.nan
+            continue
+        values = pd.to_numeric(frame[key].map(lambda v: float(v) if isinstance(v, (bool, int, float)) else v),
+                               errors="coerce").dropna()
+        if values.empty:
+            out[header] = math.nan
+        elif pool == "pct":
+            out[header] = 100.0 * float(values.mean())
+        elif pool == "sum":
+            out[header] = float(values.sum())
+        elif pool == "max":
+            out[header] = float(values.max())
+        elif pool == "min":
+            out[header] = float(values.min())
+        elif pool == "steps_pct" and "control_steps" in frame:
+            steps = float(pd.to_numeric(frame["control_steps"], errors="coerce").sum())
+            out[header] = 100.0 * float(values.sum()) / steps if steps else math.nan
+        else:
+            out[header] = float(values.mean())
+    return out
+
+
 def table3(data: RunData) -> Table:
     """IK-only vs refined (one row per critic) from `critic_table`, plus validation counts.
 
@@ -216,13 +265,30 @@ def table3(data: RunData) -> Table:
                  frame, cite=PAPER["key"])
 
 
+def table3_physics(data: RunData) -> Table | None:
+    """Table III's physics column group, as a table of its own beside it (Table III is already
+    as wide as the page): the row of the final trajectory, whose exported array the physics step
+    replays in MuJoCo, beside its kinematic location error. None when the run has no physics step."""
+    physics = physics_figures(data)
+    if all(math.isnan(v) for v in physics.values()):
+        return None
+    frame = data.other.get("physics", pd.DataFrame())
+    t3 = table3(data)
+    final = str(t3.frame["Method"].iloc[-1]) if len(t3.frame) else "final"
+    row = {"Method": final, "Location err. (mm)": _cell(t3, final, "Location err. (mm)"), **physics,
+           "N": int(len(frame))}
+    return Table("table3_physics", "Table III (physics): the final trajectory replayed in MuJoCo "
+                 "(fixed base and standing, the robot's gains and effort limits)",
+                 pd.DataFrame([row], columns=["Method", "Location err. (mm)", *TABLE3_PHYSICS, "N"]))
+
+
 #: The verdicts table's rows: label → `embody.verdicts` name.
 VERDICT_ROWS = {"Processed ok": "processed_ok", "Export-valid": "export_valid",
-                "Critic-accepted": "critic_accepted"}
+                "Critic-accepted": "critic_accepted", "Physics-valid": "physics_valid"}
 
 
 def verdicts_table(data: RunData) -> Table:
-    """The report's first table: how many sequences hold each of the three verdicts."""
+    """The report's first table: how many sequences hold each of the four verdicts."""
     per = data.verdicts()
     total = len(per)
     rows = []
@@ -232,7 +298,7 @@ def verdicts_table(data: RunData) -> Table:
         rows.append({"Verdict": label,
                      "Sequences": f"{n}/{total}" if n is not None else "n/a",
                      "Share (%)": 100.0 * n / total if n is not None and total else None})
-    return Table("verdicts", "Verdicts: processed ok, export-valid, critic-accepted",
+    return Table("verdicts", "Verdicts: processed ok, export-valid, critic-accepted, physics-valid",
                  pd.DataFrame(rows, columns=["Verdict", "Sequences", "Share (%)"]))
 
 
@@ -287,4 +353,6 @@ def summary(data: RunData, tables: dict[str, Table]) -> dict[str, Any]:
             "retarget.preserving" if _row(t3, "Location-preserving") is not None else "retarget.ik_only")
         for key in ("limit_violations", "velocity_violations", "self_collision_frames"):
             out[f"retarget.{key}"] = out[f"{final}.{key}"]
+    for header, value in physics_figures(data).items():
+        out[f"physics.{PHYSICS_SUMMARY[header]}"] = value
     return {k: (None if isinstance(v, float) and math.isnan(v) else v) for k, v in out.items()}

@@ -54,11 +54,11 @@ def _remember(out_dir: Path, paths: list[Path]) -> None:
 
 def _figures(data: RunData, out_dir: Path, processes: int | None = None
              ) -> tuple[dict[str, list[Path]], dict[str, dict[str, Path]]]:
-    """(section → figures shown on the page, sequence id → {"sheet"|"wrists"|"location"|"preview":
+    """(section → figures shown on the page, sequence id → {"sheet"|"wrists"|"location"|"physics"|"preview":
     path}). The plots are drawn side by side (`drawing.draw`; `processes` as there)."""
     fig_dir = out_dir / "figures"
     out: dict[str, list[Path]] = {"Collision": [], "Wrist trajectories": [],
-                                  "Location error": [], "Critic comparison sheets": []}
+                                  "Location error": [], "Physics replay": [], "Critic comparison sheets": []}
     links: dict[str, dict[str, Path]] = {}
     jobs: list[drawing.Job] = []
     places: list[tuple[str, str | None, str | None]] = []  # (section, sequence, link name)
@@ -78,6 +78,11 @@ def _figures(data: RunData, out_dir: Path, processes: int | None = None
                                               fig_dir / "location" / f"{safe_name(sid)}.png"),
                      {"title": sid}))
         places.append(("Location error", sid, "location"))
+    for sid, phys in sorted(data.physics.items()):
+        jobs.append((figures.physics_trace, (phys["torque_ratio"], phys["palm_err_mm"], phys["fps"],
+                                             fig_dir / "physics" / f"{safe_name(sid)}.png"),
+                     {"title": sid}))
+        places.append(("Physics replay", sid, "physics"))
     for path, (section, sid, name) in zip(drawing.draw(jobs, processes), places):
         out[section].append(path)
         if sid is not None:
@@ -105,6 +110,9 @@ def tables_of(data: RunData) -> dict[str, Table]:
         tables["table2_ablation"] = assemble.table2(data)
     if len(data.retarget) or data.refined:
         tables["table3_retargeting"] = assemble.table3(data)
+        physics = assemble.table3_physics(data)
+        if physics is not None:
+            tables["table3_physics"] = physics
     return tables
 
 

@@ -54,23 +54,30 @@ class RunData:
     #: sequence id → (animated preview bytes, file suffix) from the render stage.
     previews: dict[str, tuple[bytes, str]] = field(default_factory=dict)
     locations: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: sequence id → {"torque_ratio": (T,) worst |τ|/limit of the exported array's inverse
+    #: dynamics, "palm_err_mm": (T,) worst palm tracking error of the fixed-base replay, "fps"},
+    #: as the physics step stored them.
+    physics: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: The robot the run retargeted to (its notes are printed under Table III).
     robot: str = ""
     #: How the sequences with figures were chosen (printed on the page when not all have them).
     figure_rule: str = ""
 
     def verdicts(self) -> pd.DataFrame:
-        """processed_ok / export_valid / critic_accepted per sequence, by `embody.verdicts`
+        """processed_ok / export_valid / critic_accepted / physics_valid per sequence, by `embody.verdicts`
         (the same function the run summary applies to the manifest)."""
         from embody.verdicts import VERDICTS, sequence_verdicts
 
         metrics = self.other.get("metrics", pd.DataFrame())
+        physics = self.other.get("physics", pd.DataFrame())
         refined = self.refined[sorted(self.refined)[0]] if self.refined else pd.DataFrame()
         rows = {}
         for sid, status in self.sequences["status"].items():
             seq: dict[str, Any] = {"status": status, "metrics": {}}
             if sid in metrics.index:
                 seq["metrics"]["metrics"] = metrics.loc[sid].dropna().to_dict()
+            if sid in physics.index:
+                seq["metrics"]["physics"] = physics.loc[sid].dropna().to_dict()
             if sid in refined.index and "accepted" in refined:
                 seq["metrics"]["refine"] = {"accepted": bool(refined.loc[sid, "accepted"])}
             rows[sid] = sequence_verdicts(seq)

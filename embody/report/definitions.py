@@ -70,6 +70,21 @@ METRICS = (
      "(fingertip-to-palm distance over finger length), mean; blank for a robot without fingers."),
     ("Movement DTW", "dynamic-time-warped distance between the normalised palm paths (scale "
      "units)."),
+    ("Table III (physics)", "the final trajectory's exported 50 Hz array replayed in MuJoCo "
+     "(`embody.physics`): each motor applies clip(kp (q_ref − q) + kd (q̇_ref − q̇) + τ_ff, effort "
+     "limit) at the robot's control rate, q_ref a cubic Hermite spline of the samples, τ_ff their "
+     "fixed-base inverse dynamics; gains, rates and their sources in the robot YAML's `actuation`, "
+     "effort limits from the MJCF. Torque > limit: samples of the exported array whose inverse "
+     "dynamics asks any joint for more than its limit (summed); Peak torque/limit: the largest such "
+     "ratio; Saturated steps: control steps (pelvis welded) where any motor hits its limit; Palm "
+     "p95 sim.: simulated vs. reference palm positions (mm, p95 per sequence, mean); Sim. "
+     "self-contacts: samples of the simulated motion with counted geoms > 1 mm into each other; "
+     "ZMP margin min: cart-table ZMP of the robot standing (legs at the stance) inside its feet's "
+     "support polygon (mm, negative = outside); Stays up standing: the standing replay (free base on "
+     "the floor, legs under a stiff PD toward the stance with the feet carrying the body as "
+     "feed-forward) keeps the pelvis within 10° tilt, 50 mm drift and 50 mm drop and the feet flat "
+     "(≤ 5° tilt, ≤ 5 mm lift); Location err. sim.: sign location error of the simulated motion "
+     "against the human."),
     ("Contact F1", "hand-hand, hand-face and hand-chest contact frames of the human (surfaces "
      "within ε) recovered on the robot (MuJoCo geometry distances; a penetrating contact does "
      "not count), pooled over sequences."),
@@ -102,6 +117,7 @@ VERDICT_DEFINITIONS = (
     ("Processed ok", VERDICTS["processed_ok"] + "."),
     ("Export-valid", VERDICTS["export_valid"] + "."),
     ("Critic-accepted", VERDICTS["critic_accepted"] + "."),
+    ("Physics-valid", VERDICTS["physics_valid"] + "."),
 )
 
 #: The per-sequence table's columns: header → (sequences.csv column, definition).

@@ -140,3 +140,29 @@ def location_error(err: np.ndarray, landmark: np.ndarray, names: list[str], fps:
     fig.suptitle(f"{title}: location error (palm relative to its nearest landmark)", fontsize=9)
     fig.tight_layout(rect=(0, 0.1 if used else 0, 1, 1))
     return _save(fig, path)
+
+
+def physics_trace(torque_ratio: np.ndarray, palm_err_mm: np.ndarray, fps: float, path: Path, *,
+                  title: str, palm_bound_mm: float = 10.0) -> Path:
+    """Per sample of the exported array: the worst joint's inverse-dynamics torque over its
+    effort limit (1 = the limit) and the worst palm's tracking error in the physics replay (mm),
+    with the physics-valid bounds drawn."""
+    torque_ratio = np.asarray(torque_ratio, dtype=np.float64)
+    palm = np.asarray(palm_err_mm, dtype=np.float64)
+    t = np.arange(len(torque_ratio)) / fps
+    fig, axes = plt.subplots(2, 1, figsize=(10, 4.2), sharex=True)
+    axes[0].plot(t, torque_ratio, color="#222", lw=1.2)
+    axes[0].axhline(1.0, color="#c33", lw=1.0, ls="--", label="effort limit")
+    axes[0].fill_between(t, 1.0, torque_ratio, where=torque_ratio > 1.0, color="#c33", alpha=0.3)
+    axes[0].set_ylabel("|τ| / limit\n(worst joint)", fontsize=8)
+    axes[0].legend(fontsize=7, loc="upper right")
+    axes[1].plot(t, palm, color="#225", lw=1.2)
+    axes[1].axhline(palm_bound_mm, color="#c33", lw=1.0, ls="--", label=f"{palm_bound_mm:g} mm (p95 bound)")
+    axes[1].set_ylabel("palm error (mm)\n(worst palm)", fontsize=8)
+    axes[1].legend(fontsize=7, loc="upper right")
+    axes[1].set_xlabel("time (s)")
+    for ax in axes:
+        ax.tick_params(labelsize=7)
+    fig.suptitle(f"{title}: torque over limit and palm tracking in physics", fontsize=9)
+    fig.tight_layout()
+    return _save(fig, path)

@@ -137,8 +137,8 @@ def sequence_table(frame: pd.DataFrame, links: dict[str, dict[str, Path]], root:
     """One row per sequence: verdicts, headline metrics and links to its figures."""
     esc = html.escape
     metric_cols = {h: c for h, (c, _) in COLUMNS.items() if c in frame}
-    head = (["Sequence", "Text", "Processed ok", "Export-valid", "Critic-accepted"]
-            + list(metric_cols) + ["Sheet", "Preview", "Wrist plot", "Location plot"])
+    head = (["Sequence", "Text", "Processed ok", "Export-valid", "Critic-accepted", "Physics-valid"]
+            + list(metric_cols) + ["Sheet", "Preview", "Plots"])
     parts = ['<div class="scroll"><table class="report sortable" id="sequences">'
              "<caption>Every sequence (click a header to sort)</caption><thead><tr>"
              + "".join(f"<th>{esc(h)}</th>" for h in head) + "</tr></thead><tbody>"]
@@ -147,17 +147,18 @@ def sequence_table(frame: pd.DataFrame, links: dict[str, dict[str, Path]], root:
         cells = [f'<td id="seq-{esc(sid, quote=True)}">{esc(sid)}</td>',
                  f'<td class="text">{esc(str(row.get("text") or ""))}</td>']
         cells += [_verdict_cell(row.get(v)) for v in
-                  ("processed_ok", "export_valid", "critic_accepted")]
+                  ("processed_ok", "export_valid", "critic_accepted", "physics_valid")]
         for col in metric_cols.values():
             value = row.get(col)
             num = "" if value is None or (isinstance(value, float) and math.isnan(value)) \
                 else f"{float(value):.6g}"
             cells.append(f'<td data-v="{num}">{esc(format_cell(value))}</td>')
         mine = links.get(sid, {})
-        for kind, text in (("sheet", "sheet"), ("preview", "preview"), ("wrists", "plot"),
-                           ("location", "plot")):
+        for kind, text in (("sheet", "sheet"), ("preview", "preview")):
             cells.append(f"<td>{_link(mine[kind], root, text)}</td>" if kind in mine
                          else '<td data-v="">–</td>')
+        plots = [_link(mine[kind], root, kind) for kind in ("wrists", "location", "physics") if kind in mine]
+        cells.append(f"<td>{' · '.join(plots)}</td>" if plots else '<td data-v="">–</td>')
         parts.append(f'<tr class="{"" if row.get("processed_ok") else "failed"}">'
                      + "".join(cells) + "</tr>")
     parts.append("</tbody></table></div>")

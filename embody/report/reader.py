@@ -26,6 +26,7 @@ log = logging.getLogger(__name__)
 #: Step names as the orchestrator stores them (tasks/stages.py).
 SOURCE, COLLIDE, SHAPE_FIT = "source", "collide", "shape_fit"
 RETARGET, REFINE, RENDER, METRICS = "retarget", "refine", "render", "metrics"
+PHYSICS = "physics"
 
 
 def open_run(store_root: str | Path, run: str) -> tuple[Any, Any]:
@@ -189,6 +190,16 @@ def collect(store_root: str | Path, run: str, *, max_figures: int | None = 24,
             data.locations[sid] = {"err": np.asarray(arrays["location_err"]),
                                    "landmark": np.asarray(arrays["location_landmark"]),
                                    "names": list(labels["location_landmark"]), "fps": float(rate)}
+    for sid in chosen:
+        key = seqs[sid].get("steps", {}).get(PHYSICS)
+        if key is None:
+            continue
+        arrays = store.read(PHYSICS, key).arrays
+        if "torque_ratio" in arrays and "palm_err_mm" in arrays:
+            rate = seqs[sid].get("metrics", {}).get(METRICS, {}).get("validation_rate_hz") or fps[sid]
+            data.physics[sid] = {"torque_ratio": np.asarray(arrays["torque_ratio"], dtype=np.float64),
+                                 "palm_err_mm": np.asarray(arrays["palm_err_mm"], dtype=np.float64),
+                                 "fps": float(rate)}
     if missing:
         data.figure_rule += (f" {len(missing)} sequences have no stored wrist tracks (a run made "
                              "before the metrics step stored them: rerun `embody run` to add them).")

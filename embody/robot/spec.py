@@ -53,6 +53,38 @@ class ProxySpec(_Strict):
     cover: float = Field(0.9, gt=0.0, le=1.0)
 
 
+class GainGroup(_Strict):
+    """PD gains and command rate of the motors of a group of joints, and where they come from."""
+
+    #: fnmatch patterns over joint names; the first group that matches a joint owns it.
+    joints: list[str]
+    kp: float = Field(gt=0.0)  # N·m/rad
+    kd: float = Field(ge=0.0)  # N·m·s/rad
+    #: How often the robot stack sends this group a new command (q, q̇, τ_ff, kp, kd).
+    rate_hz: float = Field(gt=0.0, le=10000.0)
+    #: Citation of the numbers (project, file, what they are used for there).
+    source: str = Field(min_length=1)
+
+
+class StanceSpec(_Strict):
+    """How the standing replay holds the legs: stiff joint PD toward the stance pose (plus the
+    feed-forward of the feet carrying the body), so the robot stands as one rigid body on its
+    feet and standing tests the ZMP of the motion, not a balance policy."""
+
+    kp: float = Field(gt=0.0)
+    kd: float = Field(ge=0.0)
+    #: Leg joint values of the stance where the MJCF has no `stand` keyframe (others: 0).
+    pose: dict[str, float] = {}
+    source: str = Field(min_length=1)
+
+
+class ActuationSpec(_Strict):
+    """Motor control of the robot for physics replay and export (effort limits: the MJCF)."""
+
+    groups: dict[str, GainGroup]
+    stance: StanceSpec | None = None
+
+
 class RobotSpec(_Strict):
     mjcf: MjcfSource
     root_body: str
@@ -80,6 +112,8 @@ class RobotSpec(_Strict):
     landmarks: dict[str, LinkRef] = {}
     #: Per side, the palm normal (palms down at the T-pose) as a unit `offset` direction in `body`.
     palm_normals: dict[str, LinkRef] = {}
+    #: PD gains and command rates per joint group (physics replay, export); None: not given.
+    actuation: ActuationSpec | None = None
 
 
 def read_spec(path: Path) -> RobotSpec:

@@ -1,0 +1,97 @@
+"""Physics replay of stored runs' exported trajectories: the physics-valid rule's figures.
+
+For every finished sequence of each `--run` in `--store`, the exported 50 Hz array the metrics
+step stored (`q_control`) is replayed with `embody.physics.evaluate` (fixed base and standing,
+the robot's gains and effort limits), scored against the same human track as the metrics step.
+Runs made before the physics step existed work too (this reads only `metrics` and `collide`).
+`seconds_per_seq` is the CPU time of `evaluate` per sequence (`time.process_time`; the human
+track is built outside it, as the pipeline's metrics step has built it when the physics step
+runs), after one untimed warm-up call per robot (its replay and collision models are built
+once per process, as the run's `warm` builds them). Without --run: every run in the store.
+
+    python benchmarks/physics.py --store DIR [--run RUN ...] [--limit N]
+
+RESULT physics_valid_pct=… palm_p95_mm=… torque_over_samples=… saturated_step_pct=… sim_contacts=…
+zmp_margin_min_mm=… fidelity_loss_pct=… standing_ok_pct=… seconds_per_seq=…
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--store", required=True)
+    ap.add_argument("--run", action="append", default=[])
+    ap.add_argument("--limit", type=int, default=0)
+    args = ap.parse_args()
+
+    from embody.body import load_body_model
+    from embody.export.runs import load_result
+    from embody.metrics.embodiments import human_track
+    from embody.metrics.fidelity import resample_track
+    from embody.physics import evaluate
+    from embody.report.reader import open_run, run_config
+    from embody.robot import load_robot
+    from embody.verdicts import physics_valid
+
+    runs = args.run or sorted(p.parent.name for p in (Path(args.store) / "runs").glob("*/manifest.json"))
+    rows, palm, cpu = [], [], []
+    steps = saturated = 0
+    for run in runs:
+        store, manifest = open_run(args.store, run)
+        cfg = run_config(manifest)
+        robot, body = load_robot(cfg.robot), load_body_model(cfg.body)
+        seqs = [(sid, s) for sid, s in sorted(manifest.sequences.items())
+                if s["status"] == "ok" and "metrics" in s["steps"]]
+        warmed = False
+        for sid, seq in seqs[: args.limit or None]:
+            art = store.read("metrics", seq["steps"]["metrics"])
+            stored = seq["metrics"]["metrics"]
+            q = np.asarray(art.arrays["q_control"], dtype=np.float64)
+            rate = float(stored["validation_rate_hz"])
+            human = resample_track(human_track(load_result(store, seq, "collide").motion, body), rate)
+            if not warmed:
+                evaluate(robot, q, rate, human, cfg.fidelity)
+                warmed = True
+            t0 = time.process_time()
+            res = evaluate(robot, q, rate, human, cfg.fidelity)
+            cpu.append(time.process_time() - t0)
+            m = res.metrics
+            final = stored.get("fidelity.final", "ik")
+            kin = float(stored.get(f"fidelity.{final}.location_err_mm", np.nan))
+            rows.append({"run": run, "id": sid, "valid": physics_valid(m), "kin_loc_mm": kin,
+                         "sim_loc_mm": float(m.get("fidelity.location_err_mm", np.nan)), **m})
+            palm.append(res.arrays["palm_err_mm"])
+            steps += m["control_steps"]
+            saturated += m["saturated_steps"]
+            print(f"{run} {sid}: valid={rows[-1]['valid']} torque_over={m['torque_over_samples']} "
+                  f"ratio_max={m['torque_ratio_max']:.2f} sat={m['saturated_step_pct']:.1f}% "
+                  f"palm_p95={m.get('palm_err_p95_mm', float('nan')):.1f}mm contacts={m['sim_contact_samples']} "
+                  f"zmp_min={m['zmp_margin_min_mm']:.0f}mm standing={m['standing_holds']} "
+                  f"(tilt {m['standing_pelvis_tilt_max_deg']:.1f}°, drift {m['standing_pelvis_drift_max_mm']:.0f} mm) "
+                  f"loc {rows[-1]['kin_loc_mm']:.1f}->{rows[-1]['sim_loc_mm']:.1f} mm cpu={cpu[-1]:.2f}s",
+                  flush=True)
+    if not rows:
+        raise SystemExit("no finished sequences")
+    kin = np.nanmean([r["kin_loc_mm"] for r in rows])
+    sim = np.nanmean([r["sim_loc_mm"] for r in rows])
+    all_palm = np.concatenate(palm)
+    print(f"RESULT physics_valid_pct={100.0 * np.mean([r['valid'] for r in rows]):.1f} "
+          f"palm_p95_mm={np.percentile(all_palm, 95):.1f} "
+          f"torque_over_samples={sum(r['torque_over_samples'] for r in rows)} "
+          f"saturated_step_pct={100.0 * saturated / max(1, steps):.1f} "
+          f"sim_contacts={sum(r['sim_contact_samples'] for r in rows)} "
+          f"zmp_margin_min_mm={min(r['zmp_margin_min_mm'] for r in rows):.0f} "
+          f"fidelity_loss_pct={100.0 * (sim - kin) / kin:.1f} "
+          f"standing_ok_pct={100.0 * np.mean([r['standing_holds'] for r in rows]):.1f} "
+          f"seconds_per_seq={np.mean(cpu):.2f}")
+
+
+if __name__ == "__main__":
+    main()

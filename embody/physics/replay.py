@@ -1,0 +1,391 @@
+"""Replay low-level commands in MuJoCo at the robot's control rate.
+
+Each control step holds one command per motor (zero-order hold, as a robot stack sends them):
+the reference q and q̇ of the 50 Hz samples interpolated by a cubic Hermite spline (the samples'
+q and q̇) at the step's time, quantised to the joint group's command rate, and the feed-forward
+torque interpolated linearly. The motor applies
+
+    τ = clip(kp (q_ref − q) + kd (q̇_ref − q̇) + τ_ff, ±effort limit)
+
+evaluated by MuJoCo every physics step (an affine position actuator whose control folds the
+feed-forward in: ctrl = q_ref + (τ_ff + kd q̇_ref) / kp, force range = the effort limit), with
+the physics timestep = 1 / control rate and the implicit-in-velocity integrator. The whole
+rollout runs inside MuJoCo (`mujoco.rollout`): no Python per step.
+
+Two setups, each a reduced model built once per robot:
+- fixed base: free joint and leg joints removed (pelvis welded, legs at 0, which is the stance
+  of both robots here); contacts off: self-contacts are counted on the simulated motion.
+- standing: free base on a floor plane, finger joints removed (welded open), contacts only
+  between the feet and the floor; the legs under the stance controller (`stance_torques`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import mujoco
+import numpy as np
+from mujoco import rollout
+from scipy.interpolate import CubicHermiteSpline
+
+from embody.physics.actuation import actuation
+from embody.physics.commands import Commands
+from embody.robot.dynamics import leg_joints, stance_pose, support_polygon
+from embody.robot.model import Robot
+
+
+@dataclass(frozen=True)
+class ReplayModel:
+    """A compiled replay model and where the robot's joints sit in it."""
+
+    model: mujoco.MjModel
+    #: Robot joint index (robot.joint_names) of each actuator, in actuator order.
+    joints: np.ndarray
+    #: qpos / qvel addresses of each actuator's joint.
+    qpos_adr: np.ndarray
+    dof_adr: np.ndarray
+    #: Each actuator's gains and effort limit.
+    kp: np.ndarray
+    kd: np.ndarray
+    limit: np.ndarray
+
+
+def _compiled(robot: Robot, drop: np.ndarray, fixed: bool, floor: float | None,
+              kp: np.ndarray, kd: np.ndarray, limit: np.ndarray) -> mujoco.MjModel:
+    """`_edit`'s model, kept as MJB in embody's cache (compiling the G1's meshes takes ~1 s), keyed
+    by the MJCF's own key (`compiled_model`) and every edit."""
+    import hashlib
+    import os
+
+    from embody.cache import cache_dir
+    from embody.robot.compiled import model_key
+    blob = repr((_EDIT_VERSION, model_key(robot.mjcf_path), robot.joint_names, drop.tolist(), fixed,
+                 floor, kp.tolist(), kd.tolist(), limit.tolist()))
+    path = cache_dir() / "mujoco" / f"replay-{hashlib.sha256(blob.encode()).hexdigest()[:20]}.mjb"
+    if path.is_file():
+        try:
+            return mujoco.MjModel.from_binary_path(str(path))
+        except (ValueError, OSError):
+            pass
+    model = _edit(robot, drop, fixed, floor, kp, kd, limit)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        mujoco.mj_saveModel(model, str(tmp), None)
+        os.replace(tmp, path)
+    except OSError:
+        pass
+    return model
+
+
+#: Bump when `_edit` builds another model from the same inputs.
+_EDIT_VERSION = 1
+
+
+def _edit(robot: Robot, drop: np.ndarray, fixed: bool, floor: float | None,
+          kp: np.ndarray, kd: np.ndarray, limit: np.ndarray) -> mujoco.MjModel:
+    """The robot's MJCF with the free joint (`fixed`) and the `drop` joints removed, its
+    actuators replaced by one PD motor per remaining joint, and a floor plane at `floor`."""
+    spec = mujoco.MjSpec.from_file(str(robot.mjcf_path))
+    for a in list(spec.actuators):
+        spec.delete(a)
+    for s in list(spec.sensors):
+        spec.delete(s)
+    dropped = {robot.joint_names[j] for j in np.flatnonzero(drop)}
+    for j in list(spec.joints):
+        if (fixed and j.type == mujoco.mjtJoint.mjJNT_FREE) or j.name in dropped:
+            spec.delete(j)
+    for k in list(spec.keys):
+        spec.delete(k)
+    kept = [j for j in range(robot.n_joints) if not drop[j]]
+    for j in kept:
+        a = spec.add_actuator()
+        a.name = f"motor_{robot.joint_names[j]}"
+        a.target = robot.joint_names[j]
+        a.trntype = mujoco.mjtTrn.mjTRN_JOINT
+        a.gaintype = mujoco.mjtGain.mjGAIN_FIXED
+        a.biastype = mujoco.mjtBias.mjBIAS_AFFINE
+        gain = np.zeros(10)
+        gain[0] = kp[j]
+        bias = np.zeros(10)
+        bias[1], bias[2] = -kp[j], -kd[j]
+        a.gainprm, a.biasprm = gain, bias
+        a.ctrllimited = False
+        if np.isfinite(limit[j]):
+            a.forcelimited = True
+            a.forcerange = [-limit[j], limit[j]]
+    if floor is not None:
+        plane = spec.worldbody.add_geom()
+        plane.name = "physics_floor"
+        plane.type = mujoco.mjtGeom.mjGEOM_PLANE
+        plane.size = [0.0, 0.0, 0.05]
+        plane.pos = [0.0, 0.0, floor]
+    return spec.compile()
+
+
+def _build(robot: Robot, drop: np.ndarray, fixed: bool, floor: float | None,
+           kp: np.ndarray, kd: np.ndarray) -> ReplayModel:
+    act = actuation(robot)
+    model = _compiled(robot, drop, fixed, floor, kp, kd, act.limit)
+    kept = [j for j in range(robot.n_joints) if not drop[j]]
+    model.opt.timestep = 1.0 / act.control_rate_hz
+    model.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    if floor is None:
+        model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
+    jid = np.array([model.joint(robot.joint_names[j]).id for j in kept])
+    kept_ = np.array(kept)
+    return ReplayModel(model=model, joints=kept_, qpos_adr=model.jnt_qposadr[jid].copy(),
+                       dof_adr=model.jnt_dofadr[jid].copy(), kp=kp[kept_].copy(), kd=kd[kept_].copy(),
+                       limit=act.limit[kept_].copy())
+
+
+def fixed_model(robot: Robot) -> ReplayModel:
+    """The fixed-base replay model (cached on the robot)."""
+    key = "physics.fixed_model"
+    if key not in robot.derived:
+        act = actuation(robot)
+        robot.derived[key] = _build(robot, leg_joints(robot), fixed=True, floor=None, kp=act.kp, kd=act.kd)
+    return robot.derived[key]
+
+
+def _hand_joints(robot: Robot) -> np.ndarray:
+    names = {j for side in robot.spec.hands for j in robot.hand_joint_names(side)}
+    return np.array([n in names for n in robot.joint_names])
+
+
+def _foot_geoms(robot: Robot, model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
+    """Geoms (in `model`) whose contact with the floor carries the robot: the collision geoms
+    within 5 mm of the lowest point at the stance (as `dynamics.support_polygon`)."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    groups = list(robot.spec.collision.geom_groups)
+    cand = np.flatnonzero(np.isin(model.geom_group, groups) & (model.geom_bodyid > 0)
+                          & ((model.geom_contype | model.geom_conaffinity) != 0))
+    low = np.array([data.geom_xpos[g, 2] - _half_height(model, data, g) for g in cand])
+    return cand[low <= low.min() + 0.005]
+
+
+def _half_height(model: mujoco.MjModel, data: mujoco.MjData, g: int) -> float:
+    """How far a geom reaches below its centre (spheres, capsules, boxes exactly; else its rbound)."""
+    s, r = model.geom_size[g], data.geom_xmat[g].reshape(3, 3)
+    kind = model.geom_type[g]
+    if kind == mujoco.mjtGeom.mjGEOM_SPHERE:
+        return float(s[0])
+    if kind in (mujoco.mjtGeom.mjGEOM_CAPSULE, mujoco.mjtGeom.mjGEOM_CYLINDER):
+        return float(abs(r[2, 2]) * s[1] + s[0])
+    if kind == mujoco.mjtGeom.mjGEOM_BOX:
+        return float(np.abs(r[2]) @ s[:3])
+    return float(model.geom_rbound[g])
+
+
+def standing_model(robot: Robot) -> tuple[ReplayModel, np.ndarray, np.ndarray]:
+    """The standing replay model, its initial qpos (stance) and its foot geoms (cached)."""
+    key = "physics.standing_model"
+    if key in robot.derived:
+        return robot.derived[key]
+    stand = stance_pose(robot)
+    _, floor = support_polygon(robot, stand)
+    act = actuation(robot)
+    legs = leg_joints(robot)
+    stance = robot.spec.actuation.stance if robot.spec.actuation is not None else None
+    kp, kd = act.kp.copy(), act.kd.copy()
+    if stance is not None:
+        kp[legs], kd[legs] = stance.kp, stance.kd
+    rm = _build(robot, _hand_joints(robot), fixed=False, floor=floor, kp=kp, kd=kd)
+    model = rm.model
+    qpos0 = model.qpos0.copy()
+    qpos0[rm.qpos_adr] = stand[rm.joints]
+    feet = _foot_geoms(robot, model, qpos0)
+    floor_geom = model.geom("physics_floor").id
+    contype = np.zeros(model.ngeom, dtype=np.int32)
+    contype[feet] = 1
+    contype[floor_geom] = 1
+    model.geom_contype[:] = contype
+    model.geom_conaffinity[:] = contype
+    robot.derived[key] = (rm, qpos0, feet)
+    return robot.derived[key]
+
+
+def reference_at(cmd: Commands, times: np.ndarray, rate_hz: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """q_ref, q̇_ref, τ_ff (K,n) at control-step `times`, each joint's time quantised to its
+    group's command rate (a command is held until the next one)."""
+    t50 = cmd.times
+    tq = np.floor(times[:, None] * rate_hz[None, :] + 1e-9) / rate_hz[None, :]
+    tq = np.clip(tq, t50[0], t50[-1])
+    if len(t50) < 2:
+        n = len(times)
+        return np.repeat(cmd.q, n, 0), np.repeat(cmd.qd, n, 0), np.repeat(cmd.tau_ff, n, 0)
+    spline = CubicHermiteSpline(t50, cmd.q, cmd.qd, axis=0)
+    dspline = spline.derivative()
+    if np.all(tq == tq[:, :1]):  # one rate for every joint: evaluate once per time
+        t = tq[:, 0]
+        q, qd = spline(t), dspline(t)
+        tau = np.stack([np.interp(t, t50, cmd.tau_ff[:, j]) for j in range(cmd.q.shape[1])], 1)
+        return q, qd, tau
+    cols = range(cmd.q.shape[1])
+    q = np.stack([spline(tq[:, j])[:, j] for j in cols], 1)
+    qd = np.stack([dspline(tq[:, j])[:, j] for j in cols], 1)
+    tau = np.stack([np.interp(tq[:, j], t50, cmd.tau_ff[:, j]) for j in cols], 1)
+    return q, qd, tau
+
+
+@dataclass(frozen=True)
+class Rollout:
+    """A replay at the control rate: per step k (time k·dt) the joints' state q, q̇ (K,m) before
+    the step, the motor demand before clipping (K,m), the applied torque (K,m); `joints` maps the
+    m columns to robot joints; `qpos` (K,nq) the full state positions."""
+
+    dt: float
+    joints: np.ndarray
+    q: np.ndarray
+    qd: np.ndarray
+    demand: np.ndarray
+    torque: np.ndarray
+    limit: np.ndarray
+    qpos: np.ndarray
+
+
+def _roll(robot: Robot, rm: ReplayModel, cmd: Commands, qpos0: np.ndarray,
+          extra: np.ndarray | None = None) -> Rollout:
+    """Roll `cmd` out on replay model `rm` from `qpos0` (reference at t=0 on the driven joints);
+    `extra` (m,) feed-forward added to every step (the stance torques)."""
+    act = actuation(robot)
+    model = rm.model
+    dt = float(model.opt.timestep)
+    duration = (len(cmd.q) - 1) / cmd.fps
+    steps = int(np.floor(duration / dt + 1e-9)) + 1
+    times = np.arange(steps) * dt
+    q_ref, qd_ref, tau = reference_at(cmd, times, act.rate_hz)
+    j = rm.joints
+    q_ref, qd_ref, tau = q_ref[:, j], qd_ref[:, j], tau[:, j]
+    if extra is not None:
+        tau = tau + extra
+    kp, kd = rm.kp, rm.kd
+    ctrl = q_ref + (tau + kd * qd_ref) / kp
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos0
+    data.qpos[rm.qpos_adr] = q_ref[0]
+    data.qvel[:] = 0.0
+    data.qvel[rm.dof_adr] = qd_ref[0]
+    size = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    initial = np.empty(size)
+    mujoco.mj_getState(model, data, initial, int(mujoco.mjtState.mjSTATE_FULLPHYSICS))
+    qpos_start, qvel_start = data.qpos.copy(), data.qvel.copy()
+    state, _ = rollout.rollout(model, data, initial[None], ctrl[None, :-1] if steps > 1 else ctrl[None])
+    t_off = mujoco.mj_stateSize(model, int(mujoco.mjtState.mjSTATE_TIME))
+    nq, nv = model.nq, model.nv
+    after = state[0]
+    qpos = np.concatenate([qpos_start[None], after[:, t_off:t_off + nq]])[:steps]
+    qvel = np.concatenate([qvel_start[None], after[:, t_off + nq:t_off + nq + nv]])[:steps]
+    q, qd = qpos[:, rm.qpos_adr], qvel[:, rm.dof_adr]
+    demand = kp * (ctrl - q) - kd * qd
+    limit = rm.limit
+    return Rollout(dt=dt, joints=j, q=q, qd=qd, demand=demand, torque=np.clip(demand, -limit, limit),
+                   limit=limit, qpos=qpos)
+
+
+@dataclass(frozen=True)
+class FixedBaseReplay:
+    rollout: Rollout
+    #: Full joint array (T,n) of the simulated motion at the 50 Hz sample times (legs: reference).
+    q50: np.ndarray
+
+
+def replay_fixed(robot: Robot, cmd: Commands) -> FixedBaseReplay:
+    """The commands played with the pelvis welded."""
+    rm = fixed_model(robot)
+    r = _roll(robot, rm, cmd, rm.model.qpos0.copy())
+    return FixedBaseReplay(rollout=r, q50=_at_samples(r, cmd))
+
+
+def _at_samples(r: Rollout, cmd: Commands) -> np.ndarray:
+    """The simulated joints at the commands' sample times (others from the commands)."""
+    k = np.minimum(np.round(cmd.times / r.dt).astype(int), len(r.q) - 1)
+    q = cmd.q.copy()
+    q[:, r.joints] = r.q[k]
+    return q
+
+
+def stance_torques(robot: Robot, rm: ReplayModel, qpos: np.ndarray, feet: np.ndarray) -> np.ndarray:
+    """Static torques (m,) of the driven joints at `qpos` with the feet carrying the body: joint
+    gravity torques minus Jᵀf of one vertical force at the bottom of each foot geom, the forces
+    chosen (non-negative least squares) so that the floating base's six rows balance: no net
+    force or moment on the pelvis, the weight carried by the floor through the feet."""
+    from scipy.optimize import nnls
+    free = rm.model
+    data = mujoco.MjData(free)
+    data.qpos[:] = qpos
+    data.qvel[:] = 0.0
+    mujoco.mj_kinematics(free, data)
+    mujoco.mj_comPos(free, data)
+    bias = np.zeros(free.nv)
+    mujoco.mj_rne(free, data, 0, bias)  # at rest: gravity only
+    jac = []
+    for g in feet:
+        point = data.geom_xpos[g] - [0.0, 0.0, _half_height(free, data, int(g))]
+        jp = np.zeros((3, free.nv))
+        mujoco.mj_jac(free, data, jp, None, point, int(free.geom_bodyid[g]))
+        jac.append(jp[2])  # a vertical force at the geom's bottom
+    jz = np.array(jac)  # (feet, nv)
+    root = np.arange(6)
+    f, _ = nnls(jz[:, root].T, bias[root])
+    return (bias - jz.T @ f)[rm.dof_adr]
+
+
+@dataclass(frozen=True)
+class StandingReplay:
+    rollout: Rollout
+    #: Per 50 Hz sample: pelvis tilt (rad), horizontal drift (m) and height change (m) from the
+    #: start, each foot's tilt (rad) and how far its highest-risen contact point rose (m).
+    pelvis_tilt: np.ndarray
+    pelvis_drift: np.ndarray
+    pelvis_drop: np.ndarray
+    foot_tilt: np.ndarray
+    foot_lift: np.ndarray
+
+
+def replay_standing(robot: Robot, cmd: Commands) -> StandingReplay:
+    """The commands played on the robot standing on the floor: arms, waist (and every other
+    non-leg joint except the fingers) follow the commands; the legs hold the stance pose under
+    PD at the YAML's `actuation.stance` gains (else their group's) plus the stance feed-forward
+    (`stance_torques`)."""
+    rm, qpos0, feet = standing_model(robot)
+    legs = leg_joints(robot)[rm.joints]
+    stand = stance_pose(robot)
+    # the legs' command: the stance, held; their feed-forward: the feet carrying the body
+    held = Commands(fps=cmd.fps, q=cmd.q.copy(), qd=cmd.qd.copy(), tau_ff=cmd.tau_ff.copy(),
+                    kp=cmd.kp, kd=cmd.kd)
+    leg_cols = rm.joints[legs]
+    held.q[:, leg_cols] = stand[leg_cols]
+    held.qd[:, leg_cols] = 0.0
+    held.tau_ff[:, leg_cols] = 0.0
+    start = qpos0.copy()
+    start[rm.qpos_adr] = held.q[0, rm.joints]
+    extra = np.where(legs, stance_torques(robot, rm, start, feet), 0.0)
+    r = _roll(robot, rm, held, qpos0, extra)
+    k = np.minimum(np.round(cmd.times / r.dt).astype(int), len(r.qpos) - 1)
+    model = rm.model
+    data = mujoco.MjData(model)
+    n = len(k)
+    tilt, drift, drop = np.zeros(n), np.zeros(n), np.zeros(n)
+    bodies = sorted({int(model.geom_bodyid[g]) for g in feet})
+    ftilt, flift = np.zeros((n, len(bodies))), np.zeros((n, len(bodies)))
+    root = model.body(robot.spec.root_body).id
+    data.qpos[:] = r.qpos[0]
+    mujoco.mj_kinematics(model, data)
+    p0 = data.xpos[root].copy()
+    z0 = data.geom_xpos[feet, 2].copy()
+    owner = model.geom_bodyid[feet]
+    for i, s in enumerate(k):
+        data.qpos[:] = r.qpos[s]
+        mujoco.mj_kinematics(model, data)
+        tilt[i] = np.arccos(np.clip(data.xmat[root, 8], -1.0, 1.0))
+        drift[i] = np.linalg.norm(data.xpos[root, :2] - p0[:2])
+        drop[i] = p0[2] - data.xpos[root, 2]
+        for c, b in enumerate(bodies):
+            ftilt[i, c] = np.arccos(np.clip(data.xmat[b, 8], -1.0, 1.0))
+            flift[i, c] = np.max((data.geom_xpos[feet, 2] - z0)[owner == b])
+    return StandingReplay(rollout=r, pelvis_tilt=tilt, pelvis_drift=drift, pelvis_drop=drop,
+                          foot_tilt=ftilt, foot_lift=flift)
