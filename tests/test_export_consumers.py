@@ -109,7 +109,8 @@ def test_beyondmimic_library_round_trip(robot, trajectory, tmp_path) -> None:
                     ("left_elbow_joint", 1.0), ("right_elbow_joint", 1.0),
                     ("left_shoulder_yaw_joint", -0.5), ("right_shoulder_yaw_joint", 0.5)):
         base[robot.joint_index(name)] = v
-    q = robot.clip(base + 0.02 * (trajectory.q - trajectory.q.mean(axis=0)))
+    # tiny: physics-valid too (the fixture's 6-frame wave asks for more torque at larger amplitudes)
+    q = robot.clip(base + 0.0005 * (trajectory.q - trajectory.q.mean(axis=0)))
     counts = validation_counts(robot, q, 50.0)
     assert not any(counts.values()), counts
     gentle = Trajectory(id="wave", robot=robot.name, joint_names=trajectory.joint_names, q=q,
@@ -117,7 +118,7 @@ def test_beyondmimic_library_round_trip(robot, trajectory, tmp_path) -> None:
     export_library([gentle], tmp_path, "beyondmimic", robot=robot)
     assert (tmp_path / "wave.csv").is_file() and (tmp_path / "wave.extra_joints.csv").is_file()
     table = check_library(tmp_path, robot)
-    assert table["ok"].tolist() == [True]
+    assert table["ok"].tolist() == [True], str(table.to_dict("records"))
     import json
     assert json.loads((tmp_path / "library.json").read_text())["sequences"][0][
         "companion_files"] == ["wave.extra_joints.csv"]

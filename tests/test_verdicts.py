@@ -32,10 +32,11 @@ def test_the_verdict_line_says_what_the_default_export_writes() -> None:
     assert [in_default_export(r) for r in mixed] == [True, False, False, True]
 
 
-def test_without_rejections_the_line_is_the_three_verdicts() -> None:
+def test_without_rejections_the_line_is_the_four_verdicts() -> None:
     counts = run_verdicts([_row(True, None), _row(False, None)])
     assert counts["default_export"] == 1 and counts["rejected_export_valid"] == 0
-    assert verdict_line(counts) == "1/2 processed ok · 1/2 export-valid · critic-accepted n/a"
+    assert verdict_line(counts) == ("1/2 processed ok · 1/2 export-valid · critic-accepted n/a · "
+                                    "physics-valid n/a")
 
 
 def test_table_cells_count_like_flags() -> None:

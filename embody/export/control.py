@@ -39,8 +39,9 @@ def file_commands(robot: Any, path: Path, q: np.ndarray, dt: float) -> Any:
         try:
             with np.load(path, allow_pickle=False) as z:
                 fields = {k: np.asarray(z[k], dtype=np.float64) for k in ("qd", "tau_ff", "kp", "kd") if k in z.files}
-        except (OSError, ValueError) as exc:
-            raise InputError(path, None, f"cannot read npz: {exc}") from None
+        except Exception as exc:  # zipfile and numpy raise many types on a corrupt member
+            raise InputError(path, None, f"cannot read npz: {type(exc).__name__}: "
+                                         f"{' '.join(str(exc).split())[:200]}") from None
         if len(fields) == 4:
             n = robot.n_joints
             for key, shape in (("qd", q.shape), ("tau_ff", q.shape), ("kp", (n,)), ("kd", (n,))):
