@@ -264,7 +264,7 @@ def _report_tracks(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any]
 def _control_counts(ik: Any, q_control: np.ndarray) -> dict[str, float] | None:
     """`validation_counts` of the IK's own control-rate array as its solve verified them
     (`control_*` metrics), when `q_control` is that array; else None."""
-    names = ("joint_limit_violations", "velocity_violations", "self_collision_frames")
+    from embody.verdicts import VALIDATION_KEYS as names
     if not all(f"control_{k}" in ik.metrics for k in names):
         return None
     if np.shape(q_control) != np.shape(ik.q_control) or not np.array_equal(q_control, ik.q_control):
