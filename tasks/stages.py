@@ -290,6 +290,7 @@ def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     """`_trajectory_metrics`' work."""
     from embody.metrics import mean_jerk
     from embody.retarget.control import control_trajectory
+    from embody.retarget.dynamics_limits import DynamicsLimits
     from embody.retarget.validation import validation_counts
     ik = inputs["retarget"]
     if "refine" in inputs:
@@ -301,7 +302,8 @@ def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
             q_control = np.asarray(ik.q_control, dtype=np.float64)
         else:
             q_control = control_trajectory(ctx.robot, q, ik.fps, ik.control_rate_hz,
-                                           ctx.cfg.ik.contact_repair)
+                                           ctx.cfg.ik.contact_repair,
+                                           DynamicsLimits.from_config(ctx.cfg.ik))
     else:
         q, q_control = np.asarray(ik.q, dtype=np.float64), np.asarray(ik.q_control, np.float64)
     # the IK's solve already counted MuJoCo contacts of its own arrays: not counted twice
@@ -375,7 +377,10 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 # v16: the contact phase's proxy rows at the samples packed per frame (`Residuals._sample_rows`)
 #      and its proxy block cut to the proxy frames' width (`Residuals._exact_rows`): the same
 #      Gauss-Newton blocks to round-off, solutions within ~6e-13 rad (s13-ikevals).
-RETARGET = Step("retarget", "16", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v17: the exported control-rate array inside the motors' effort limits (× ik.torque_limit_fraction)
+#      and the standing robot's ZMP ik.zmp_margin inside its feet (`retarget.dynamics_limits`);
+#      `control_torque_viol` among the validation counters (s18-torque).
+RETARGET = Step("retarget", "17", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -395,7 +400,8 @@ RETARGET = Step("retarget", "16", ("body", "robot", "ik"), _retarget, _ik_soluti
 # v18: the contact phase's narrower proxy blocks (retarget v16) in every round's solve.
 # v19: the critic's sheets draw the reference as the render step does (render v4's bound skin),
 #      not from skinned vertices: the same picture up to edge pixels.
-REFINE = Step("refine", "19", ("body", "robot", "ik", "render", "critic"), _refine,
+# v20: the dynamics limits (retarget v17) on every round's control-rate array.
+REFINE = Step("refine", "20", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
@@ -414,9 +420,11 @@ RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _rend
 # v9: the human contacts measured relative to the pelvis (`embodiments.rootless_transforms`, shared
 #     with the targets' hand gaps, s15-speed): the same on the synthetic set (no root motion), within
 #     ~1e-7 m where the root moves (the body's float32 rest shape).
-METRICS = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+# v10: `torque_viol` (inverse-dynamics torques over the effort limit) among the validation
+#      counters, and the dynamics limits on a control-rate array the step makes itself.
+METRICS = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 

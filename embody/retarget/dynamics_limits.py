@@ -432,7 +432,10 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
             prob.watch_near(x, grown & ~free)
         free = grown
     if velocity_violations(x, robot.velocity_limits * (1.0 - velocity_margin), rate):
-        x = clamp_velocity(x, robot.velocity_limits * (1.0 - velocity_margin), rate)
-        ev = prob.evaluate(x)
+        clamped = clamp_velocity(x, robot.velocity_limits * (1.0 - velocity_margin), rate)
+        changed = np.flatnonzero(np.abs(clamped - x).max(1) > 0)
+        if ((self_collision_contacts(robot, clamped[changed]) > 0) & ~prior[changed]).any():
+            return q, False  # never a contact for a torque: the input, whose verdict is the caller's
+        x, ev = clamped, prob.evaluate(clamped)
     ok = not prob.violating(ev).any()
     return x, ok
