@@ -27,7 +27,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from embody.retarget.dynamics_limits import DynamicsLimits, enforce_dynamics
+from embody.retarget.dynamics_limits import DEFAULT_LIMITS, DynamicsLimits, enforce_dynamics
 from embody.retarget.limits import clamp_velocity, resample, velocity_violations
 from embody.robot import Robot
 from embody.robot.contacts import collision_model, self_collision_contacts
@@ -334,15 +334,16 @@ def _within_velocity(sep: _Separator, q: np.ndarray, t: int, lo: np.ndarray, hi:
 
 
 def control_trajectory(robot: Robot, q: np.ndarray, fps: float, rate: float,
-                       repair: bool = True, limits: DynamicsLimits | None = None) -> np.ndarray:
+                       repair: bool = True, limits: DynamicsLimits | None = DEFAULT_LIMITS) -> np.ndarray:
     """The exported control-rate trajectory (float64): q resampled to `rate` Hz, then every
-    sample made collision-free and kept strictly inside the joint and velocity limits, and with
-    `limits`, inside the motors' torque and the standing robot's balance (`dynamics_limits`)."""
+    sample made collision-free and kept strictly inside the joint and velocity limits, and
+    inside the motors' torque and the standing robot's balance (`limits`, the `ik` defaults
+    unless given; None: the kinematic limits only)."""
     return control_trajectory_checked(robot, q, fps, rate, repair, limits)[0]
 
 
 def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: float,
-                               repair: bool = True, limits: DynamicsLimits | None = None
+                               repair: bool = True, limits: DynamicsLimits | None = DEFAULT_LIMITS
                                ) -> tuple[np.ndarray, bool]:
     """`control_trajectory`, and whether MuJoCo found every returned sample clear."""
     out, clear = _kinematic_control(robot, q, fps, rate, repair)

@@ -41,6 +41,7 @@ import scipy.sparse as sp
 from scipy.linalg import solveh_banded
 from threadpoolctl import threadpool_limits
 
+from embody.config.ik import IKConfig
 from embody.retarget.limits import clamp_velocity, velocity_violations
 from embody.robot import Robot
 from embody.robot.contacts import collision_model, self_collision_contacts
@@ -100,6 +101,10 @@ class DynamicsLimits:
         if not cfg.dynamics_limits:
             return None
         return cls(float(cfg.torque_limit_fraction), float(cfg.zmp_margin))
+
+
+#: The `ik` section's defaults (`torque_limit_fraction`, `zmp_margin`).
+DEFAULT_LIMITS = DynamicsLimits(IKConfig().torque_limit_fraction, IKConfig().zmp_margin)
 
 
 def _second_difference(t: int, dt: float) -> sp.csr_matrix:
