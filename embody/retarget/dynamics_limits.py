@@ -391,6 +391,7 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
     cost = prob.cost(x, ev)
     prior = np.zeros(len(q), dtype=bool) if touching is None else np.asarray(touching, dtype=bool)
     prob.watch_near(x, free)
+    start = 1.0
     n = len(q)  # Δ² of the correction over the whole sequence: the held samples' is 0
     smooth = sp.diags([np.ones(n - 2), -2 * np.ones(n - 2), np.ones(n - 2)], [0, 1, 2], shape=(n - 2, n)).tocsc()
     for _ in range(ITERATIONS):
@@ -407,7 +408,7 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
         g = W_HINGE * (a.T @ r) + w * d.ravel() + ss @ d.ravel()
         direction = _solve_banded(h, -g).reshape(nf, nm)
         direction *= min(1.0, MAX_STEP / max(float(np.abs(direction).max()), 1e-12))
-        accepted, scale = False, 1.0
+        accepted, scale = False, start
         for _try in range(BACKTRACK):
             trial = x.copy()
             trial[np.ix_(idx, prob.movable)] = np.clip(trial[idx][:, prob.movable] + scale * direction,
@@ -422,6 +423,7 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
                 hits = (self_collision_contacts(robot, trial[changed]) > 0) & ~prior[changed]
                 if not hits.any():
                     accepted = True
+                    start = min(1.0, 2.0 * scale)  # the next direction starts near this one's length
                     break
                 log.debug("trial touches at %s", changed[hits][:8])
                 prob.watch.update(int(t) for t in changed[hits])  # their contacts are rows now
