@@ -18,15 +18,19 @@ zero inside the limits:
   (`robot.dynamics.zmp`), linearised through the CoM Jacobian (`mj_jacSubtreeCom`):
   δp_t = J_t δ_t − k_t (D J δ)_t, k_t = c_z / (c̈_z + g);
 - velocity: (|Δx| − v̇max/rate)/(v̇max/rate) past the velocity limit;
-- contacts: clearance − (d_i + a_i δ_t) on the samples where MuJoCo found a step touching (a_i:
-  the contact normal's rate of separation, as in `control._Separator`); the joint box by clipping.
+- contacts: clearance − (d_i + a_i δ_t) on the samples with a counted MuJoCo contact closer than
+  twice the clearance (a_i: the contact normal's rate of separation, as in `control._Separator`);
+  the joint box by clipping.
 
-Sequential convex (Gauss-Newton on the hinges): M, h, J and the contacts are refreshed at every
-outer iteration, a step is kept only if the exact cost fell, and the loop ends when no row is
-active. The unknowns are the samples within `REACH_S` of a violation (the rest stay exactly as
-given), so the cost follows the violations, not the sequence. Where the motion is already
-feasible no row is active and the array comes back unchanged: sign fidelity pays only where the
-robot could not have executed the motion.
+Sequential convex (Gauss-Newton on the hinges, banded normal equations): M, h, J and the
+contacts are refreshed at every outer iteration; a step is kept only if the exact cost fell and
+MuJoCo finds no sample it moved newly touching (a backtracking line search), and the loop ends
+as soon as every limit holds. The unknowns are the samples within `REACH_S` of a violation (the
+rest stay exactly as given), so the cost follows the violations, not the sequence. Where the
+motion is already feasible nothing is solved and the array comes back unchanged: sign fidelity
+pays only where the robot could not have executed the motion. A trajectory it cannot make
+feasible comes back improved, never with a new contact, and the validation counts what is left
+(`torque_viol`), which the export refuses.
 """
 
 from __future__ import annotations
@@ -62,12 +66,10 @@ W_HINGE = 1e5
 #: Weight of the correction's second difference (rad²): a correction spread smoothly over its
 #: window instead of a notch that moves the acceleration peak to its neighbours.
 W_SMOOTH = 1000.0
-#: Levenberg damping (rad⁻² in the cost's units): its start, floor, and the rejected trials
-#: per iteration before the solve stops. A trust region, because the linearisation holds only
-#: for small steps: the ZMP's CoM acceleration is the second difference of a nonlinear CoM over
-#: one control period, so its second-order terms (δ²·link length / dt²) grow fast.
-LAMBDA0 = 1e3
-LAMBDA_MIN = 1.0
+#: Step halvings tried along one Gauss-Newton direction before the solve stops. The
+#: linearisation holds only for small steps: the ZMP's CoM acceleration is the second difference
+#: of a nonlinear CoM over one control period, so its second-order terms (δ²·link length / dt²)
+#: grow fast.
 BACKTRACK = 8
 #: Largest change of any joint (rad) in one step.
 MAX_STEP = 0.05
@@ -183,11 +185,23 @@ class _Problem:
 
     # --- exact evaluation --------------------------------------------------------------------
 
-    def evaluate(self, x: np.ndarray) -> dict[str, np.ndarray]:
-        """Torques (T,n), ZMP (T,2), the polygon's edge margins (T,E), and the hinge excesses."""
-        tau = inverse_dynamics(self.robot, x, self.dt)
+    def evaluate(self, x: np.ndarray, near: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+        """Torques (T,n), ZMP (T,2), the polygon's edge margins (T,E), and the hinge excesses.
+        `near`: the evaluation of a trajectory that differs from x on some samples only; the
+        torques and CoM of the samples whose own values and differences are the same are kept."""
+        if near is None:
+            tau = inverse_dynamics(self.robot, x, self.dt)
+            com = center_of_mass(self.robot, standing_q(self.robot, x))
+        else:
+            moved = np.any(x != near["x"], axis=1)
+            redo = _dilate(moved, 2)  # central differences, and the end rows' copies
+            qd, qdd = derivatives(x, self.dt)
+            tau, com = near["tau"].copy(), near["com"].copy()
+            if redo.any():
+                tau[redo] = inverse_dynamics(self.robot, x[redo], self.dt, qd[redo], qdd[redo])
+            if moved.any():
+                com[moved] = center_of_mass(self.robot, standing_q(self.robot, x[moved]))
         # `dynamics.zmp`'s cart-table ZMP, its support polygon computed once
-        com = center_of_mass(self.robot, standing_q(self.robot, x))
         _, cdd = derivatives(com, self.dt)
         lever = (com[:, 2] - self.floor) / (cdd[:, 2] + GRAVITY)
         point = com[:, :2] - lever[:, None] * cdd[:, :2]
@@ -202,7 +216,7 @@ class _Problem:
         over_zmp = (target - edge) / ZMP_SCALE
         step = np.abs(np.diff(x, axis=0))
         over_vel = (step - self.vstart) / self.vstep
-        return {"x": x, "lever": lever, "tau": tau, "point": point, "inward": inward, "corner": a, "edge": edge,
+        return {"x": x, "com": com, "lever": lever, "tau": tau, "point": point, "inward": inward, "corner": a, "edge": edge,
                 "over_tau": over_tau, "over_zmp": over_zmp, "over_vel": over_vel, "target": target}
 
     def violating(self, ev: dict[str, np.ndarray]) -> np.ndarray:
@@ -413,7 +427,7 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
             trial = x.copy()
             trial[np.ix_(idx, prob.movable)] = np.clip(trial[idx][:, prob.movable] + scale * direction,
                                                        prob.lower[prob.movable], prob.upper[prob.movable])
-            ev_t = prob.evaluate(trial)
+            ev_t = prob.evaluate(trial, ev)
             c_t = prob.cost(trial, ev_t)
             log.debug("trial scale %.3g cost %.6g -> %.6g", scale, cost, c_t)
             if c_t < cost:
