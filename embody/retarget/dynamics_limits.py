@@ -16,7 +16,7 @@ zero inside the limits:
   δτ_t = M(x_t) (D δ)_t with D the same second difference;
 - balance: per edge e of the feet polygon, margin − n_e·(p_t − a_e) with p the cart-table ZMP
   (`robot.dynamics.zmp`), linearised through the CoM Jacobian (`mj_jacSubtreeCom`):
-  δp_t = J_t δ_t − k_t (D J δ)_t with k_t = c_z / (c̈_z + g) and its own change (J_z, D J_z);
+  δp_t = J_t δ_t − k_t (D J δ)_t, k_t = c_z / (c̈_z + g);
 - velocity: (|Δx| − v̇max/rate)/(v̇max/rate) past the velocity limit;
 - contacts: clearance − (d_i + a_i δ_t) on the samples with a counted MuJoCo contact closer than
   twice the clearance (a_i: the contact normal's rate of separation, as in `control._Separator`);
@@ -216,7 +216,7 @@ class _Problem:
         over_zmp = (target - edge) / ZMP_SCALE
         step = np.abs(np.diff(x, axis=0))
         over_vel = (step - self.vstart) / self.vstep
-        return {"x": x, "com": com, "cdd": cdd, "lever": lever, "tau": tau, "point": point, "inward": inward, "corner": a, "edge": edge,
+        return {"x": x, "com": com, "lever": lever, "tau": tau, "point": point, "inward": inward, "corner": a, "edge": edge,
                 "over_tau": over_tau, "over_zmp": over_zmp, "over_vel": over_vel, "target": target}
 
     def violating(self, ev: dict[str, np.ndarray]) -> np.ndarray:
@@ -328,12 +328,9 @@ class _Problem:
                 w = d2.data[d2.indptr[t]: d2.indptr[t + 1]]
                 k = ev["lever"][t]
                 for e in ez[tz == t]:
-                    # −n·δp, p = c_xy − k c̈_xy, k = c_z/(c̈_z + g): the lever's own change too
                     n = ev["inward"][e]
-                    tilt = float(n @ ev["cdd"][t, :2]) / (ev["cdd"][t, 2] + GRAVITY)
-                    pieces = np.stack([k * wi * (n @ jac[int(si)][:2] - tilt * jac[int(si)][2])
-                                       for si, wi in zip(s, w)])
-                    pieces[s == t] -= n @ jac[int(t)][:2] - tilt * jac[int(t)][2]
+                    pieces = np.stack([k * wi * (n @ jac[int(si)][:2]) for si, wi in zip(s, w)])
+                    pieces[s == t] -= n @ jac[int(t)][:2]
                     c, v = place(s, pieces / ZMP_SCALE)
                     out.add(float(ev["over_zmp"][t, e]), c, v)
         tv, jv = np.nonzero(ev["over_vel"] > 0)
