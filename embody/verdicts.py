@@ -14,15 +14,15 @@ __all__ = ["VALIDATION_KEYS", "VERDICTS", "PHYSICS_RULE", "export_valid", "in_de
            "physics_valid", "plural", "run_verdicts", "sequence_verdicts", "verdict_line", "violations"]
 
 #: Validation counters (from `embody.retarget.validation.validation_counts`) that must all be
-#: zero for a trajectory to be exported: joint-limit violations, velocity-limit violations
-#: and MuJoCo self-collision frames.
-VALIDATION_KEYS = ("joint_limit_violations", "velocity_violations", "self_collision_frames")
+#: zero for a trajectory to be exported: joint-limit violations, velocity-limit violations,
+#: MuJoCo self-collision frames and inverse-dynamics torques over the motors' effort limits.
+VALIDATION_KEYS = ("joint_limit_violations", "velocity_violations", "self_collision_frames", "torque_viol")
 #: Verdict name → what it means (the report prints these definitions).
 VERDICTS = {
     "processed_ok": "every pipeline step finished without an error",
     "export_valid": "processed ok and its final trajectory has zero joint-limit violations, "
-                    "zero velocity-limit violations and zero MuJoCo self-collision frames "
-                    "(the rule `embody export` applies)",
+                    "zero velocity-limit violations, zero MuJoCo self-collision frames and "
+                    "no inverse-dynamics torque over a motor's effort limit (the rule `embody export` applies)",
     "critic_accepted": "the critic accepted the final round (blank when the run had no critic)",
     "physics_valid": "processed ok and its exported trajectory, replayed in MuJoCo with the robot's "
                      "gains and effort limits, has zero samples over a torque limit, zero saturated "

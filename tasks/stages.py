@@ -295,7 +295,7 @@ def _report_tracks(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any]
 def _control_counts(ik: Any, q_control: np.ndarray) -> dict[str, float] | None:
     """`validation_counts` of the IK's own control-rate array as its solve verified them
     (`control_*` metrics), when `q_control` is that array; else None."""
-    names = ("joint_limit_violations", "velocity_violations", "self_collision_frames")
+    from embody.verdicts import VALIDATION_KEYS as names
     if not all(f"control_{k}" in ik.metrics for k in names):
         return None
     if np.shape(q_control) != np.shape(ik.q_control) or not np.array_equal(q_control, ik.q_control):
@@ -321,6 +321,7 @@ def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     """`_trajectory_metrics`' work."""
     from embody.metrics import mean_jerk
     from embody.retarget.control import control_trajectory
+    from embody.retarget.dynamics_limits import DynamicsLimits
     from embody.retarget.validation import validation_counts
     ik = inputs["retarget"]
     if "refine" in inputs:
@@ -332,7 +333,8 @@ def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
             q_control = np.asarray(ik.q_control, dtype=np.float64)
         else:
             q_control = control_trajectory(ctx.robot, q, ik.fps, ik.control_rate_hz,
-                                           ctx.cfg.ik.contact_repair)
+                                           ctx.cfg.ik.contact_repair,
+                                           DynamicsLimits.from_config(ctx.cfg.ik))
     else:
         q, q_control = np.asarray(ik.q, dtype=np.float64), np.asarray(ik.q_control, np.float64)
     # the IK's solve already counted MuJoCo contacts of its own arrays: not counted twice
@@ -386,8 +388,9 @@ COLLIDE = Step("collide", "12", ("body", "collision"), _collide, _collision_resu
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
 # The whole-sequence IK solution on location-preserving targets (contact phase on MuJoCo's contacts,
-# the 50 Hz control-rate array repaired at every sample), with its validation counts.
-RETARGET = Step("retarget", "17", ("body", "robot", "ik"), _retarget, _ik_solution,
+# the 50 Hz control-rate array repaired at every sample and held inside the motors' effort limits
+# and the standing robot's ZMP margin), with its validation counts.
+RETARGET = Step("retarget", "18", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # Every critic round's IK solution, action and comparison sheet; the chosen round's control-rate
 # array and wrist positions, which `metrics` reuses.
@@ -400,11 +403,12 @@ RENDER = Step("render", "4", ("body", "robot", "render"), _render, _render_resul
 RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
-# The exported control-rate array with its validation counts and jerk, sign fidelity of the three
-# Table III rows on that array against the mitigated human, and the report's wrist tracks.
-METRICS = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+# The exported control-rate array with its validation counts (torque included) and jerk, sign
+# fidelity of the three Table III rows on that array against the mitigated human, and the
+# report's wrist tracks.
+METRICS = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 # v1: fixed-base and standing replay of the exported array with the robot's actuation.

@@ -27,6 +27,9 @@ from embody.robot.contacts import self_collision_contacts
 RATE = 50.0
 
 
+#: The kinematic validation counters (the contact repair's business).
+KINEMATIC = ("joint_limit_violations", "velocity_violations", "self_collision_frames")
+
 @pytest.fixture(scope="module")
 def robot():
     return load_robot()
@@ -48,6 +51,21 @@ def passing(robot):
     in between: the plain 50 Hz resample penetrates."""
     q = np.stack([_pose(robot, -0.2), _pose(robot, 0.2)])
     return q, 10.0
+
+
+@pytest.fixture(scope="module")
+def gentle(robot):
+    """Two frames one second apart (1 fps) whose hands stay clear: a motion the motors can drive
+    (the export refuses one over the effort limits, as the fast pass above is)."""
+    q = np.stack([_pose(robot, -0.4), _pose(robot, -0.3)])
+    return q, 1.0
+
+
+@pytest.fixture(scope="module")
+def slow_passing(robot):
+    """The pass of `passing` over one second (1 fps): its plain resample penetrates."""
+    q = np.stack([_pose(robot, -0.2), _pose(robot, 0.2)])
+    return q, 1.0
 
 
 def _independent_contacts(robot, q: np.ndarray) -> np.ndarray:
@@ -83,9 +101,9 @@ def test_control_trajectory_is_collision_free_at_every_sample(robot, passing):
     assert qc.shape == resample(q, fps, RATE).shape and qc.dtype == np.float64
     assert self_collision_contacts(robot, qc).tolist() == [0] * len(qc)
     assert _independent_contacts(robot, qc).tolist() == [0] * len(qc)
-    assert validation_counts(robot, qc, RATE) == {"joint_limit_violations": 0.0,
-                                                  "velocity_violations": 0.0,
-                                                  "self_collision_frames": 0.0}
+    counts = validation_counts(robot, qc, RATE)  # torque: tests/test_dynamics_limits.py (this toy
+    # moves the arms 0.4 rad in 0.1 s from and to nowhere: no torque-feasible answer near it)
+    assert {k: counts[k] for k in KINEMATIC} == {k: 0.0 for k in KINEMATIC}
     # strictly inside the limits, so the float32 cast (BeyondMimic reads float32) stays valid
     q32 = qc.astype(np.float32).astype(np.float64)
     assert validation_counts(robot, q32, RATE)["joint_limit_violations"] == 0
@@ -116,16 +134,16 @@ def test_ik_solution_collision_free_at_both_rates_without_proxies(robot):
 
 
 def _trajectory(robot, q: np.ndarray, sid: str = "pass") -> Trajectory:
-    zero = {"joint_limit_violations": 0, "velocity_violations": 0, "self_collision_frames": 0}
+    zero = {"joint_limit_violations": 0, "velocity_violations": 0, "self_collision_frames": 0,
+            "torque_viol": 0}
     return Trajectory(id=sid, robot=robot.name, joint_names=tuple(robot.joint_names), q=q,
                       dt=1.0 / RATE, text="pass", validation=zero)
 
 
-def test_export_refuses_tampered_trajectory(robot, passing, tmp_path):
+def test_export_refuses_tampered_trajectory(robot, gentle, slow_passing, tmp_path):
     """Stored counters claim 0, but the array penetrates: the export re-validates and refuses."""
-    q, fps = passing
-    good = _trajectory(robot, control_trajectory(robot, q, fps, RATE), "good")
-    bad = _trajectory(robot, resample(q, fps, RATE), "tampered")
+    good = _trajectory(robot, control_trajectory(robot, *gentle, RATE), "good")
+    bad = _trajectory(robot, resample(*slow_passing, RATE), "tampered")
     library, excluded = export_library([good, bad], tmp_path, "npz", robot=robot)
     assert library["id"].tolist() == ["good"]
     row = excluded.set_index("id").loc["tampered"]
@@ -138,9 +156,9 @@ def test_export_refuses_tampered_trajectory(robot, passing, tmp_path):
 
 
 @pytest.mark.parametrize("fmt", ["npz", "csv", "gmr", "beyondmimic"])
-def test_check_revalidates_library(robot, passing, tmp_path, fmt, capsys):
-    q, fps = passing
-    export_library([_trajectory(robot, control_trajectory(robot, q, fps, RATE))], tmp_path, fmt,
+def test_check_revalidates_library(robot, gentle, slow_passing, tmp_path, fmt, capsys):
+    q, fps = slow_passing
+    export_library([_trajectory(robot, control_trajectory(robot, *gentle, RATE))], tmp_path, fmt,
                    robot=robot)
     table = check_library(tmp_path, robot)
     kinematic = table[["joint_limit_violations", "velocity_violations", "self_collision_frames"]].eq(0)
@@ -304,10 +322,10 @@ def test_export_repair_is_local_where_the_bridge_fails(robot):
     assert len(bad) >= 3 and np.all(np.diff(bad) == 1)  # one run
     run = int(np.ceil(BRIDGE_FRAMES * RATE / fps))
     np.testing.assert_array_equal(bridge_contacts(robot, plain, max_run=run, fps=RATE), plain)  # no bridge
-    qc, clear = control_trajectory_checked(robot, q, fps, RATE)
+    qc, clear = control_trajectory_checked(robot, q, fps, RATE, limits=None)  # the contact repair alone
     assert clear
     assert self_collision_contacts(robot, qc).sum() == 0 and _independent_contacts(robot, qc).sum() == 0
-    assert all(v == 0 for v in validation_counts(robot, qc, RATE).values())
+    assert all(validation_counts(robot, qc, RATE)[k] == 0 for k in KINEMATIC)
     drift = np.degrees(np.abs(qc - plain).max(axis=1))
     assert drift.max() <= 10.0 + 1e-9
     moved = np.flatnonzero(drift > 1e-9)
@@ -348,7 +366,7 @@ def test_repair_clears_a_sample_on_a_run_at_the_velocity_limit(robot):
     assert step[9:11].max() > 0.999                                 # saturated into and out of 10
     out, clear = separate_checked(robot, q, rate, box_margin=BOX_MARGIN, velocity_margin=VELOCITY_MARGIN)
     assert clear
-    assert all(v == 0 for v in validation_counts(robot, out, rate).values())
+    assert all(validation_counts(robot, out, rate)[k] == 0 for k in KINEMATIC)
     moved = np.flatnonzero(np.abs(out - q).max(axis=1) > 0)
     assert moved.tolist() == [10]
     assert np.degrees(np.abs(out - q).max()) < 5.0

@@ -21,7 +21,7 @@ def _traj(sid: str, **validation) -> Trajectory:
     return Trajectory(id=sid, robot="unitree_g1_dex3", joint_names=NAMES, q=q, dt=0.02,
                       text=f"sign {sid}", validation={"joint_limit_violations": 0,
                       "velocity_violations": 0, "self_collision_frames": 0,
-                      "wrist_pos_mean_mm": 12.5, **validation})
+                      "torque_viol": 0, "wrist_pos_mean_mm": 12.5, **validation})
 
 
 @pytest.mark.parametrize("fmt", ["npz", "csv"])

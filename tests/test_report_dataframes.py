@@ -25,7 +25,8 @@ def _data() -> RunData:
                              "wrist_rot_err_deg": [1.0, 2.0, 3.0],
                              "joint_limit_violations": [0.0, 0.0, 0.0],
                              "velocity_violations": [0.0, 1.0, 0.0],
-                             "self_collision_frames": [0.0, 0.0, 2.0]}, index=ids[:3])
+                             "self_collision_frames": [0.0, 0.0, 2.0],
+                             "torque_viol": [0.0, 0.0, 0.0]}, index=ids[:3])
     sequences = pd.DataFrame({"status": ["ok", "ok", "ok", "failed"],
                               "error": ["", "", "", "collide: boom"], "text": ["a", "b", "c", "d"]},
                              index=pd.Index(ids, name="id"))
@@ -33,7 +34,7 @@ def _data() -> RunData:
                    retarget=retarget)
     # The pipeline's metrics step: validation counters of the final trajectories.
     data.other["metrics"] = retarget[["joint_limit_violations", "velocity_violations",
-                                      "self_collision_frames"]].copy()
+                                      "self_collision_frames", "torque_viol"]].copy()
     return data
 
 

@@ -194,6 +194,20 @@ class IKConfig(Section):
     #: Off only to study the proxies alone.
     contact_repair: bool = True
     control_rate_hz: float = Field(50.0, gt=0, le=2000)
+    #: The exported control-rate array honours the motors' effort limits and keeps the standing
+    #: robot's ZMP inside its feet (`retarget.dynamics_limits`: one solve that also owns the joint
+    #: box, the velocity limits and the contacts, so none of them is traded for another). A
+    #: trajectory already inside every limit is left exactly as it is. Off only to study the
+    #: kinematic chain alone.
+    dynamics_limits: bool = True
+    #: Share (dimensionless, of N·m) of each joint's effort limit (the MJCF's `actuatorfrcrange`,
+    #: fingers included) the inverse-dynamics torque of every exported sample may use: fixed base,
+    #: free motion, velocities and accelerations from central differences at `control_rate_hz`
+    #: (`robot.dynamics.inverse_dynamics`). The rest is left to the tracking controller's feedback.
+    torque_limit_fraction: float = Field(0.9, gt=0.0, le=1.0)
+    #: Distance (m) the cart-table ZMP of the robot standing on both feet (legs at the stance pose,
+    #: `robot.dynamics.zmp`) keeps inside the feet's support polygon at every exported sample.
+    zmp_margin: float = Field(0.02, ge=0.0, le=0.1)
     #: Longer sequences are solved in windows of this many frames sharing `window_overlap`
     #: frames (cross-faded), so the solver's memory is bounded by the window (embody.retarget.windows).
     window_frames: int = Field(2000, ge=16, le=1_000_000)

@@ -85,7 +85,7 @@ def metrics_frame(manifest: Any, step: str) -> pd.DataFrame:
 
 
 #: Validation counters of the exported array (stored by the metrics step).
-VALIDATION_KEYS = ("joint_limit_violations", "velocity_violations", "self_collision_frames")
+VALIDATION_KEYS = ("joint_limit_violations", "velocity_violations", "self_collision_frames", "torque_viol")
 #: The metrics step's prefix for the critic's metrics of its IK-only round.
 CRITIC_IK = "critic_ik."
 

@@ -27,9 +27,10 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
+from embody.retarget.dynamics_limits import DEFAULT_LIMITS, DynamicsLimits, enforce_dynamics
 from embody.retarget.limits import clamp_velocity, resample, velocity_violations
 from embody.robot import Robot
-from embody.robot.contacts import collision_model
+from embody.robot.contacts import collision_model, self_collision_contacts
 
 #: Clearance (m) a repaired sample gets between the geoms that penetrated.
 CLEARANCE = 0.002
@@ -333,15 +334,32 @@ def _within_velocity(sep: _Separator, q: np.ndarray, t: int, lo: np.ndarray, hi:
 
 
 def control_trajectory(robot: Robot, q: np.ndarray, fps: float, rate: float,
-                       repair: bool = True) -> np.ndarray:
+                       repair: bool = True, limits: DynamicsLimits | None = DEFAULT_LIMITS) -> np.ndarray:
     """The exported control-rate trajectory (float64): q resampled to `rate` Hz, then every
-    sample made collision-free and kept strictly inside the joint and velocity limits."""
-    return control_trajectory_checked(robot, q, fps, rate, repair)[0]
+    sample made collision-free and kept strictly inside the joint and velocity limits, and
+    inside the motors' torque and the standing robot's balance (`limits`, the `ik` defaults
+    unless given; None: the kinematic limits only)."""
+    return control_trajectory_checked(robot, q, fps, rate, repair, limits)[0]
 
 
 def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: float,
-                               repair: bool = True) -> tuple[np.ndarray, bool]:
+                               repair: bool = True, limits: DynamicsLimits | None = DEFAULT_LIMITS
+                               ) -> tuple[np.ndarray, bool]:
     """`control_trajectory`, and whether MuJoCo found every returned sample clear."""
+    out, clear = _kinematic_control(robot, q, fps, rate, repair)
+    if limits is None:
+        return out, clear
+    # the dynamics solve moves no sample into a contact, so MuJoCo's verdict carries over
+    touching = None if clear else self_collision_contacts(robot, out) > 0
+    out, _ = enforce_dynamics(robot, out, rate, limits, box_margin=BOX_MARGIN,
+                              velocity_margin=VELOCITY_MARGIN, touching=touching)
+    return out, clear
+
+
+def _kinematic_control(robot: Robot, q: np.ndarray, fps: float, rate: float,
+                       repair: bool) -> tuple[np.ndarray, bool]:
+    """The control-rate trajectory inside the joint box, the velocity limits and (`repair`)
+    MuJoCo's contacts, and whether MuJoCo found every sample clear."""
     qc = resample(np.asarray(q, dtype=np.float64), fps, rate)
     qc = np.clip(qc, robot.lower + BOX_MARGIN, robot.upper - BOX_MARGIN)
     qc = clamp_velocity(qc, robot.velocity_limits * (1.0 - VELOCITY_MARGIN), rate)

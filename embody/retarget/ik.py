@@ -35,6 +35,7 @@ from embody.metrics.trajectory import mean_jerk, position_error, rotation_error_
 from embody.retarget.banded import block_banded_solve
 from embody.retarget.costs import WRIST_ELBOW, Residuals
 from embody.retarget.control import bridge_contacts_checked, control_trajectory_checked, separate_checked
+from embody.retarget.dynamics_limits import DynamicsLimits
 from embody.retarget.exact_contacts import ExactContacts
 from embody.retarget.limits import clamp_velocity, limit_violations, velocity_violations
 from embody.retarget.targets import _ARRAYS, Targets
@@ -583,7 +584,7 @@ def finish_solution(robot: Robot, q: np.ndarray, targets: Targets, cfg: IKConfig
     frames, metrics = evaluate(robot, q, targets, np.zeros(len(q), np.int64) if clear else None)
     metrics.update(extra or {})
     q_control, clear = control_trajectory_checked(robot, q, targets.fps, cfg.control_rate_hz,
-                                                  cfg.contact_repair)
+                                                  cfg.contact_repair, DynamicsLimits.from_config(cfg))
     metrics.update({f"control_{k}": v for k, v in validation_counts(
         robot, q_control, cfg.control_rate_hz, np.zeros(len(q_control), np.int64) if clear else None).items()})
     return IKSolution(q=q, joint_names=list(robot.joint_names), fps=targets.fps, q_control=q_control,

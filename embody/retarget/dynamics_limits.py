@@ -1,0 +1,462 @@
+"""Torque and balance limits of the exported control-rate trajectory, owned by one solve.
+
+A kinematically valid trajectory can still ask a wrist motor for three times its torque, or
+accelerate the arms hard enough to push the standing robot's ZMP out of its feet. Both are set
+by the accelerations of the exported samples, which the kinematic chain (resample, bridges,
+contact pushes, velocity clamp) shapes last, so they are enforced on that array, with everything
+the chain guaranteed kept in the same problem:
+
+    min_x  ½ Σ_t (x_t − q_t)ᵀ W (x_t − q_t) + ½ w_s ‖Δ²(x − q)‖²
+           + ½ w_h Σ hinge rows²
+
+over the movable joints (arms, waist, fingers) of every control sample, whose hinge rows are
+zero inside the limits:
+- torque: (|τ_tj| − f·τmax_j)/τmax_j with τ = M(q)q̈ + h(q, q̇) (`robot.dynamics.inverse_dynamics`,
+  fixed base, free motion, central differences at the control rate), linearised as
+  δτ_t = M(x_t) (D δ)_t with D the same second difference;
+- balance: per edge e of the feet polygon, margin − n_e·(p_t − a_e) with p the cart-table ZMP
+  (`robot.dynamics.zmp`), linearised through the CoM Jacobian (`mj_jacSubtreeCom`):
+  δp_t = J_t δ_t − k_t (D J δ)_t, k_t = c_z / (c̈_z + g);
+- velocity: (|Δx| − v̇max/rate)/(v̇max/rate) past the velocity limit;
+- contacts: clearance − (d_i + a_i δ_t) on the samples with a counted MuJoCo contact closer than
+  twice the clearance (a_i: the contact normal's rate of separation, as in `control._Separator`);
+  the joint box by clipping.
+
+Sequential convex (Gauss-Newton on the hinges, banded normal equations): M, h, J and the
+contacts are refreshed at every outer iteration; a step is kept only if the exact cost fell and
+MuJoCo finds no sample it moved newly touching (a backtracking line search), and the loop ends
+as soon as every limit holds. The unknowns are the samples within `REACH_S` of a violation (the
+rest stay exactly as given), so the cost follows the violations, not the sequence. Where the
+motion is already feasible nothing is solved and the array comes back unchanged: sign fidelity
+pays only where the robot could not have executed the motion. A trajectory it cannot make
+feasible comes back improved, never with a new contact, and the validation counts what is left
+(`torque_viol`), which the export refuses.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from typing import Any
+
+import mujoco
+import numpy as np
+import scipy.sparse as sp
+from scipy.linalg import solveh_banded
+from threadpoolctl import threadpool_limits
+
+from embody.config.ik import IKConfig
+from embody.retarget.limits import clamp_velocity, velocity_violations
+from embody.robot import Robot
+from embody.robot.contacts import collision_model, self_collision_contacts
+from embody.robot.dynamics import (GRAVITY, center_of_mass, derivatives, dof_adr, effort_limits,
+                                   inverse_dynamics, leg_joints, stance_pose, standing_q,
+                                   support_polygon)
+
+log = logging.getLogger(__name__)
+
+#: Cost of moving a joint class (larger = moved less): the arms carry the correction; the
+#: fingers (the handshape carries meaning) and the waist (it moves the whole upper body) only
+#: where needed.
+WEIGHTS = {"arm": 1.0, "hand": 25.0, "waist": 25.0}
+#: Outer (linearise, solve, accept) iterations at most.
+ITERATIONS = 30
+#: Weight of the hinge rows against the ½‖x − q‖²_W pull (rad²): a near-constraint.
+W_HINGE = 1e5
+#: Weight of the correction's second difference (rad²): a correction spread smoothly over its
+#: window instead of a notch that moves the acceleration peak to its neighbours.
+W_SMOOTH = 1000.0
+#: Step halvings tried along one Gauss-Newton direction before the solve stops. The
+#: linearisation holds only for small steps: the ZMP's CoM acceleration is the second difference
+#: of a nonlinear CoM over one control period, so its second-order terms (δ²·link length / dt²)
+#: grow fast.
+BACKTRACK = 8
+#: Largest change of any joint (rad) in one step.
+MAX_STEP = 0.05
+#: Hinge rows switch on this far inside their limit (torque: × the allowed share; ZMP: this
+#: much (m) more than the margin), so that the solve converges from inside and stops there.
+INNER = 0.97
+ZMP_INNER = 0.003
+INNER_VELOCITY = 0.99
+#: Scale of a ZMP row (m) and of a contact row (m): the residual in these units is comparable to
+#: a torque ratio.
+ZMP_SCALE = 0.01
+CONTACT_SCALE = 0.001
+#: Contacts closer than this (m) are rows on a watched sample; the contact model reports up to
+#: twice it.
+CLEARANCE = 0.002
+#: How far (s) on each side of a violating sample the trajectory may change.
+REACH_S = 0.5
+
+
+@dataclass(frozen=True)
+class DynamicsLimits:
+    """What the exported array must honour: `torque_fraction` of each effort limit and `zmp_margin`
+    (m) inside the standing robot's feet."""
+
+    torque_fraction: float = 0.9
+    zmp_margin: float = 0.02
+
+    @classmethod
+    def from_config(cls, cfg: Any) -> "DynamicsLimits | None":
+        """From an `IKConfig`; None when `dynamics_limits` is off."""
+        if not cfg.dynamics_limits:
+            return None
+        return cls(float(cfg.torque_limit_fraction), float(cfg.zmp_margin))
+
+
+#: The `ik` section's defaults (`torque_limit_fraction`, `zmp_margin`).
+DEFAULT_LIMITS = DynamicsLimits(IKConfig().torque_limit_fraction, IKConfig().zmp_margin)
+
+
+def _second_difference(t: int, dt: float) -> sp.csr_matrix:
+    """(T,T) the acceleration operator of `dynamics.derivatives`: central second differences / dt²,
+    the end rows copying their neighbours'."""
+    if t < 3:
+        return sp.csr_matrix((t, t))
+    rows = np.repeat(np.arange(1, t - 1), 3)
+    cols = (np.arange(1, t - 1)[:, None] + np.array([-1, 0, 1])).ravel()
+    vals = np.tile([1.0, -2.0, 1.0], t - 2)
+    rows = np.r_[rows, 0, 0, 0, t - 1, t - 1, t - 1]
+    cols = np.r_[cols, 0, 1, 2, t - 3, t - 2, t - 1]
+    vals = np.r_[vals, 1.0, -2.0, 1.0, 1.0, -2.0, 1.0]
+    return sp.csr_matrix((vals / dt**2, (rows, cols)), shape=(t, t))
+
+
+class _Rows:
+    """Triplets of the linearised hinge rows (sparse), their residuals."""
+
+    def __init__(self) -> None:
+        self.r: list[float] = []
+        self.i: list[np.ndarray] = []
+        self.j: list[np.ndarray] = []
+        self.v: list[np.ndarray] = []
+
+    def add(self, residual: float, cols: np.ndarray, vals: np.ndarray) -> None:
+        self.i.append(np.full(len(cols), len(self.r)))
+        self.j.append(cols)
+        self.v.append(vals)
+        self.r.append(residual)
+
+    def matrix(self, n: int) -> tuple[sp.csr_matrix, np.ndarray]:
+        if not self.r:
+            return sp.csr_matrix((0, n)), np.zeros(0)
+        a = sp.csr_matrix((np.concatenate(self.v), (np.concatenate(self.i), np.concatenate(self.j))),
+                          shape=(len(self.r), n))
+        return a, np.array(self.r)
+
+
+class _Problem:
+    """The robot's dynamics and contacts for one control-rate trajectory."""
+
+    def __init__(self, robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits,
+                 box_margin: float, velocity_margin: float) -> None:
+        self.robot, self.q0, self.dt = robot, np.array(q, dtype=np.float64), 1.0 / rate
+        self.limits = limits
+        hands = {j for side in robot.spec.hands for j in robot.hand_joint_names(side)}
+        waist = set(robot.waist_joint_names)
+        names = robot.joint_names
+        self.movable = np.array([i for i, n in enumerate(names) if robot.ik_mask[i] or n in hands])
+        self.weight = np.array([WEIGHTS["waist"] if names[i] in waist else
+                                WEIGHTS["hand"] if names[i] in hands else WEIGHTS["arm"] for i in self.movable])
+        self.dof = dof_adr(robot)
+        self.effort = effort_limits(robot)
+        self.limited = np.isfinite(self.effort)
+        self.lower = robot.lower + box_margin
+        self.upper = robot.upper - box_margin
+        self.vstep = robot.velocity_limits * (1.0 - velocity_margin) * self.dt
+        self.d2 = _second_difference(len(q), self.dt)
+        # the velocity hinge starts INNER_VELOCITY inside the limit, or at the input's own speed
+        # where that is closer (the clamp leaves runs at the limit, and those cost nothing as given)
+        self.vstart = np.maximum(INNER_VELOCITY * self.vstep, np.abs(np.diff(self.q0, axis=0)))
+        self.dyn = mujoco.MjData(robot.model)  # M(q) with the base fixed: the joint block of qM
+        self.fullm = np.zeros((robot.model.nv, robot.model.nv))
+        self.jac = np.zeros((3, robot.model.nv))
+        self.root = robot.model.body(robot.spec.root_body).id
+        self.legs = leg_joints(robot)
+        self.stance = stance_pose(robot)
+        stand = robot.tpose.copy()
+        stand[self.legs] = self.stance[self.legs]
+        self.polygon, self.floor = support_polygon(robot, stand)
+        self.cmodel, self.counted = collision_model(robot, margin=2 * CLEARANCE)
+        self.cdata = mujoco.MjData(self.cmodel)
+        self.jac2 = np.zeros((3, self.cmodel.nv))
+        self.watch: set[int] = set()
+
+    # --- exact evaluation --------------------------------------------------------------------
+
+    def evaluate(self, x: np.ndarray, near: dict[str, np.ndarray] | None = None) -> dict[str, np.ndarray]:
+        """Torques (T,n), ZMP (T,2), the polygon's edge margins (T,E), and the hinge excesses.
+        `near`: the evaluation of a trajectory that differs from x on some samples only; the
+        torques and CoM of the samples whose own values and differences are the same are kept."""
+        if near is None:
+            tau = inverse_dynamics(self.robot, x, self.dt)
+            com = center_of_mass(self.robot, standing_q(self.robot, x))
+        else:
+            moved = np.any(x != near["x"], axis=1)
+            redo = _dilate(moved, 2)  # central differences, and the end rows' copies
+            qd, qdd = derivatives(x, self.dt)
+            tau, com = near["tau"].copy(), near["com"].copy()
+            if redo.any():
+                tau[redo] = inverse_dynamics(self.robot, x[redo], self.dt, qd[redo], qdd[redo])
+            if moved.any():
+                com[moved] = center_of_mass(self.robot, standing_q(self.robot, x[moved]))
+        # `dynamics.zmp`'s cart-table ZMP, its support polygon computed once
+        _, cdd = derivatives(com, self.dt)
+        lever = (com[:, 2] - self.floor) / (cdd[:, 2] + GRAVITY)
+        point = com[:, :2] - lever[:, None] * cdd[:, :2]
+        polygon = self.polygon
+        a, b = polygon, np.roll(polygon, -1, axis=0)
+        e = b - a
+        inward = np.stack([-e[:, 1], e[:, 0]], axis=1) / np.linalg.norm(e, axis=1)[:, None]
+        edge = ((point[:, None, :] - a[None]) * inward[None]).sum(-1)  # (T,E)
+        bound = self.limits.torque_fraction * self.effort
+        over_tau = np.where(self.limited, (np.abs(tau) - INNER * bound) / self.effort, 0.0)
+        target = self.limits.zmp_margin + ZMP_INNER
+        over_zmp = (target - edge) / ZMP_SCALE
+        step = np.abs(np.diff(x, axis=0))
+        over_vel = (step - self.vstart) / self.vstep
+        return {"x": x, "com": com, "lever": lever, "tau": tau, "point": point, "inward": inward, "corner": a, "edge": edge,
+                "over_tau": over_tau, "over_zmp": over_zmp, "over_vel": over_vel, "target": target}
+
+    def violating(self, ev: dict[str, np.ndarray]) -> np.ndarray:
+        """(T,) bool: samples past the limits themselves (not only past the hinges' inner start)."""
+        bound = self.limits.torque_fraction * self.effort
+        tau = ((np.abs(ev["tau"]) > bound) & self.limited).any(1)
+        zmp_ = (ev["edge"] < self.limits.zmp_margin).any(1)
+        vel = np.zeros(len(tau), dtype=bool)
+        v = (np.abs(np.diff(ev["x"], axis=0)) > self.vstep * (1.0 + 1e-9)).any(1)
+        vel[1:] |= v
+        vel[:-1] |= v
+        return tau | zmp_ | vel
+
+    def cost(self, x: np.ndarray, ev: dict[str, np.ndarray]) -> float:
+        d = x - self.q0
+        hinge = sum(float((np.maximum(ev[k], 0.0) ** 2).sum()) for k in ("over_tau", "over_zmp", "over_vel"))
+        s = d[2:] - 2.0 * d[1:-1] + d[:-2]
+        return 0.5 * (W_HINGE * hinge + float((self.weight * d[:, self.movable] ** 2).sum())
+                      + W_SMOOTH * float((s[:, self.movable] ** 2).sum()))
+
+    def watch_near(self, x: np.ndarray, free: np.ndarray) -> None:
+        """Watch (contact rows) the free samples with a counted contact closer than 2 × CLEARANCE."""
+        m, d = self.cmodel, self.cdata
+        for t in np.flatnonzero(free):
+            if t in self.watch:
+                continue
+            d.qpos[:] = m.qpos0
+            d.qpos[self.robot.qpos_adr] = x[t]
+            mujoco.mj_kinematics(m, d)
+            mujoco.mj_collision(m, d)
+            geom = d.contact.geom[: d.ncon]
+            if d.ncon and self.counted[geom[:, 0], geom[:, 1]].any():
+                self.watch.add(int(t))
+
+    # --- linearisation --------------------------------------------------------------------------
+
+    def _mass(self, qt: np.ndarray) -> np.ndarray:
+        d, m = self.dyn, self.robot.model
+        d.qpos[:] = self.robot.qpos(qt)
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_crb(m, d)
+        mujoco.mj_fullM(m, d, self.fullm)
+        return self.fullm[np.ix_(self.dof, self.dof[self.movable])]
+
+    def _com_jacobian(self, qt: np.ndarray) -> np.ndarray:
+        d, m = self.dyn, self.robot.model
+        q = qt.copy()
+        q[self.legs] = self.stance[self.legs]
+        d.qpos[:] = self.robot.qpos(q)
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_jacSubtreeCom(m, d, self.jac, self.root)
+        return self.jac[:, self.dof[self.movable]].copy()
+
+    def contact_rows(self, qt: np.ndarray) -> list[tuple[float, np.ndarray]]:
+        """(distance, a) of each counted contact closer than twice CLEARANCE at sample qt: the
+        distance changes by a·δ_t (movable joints)."""
+        m, d = self.cmodel, self.cdata
+        d.qpos[:] = m.qpos0
+        d.qpos[self.robot.qpos_adr] = qt
+        mujoco.mj_kinematics(m, d)
+        mujoco.mj_comPos(m, d)
+        mujoco.mj_collision(m, d)
+        out = []
+        cols = self.dof[self.movable]
+        for c in d.contact[: d.ncon]:
+            if not self.counted[c.geom[0], c.geom[1]] or c.dist >= 2 * CLEARANCE:
+                continue
+            b1, b2 = m.geom_bodyid[c.geom[0]], m.geom_bodyid[c.geom[1]]
+            mujoco.mj_jac(m, d, self.jac2, None, c.pos, b1)
+            jac1 = self.jac2[:, cols].copy()
+            mujoco.mj_jac(m, d, self.jac2, None, c.pos, b2)
+            out.append((float(c.dist), c.frame[:3] @ (self.jac2[:, cols] - jac1)))
+        return out
+
+    def rows(self, x: np.ndarray, ev: dict[str, np.ndarray], free: np.ndarray) -> _Rows:
+        """The active hinge rows at x, over the free samples' movable joints (column
+        index·n_movable + k for the index-th free sample)."""
+        nm = len(self.movable)
+        col = np.full(len(x), -1)
+        col[free] = np.arange(int(free.sum()))
+        out = _Rows()
+        d2 = self.d2
+
+        def place(s: np.ndarray, vals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            """Columns and values of per-sample row pieces vals (len(s), nm) at samples s."""
+            keep = col[s] >= 0
+            c = (col[s[keep]][:, None] * nm + np.arange(nm)[None]).ravel()
+            return c, vals[keep].ravel()
+
+        tt, jj = np.nonzero(ev["over_tau"] > 0)
+        for t in np.unique(tt):
+            s = d2.indices[d2.indptr[t]: d2.indptr[t + 1]]
+            w = d2.data[d2.indptr[t]: d2.indptr[t + 1]]
+            if not (col[s] >= 0).any():
+                continue
+            mass = self._mass(x[t])
+            for j in jj[tt == t]:
+                sign = np.sign(ev["tau"][t, j]) / self.effort[j]
+                c, v = place(s, w[:, None] * mass[j][None] * sign)
+                out.add(float(ev["over_tau"][t, j]), c, v)
+        tz, ez = np.nonzero(ev["over_zmp"] > 0)
+        if len(tz):
+            need = np.unique(np.concatenate([d2.indices[d2.indptr[t]: d2.indptr[t + 1]] for t in tz] + [tz]))
+            jac = {int(s): self._com_jacobian(x[s]) for s in need}
+            for t in np.unique(tz):
+                s = d2.indices[d2.indptr[t]: d2.indptr[t + 1]]
+                w = d2.data[d2.indptr[t]: d2.indptr[t + 1]]
+                k = ev["lever"][t]
+                for e in ez[tz == t]:
+                    n = ev["inward"][e]
+                    pieces = np.stack([k * wi * (n @ jac[int(si)][:2]) for si, wi in zip(s, w)])
+                    pieces[s == t] -= n @ jac[int(t)][:2]
+                    c, v = place(s, pieces / ZMP_SCALE)
+                    out.add(float(ev["over_zmp"][t, e]), c, v)
+        tv, jv = np.nonzero(ev["over_vel"] > 0)
+        for t, j in zip(tv, jv):
+            k = np.flatnonzero(self.movable == j)
+            if not len(k):
+                continue
+            sign = np.sign(x[t + 1, j] - x[t, j]) / self.vstep[j]
+            cols, vals = [], []
+            for s, w in ((t + 1, sign), (t, -sign)):
+                if col[s] >= 0:
+                    cols.append(col[s] * nm + k[0])
+                    vals.append(w)
+            if cols:
+                out.add(float(ev["over_vel"][t, j]), np.array(cols), np.array(vals))
+        for t in sorted(self.watch):
+            if col[t] < 0:
+                continue
+            for dist, a in self.contact_rows(x[t]):
+                if dist < CLEARANCE:
+                    c, v = place(np.array([t]), (-a / CONTACT_SCALE)[None])
+                    out.add((CLEARANCE - dist) / CONTACT_SCALE, c, v)
+        return out
+
+
+def _solve_banded(h: sp.spmatrix, b: np.ndarray) -> np.ndarray:
+    """Solve h x = b for a symmetric positive definite sparse h whose unknowns couple only near
+    the diagonal (sample-major order: rows reach two samples): LAPACK's banded Cholesky."""
+    h = sp.tril(h, format="coo")
+    width = int((h.row - h.col).max(initial=0)) + 1
+    ab = np.zeros((width, h.shape[0]))
+    np.add.at(ab, (h.row - h.col, h.col), h.data)
+    return solveh_banded(ab, b, lower=True, check_finite=False)
+
+
+def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
+    out = mask.copy()
+    for k in range(1, pad + 1):
+        out[k:] |= mask[:-k]
+        out[:-k] |= mask[k:]
+    return out
+
+
+def enforce_dynamics(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, *,
+                     box_margin: float = 0.0, velocity_margin: float = 0.0,
+                     touching: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+    """q (T,n) at `rate` Hz moved (least weighted, smooth change) until the inverse-dynamics torque
+    of every sample is within `limits.torque_fraction` of its effort limit and the standing
+    robot's ZMP `limits.zmp_margin` inside its feet, inside the joint box (shrunk by
+    `box_margin`) and the velocity limits (× (1 − velocity_margin)), with no sample it moved
+    touching in MuJoCo; and whether every limit holds. An input already inside comes back as is.
+    `touching` (T,) bool: samples of q MuJoCo finds touching (left to the caller's verdict)."""
+    q = np.array(q, dtype=np.float64)
+    if len(q) < 3:
+        return q, True
+    with threadpool_limits(limits=1, user_api="blas"):  # banded solves of ~100-wide bands
+        return _enforce(robot, q, rate, limits, box_margin, velocity_margin, touching)
+
+
+def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, box_margin: float,
+             velocity_margin: float, touching: np.ndarray | None) -> tuple[np.ndarray, bool]:
+    """`enforce_dynamics`' solve."""
+    prob = _Problem(robot, q, rate, limits, box_margin, velocity_margin)
+    x = q.copy()
+    ev = prob.evaluate(x)
+    bad = prob.violating(ev)
+    if not bad.any():
+        return q, True
+    reach = max(1, int(round(REACH_S * rate)))
+    free = _dilate(bad, reach)
+    nm = len(prob.movable)
+    cost = prob.cost(x, ev)
+    prior = np.zeros(len(q), dtype=bool) if touching is None else np.asarray(touching, dtype=bool)
+    prob.watch_near(x, free)
+    start = 1.0
+    n = len(q)  # Δ² of the correction over the whole sequence: the held samples' is 0
+    smooth = sp.diags([np.ones(n - 2), -2 * np.ones(n - 2), np.ones(n - 2)], [0, 1, 2], shape=(n - 2, n)).tocsc()
+    for _ in range(ITERATIONS):
+        rows = prob.rows(x, ev, free)
+        a, r = rows.matrix(int(free.sum()) * nm)
+        if not len(r):
+            break
+        idx = np.flatnonzero(free)
+        d = (x - q)[idx][:, prob.movable]
+        w = np.tile(prob.weight, len(idx))
+        nf = len(idx)
+        ss = sp.kron(smooth[:, idx].T @ smooth[:, idx], sp.eye(nm)) * W_SMOOTH
+        h = W_HINGE * (a.T @ a) + sp.diags(w + 1e-9) + ss
+        g = W_HINGE * (a.T @ r) + w * d.ravel() + ss @ d.ravel()
+        direction = _solve_banded(h, -g).reshape(nf, nm)
+        direction *= min(1.0, MAX_STEP / max(float(np.abs(direction).max()), 1e-12))
+        accepted, scale = False, start
+        for _try in range(BACKTRACK):
+            trial = x.copy()
+            trial[np.ix_(idx, prob.movable)] = np.clip(trial[idx][:, prob.movable] + scale * direction,
+                                                       prob.lower[prob.movable], prob.upper[prob.movable])
+            ev_t = prob.evaluate(trial, ev)
+            c_t = prob.cost(trial, ev_t)
+            log.debug("trial scale %.3g cost %.6g -> %.6g", scale, cost, c_t)
+            if c_t < cost:
+                # MuJoCo's verdict on what moved: a step that pushes a sample into a contact is
+                # no step (the correction is never paid for with a contact)
+                changed = np.flatnonzero(np.abs(trial - x).max(1) > 0)
+                hits = (self_collision_contacts(robot, trial[changed]) > 0) & ~prior[changed]
+                if not hits.any():
+                    accepted = True
+                    start = min(1.0, 2.0 * scale)  # the next direction starts near this one's length
+                    break
+                log.debug("trial touches at %s", changed[hits][:8])
+                prob.watch.update(int(t) for t in changed[hits])  # their contacts are rows now
+            scale *= 0.5
+        if not accepted:
+            break
+        x, ev, cost = trial, ev_t, c_t
+        log.debug("rows %d cost %.4g free %d", len(r), cost, int(free.sum()))
+        if not prob.violating(ev).any():
+            break
+        grown = free | _dilate(prob.violating(ev), reach)
+        if (grown != free).any():
+            prob.watch_near(x, grown & ~free)
+        free = grown
+    if velocity_violations(x, robot.velocity_limits * (1.0 - velocity_margin), rate):
+        clamped = clamp_velocity(x, robot.velocity_limits * (1.0 - velocity_margin), rate)
+        changed = np.flatnonzero(np.abs(clamped - x).max(1) > 0)
+        if ((self_collision_contacts(robot, clamped[changed]) > 0) & ~prior[changed]).any():
+            return q, False  # never a contact for a torque: the input, whose verdict is the caller's
+        x, ev = clamped, prob.evaluate(clamped)
+    ok = not prob.violating(ev).any()
+    return x, ok

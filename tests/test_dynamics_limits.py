@@ -1,0 +1,101 @@
+"""The control-rate dynamics limits: a trajectory over a motor's effort limit or out of the feet's
+support polygon is repaired by the solve, a feasible one is left as it is, and validation counts
+what is left over (`torque_viol`), which the export refuses."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from embody.config import Config
+from embody.retarget.dynamics_limits import DynamicsLimits, enforce_dynamics
+from embody.retarget.limits import limit_violations, velocity_violations
+from embody.retarget.validation import validation_counts
+from embody.robot import load_robot
+from embody.robot.contacts import self_collision_contacts
+from embody.robot.dynamics import effort_limits, inverse_dynamics, zmp
+from embody.verdicts import export_valid, violations
+
+RATE = 50.0
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot(Config().robot)
+
+
+def _planted(robot) -> np.ndarray:
+    """Arms at the T-pose; the left shoulder pitch reverses at its full speed for a few samples
+    (within the velocity limit): the hand's reaction loads the wrist pitch far past its 5 N·m."""
+    t = 120
+    q = np.tile(robot.tpose, (t, 1))
+    j = robot.joint_index("left_shoulder_pitch_joint")
+    step = 0.98 * robot.velocity_limits[j] / RATE
+    zig = np.zeros(t)
+    for k in range(60, 66):
+        zig[k] = zig[k - 1] + (step if k % 2 else -step)
+    zig[66:] = zig[65]
+    q[:, j] += zig
+    return q
+
+
+def test_wrist_over_its_effort_limit_is_repaired(robot):
+    q = _planted(robot)
+    limit = effort_limits(robot)
+    wrist = robot.joint_index("left_wrist_pitch_joint")
+    before = np.abs(inverse_dynamics(robot, q, 1 / RATE)) / limit
+    assert before[:, wrist].max() > 1.2  # the plant really asks the wrist for more than it has
+    assert validation_counts(robot, q, RATE)["torque_viol"] > 0
+    limits = DynamicsLimits(torque_fraction=0.9, zmp_margin=0.02)
+    out, ok = enforce_dynamics(robot, q, RATE, limits)
+    ratio = np.abs(inverse_dynamics(robot, out, 1 / RATE)) / limit
+    assert ok
+    assert ratio.max() <= 0.9 + 1e-6  # every joint, fingers included, within the margin
+    _, _, margin = zmp(robot, out, 1 / RATE)
+    assert margin.min() >= 0.02 - 1e-6
+    assert velocity_violations(out, robot.velocity_limits, RATE) == 0
+    assert limit_violations(out, robot.lower, robot.upper) == 0
+    assert (self_collision_contacts(robot, out) == 0).all()
+    counts = validation_counts(robot, out, RATE)
+    assert counts["torque_viol"] == 0 and export_valid(counts)
+    # the correction is local: samples over a second from the reversal are untouched
+    assert np.abs(out[:10] - q[:10]).max() == 0.0 and np.abs(out[-10:] - q[-10:]).max() == 0.0
+    assert np.abs(out - q).max() < np.radians(30)
+
+
+def test_feasible_motion_is_unchanged(robot):
+    t = np.arange(100) / RATE
+    q = np.tile(robot.tpose, (len(t), 1))
+    for name in ("left_shoulder_pitch_joint", "right_elbow_joint", "left_wrist_pitch_joint"):
+        q[:, robot.joint_index(name)] += 0.2 * np.sin(2 * np.pi * 0.5 * t)
+    ratio = np.abs(inverse_dynamics(robot, q, 1 / RATE)) / effort_limits(robot)
+    assert ratio.max() < 0.9
+    assert zmp(robot, q, 1 / RATE)[2].min() > 0.02
+    out, ok = enforce_dynamics(robot, q, RATE, DynamicsLimits())
+    assert ok
+    assert np.abs(out - q).max() <= 1e-12
+
+
+def test_zmp_out_of_the_feet_is_brought_back(robot):
+    """Both arms swung forward and back together at speed: the upper body's reaction throws the
+    cart-table ZMP out of the feet; the solve brings it 20 mm inside."""
+    t = np.arange(80) / RATE
+    q = np.tile(robot.tpose, (len(t), 1))
+    for name in ("left_shoulder_pitch_joint", "right_shoulder_pitch_joint"):
+        j = robot.joint_index(name)
+        q[:, j] += 0.9 * robot.velocity_limits[j] / (2 * np.pi * 2.0) * np.sin(2 * np.pi * 2.0 * t)
+    _, _, before = zmp(robot, q, 1 / RATE)
+    assert before.min() < 0.0
+    out, ok = enforce_dynamics(robot, q, RATE, DynamicsLimits(zmp_margin=0.02))
+    _, _, after = zmp(robot, out, 1 / RATE)
+    assert ok
+    assert after.min() >= 0.02 - 1e-6
+    assert velocity_violations(out, robot.velocity_limits, RATE) == 0
+
+
+def test_export_refuses_torque_violations():
+    counters = {"joint_limit_violations": 0, "velocity_violations": 0, "self_collision_frames": 0,
+                "torque_viol": 3}
+    assert not export_valid(counters)
+    assert violations(counters) == {"torque_viol": 3}
+    assert not export_valid({k: v for k, v in counters.items() if k != "torque_viol"})  # unmeasured
