@@ -23,7 +23,7 @@ def _traj(sid: str) -> Trajectory:
     q[:, elbows] = (0.5 - 0.5 * np.cos(np.linspace(0, np.pi, 40)))[:, None] * np.array([0.2, 0.3])
     return Trajectory(id=sid, robot="unitree_g1_dex3", joint_names=NAMES, q=q, dt=0.02,
                       validation={"joint_limit_violations": 0, "velocity_violations": 0,
-                                  "self_collision_frames": 0})
+                                  "self_collision_frames": 0, "torque_viol": 0})
 
 
 def _rewrite(path, **arrays) -> None:

@@ -107,7 +107,7 @@ def test_actuation_must_cover_every_joint(tmp_path):
 
 def _seq(status="ok", physics=None, valid=True):
     metrics = {"metrics": {"joint_limit_violations": 0, "velocity_violations": 0,
-                           "self_collision_frames": 0 if valid else 2}}
+                           "self_collision_frames": 0 if valid else 2, "torque_viol": 0}}
     if physics is not None:
         metrics["physics"] = physics
     return {"status": status, "metrics": metrics}
