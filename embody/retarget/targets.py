@@ -44,6 +44,7 @@ from embody.body.base import BodyModel
 from embody.body.landmarks import LandmarkSet, body_landmarks
 from embody.config.ik import IKConfig
 from embody.motion import Motion
+from embody.retarget.finger_clearance import clear_fingers
 from embody.retarget.hands import fold_thumbs, rate_limit, retarget_hands
 from embody.retarget.shape_fit import ShapeFit
 from embody.robot import Robot
@@ -354,6 +355,9 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
         # a palm laid on the body: the robot thumb lies down too (`hands.fold_thumbs`)
         human = _human(motion, body)
         hand_q = fold_thumbs(hand_q, hand_joints, robot, palm_rest(motion, body, robot, cfg, human))
+    if cfg is not None and cfg.hand_self_clearance and hand_joints:
+        # a handshape the hand can take: fingers stop where they meet (`finger_clearance`)
+        hand_q = clear_fingers(robot, hand_q, hand_joints)
     if cfg is not None and cfg.hand_rate_limit and hand_joints:
         # fingers the robot can follow: the IK places the arms around the fingers it will get
         hand_q = rate_limit(hand_q, robot.velocity_limits[[robot.joint_index(n) for n in hand_joints]]
