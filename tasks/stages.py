@@ -375,7 +375,10 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 # v16: the contact phase's proxy rows at the samples packed per frame (`Residuals._sample_rows`)
 #      and its proxy block cut to the proxy frames' width (`Residuals._exact_rows`): the same
 #      Gauss-Newton blocks to round-off, solutions within ~6e-13 rad (s13-ikevals).
-RETARGET = Step("retarget", "16", ("body", "robot", "ik"), _retarget, _ik_solution,
+# v17: fingers of one hand count as self-collision (the robot YAML's explicit `ignore_pairs`, no
+#      wrist subtree left out): finger targets kept apart (`finger_clearance`, `ik.hand_self_clearance`),
+#      the contact repair and the verdict on same-hand pairs too (s18-fingers).
+RETARGET = Step("retarget", "17", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # v4: the chosen round's control-rate array (`final_q_control`), reused by `metrics`.
 # v5: each round's robot wrist positions (`wrist_pos`), reused by `metrics`' report tracks.
@@ -395,7 +398,8 @@ RETARGET = Step("retarget", "16", ("body", "robot", "ik"), _retarget, _ik_soluti
 # v18: the contact phase's narrower proxy blocks (retarget v16) in every round's solve.
 # v19: the critic's sheets draw the reference as the render step does (render v4's bound skin),
 #      not from skinned vertices: the same picture up to edge pixels.
-REFINE = Step("refine", "19", ("body", "robot", "ik", "render", "critic"), _refine,
+# v20: retarget v17's same-hand finger collisions in every round's solve.
+REFINE = Step("refine", "20", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # v2: previews at the source frame rate, 480 px high; sheets supersampled.
@@ -414,9 +418,10 @@ RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _rend
 # v9: the human contacts measured relative to the pelvis (`embodiments.rootless_transforms`, shared
 #     with the targets' hand gaps, s15-speed): the same on the synthetic set (no root motion), within
 #     ~1e-7 m where the root moves (the body's float32 rest shape).
-METRICS = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+# v10: validation counts same-hand finger contacts (retarget v17).
+METRICS = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "9", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 
