@@ -55,7 +55,7 @@ class FingerClearance:
         self.dof = m.jnt_dofadr[[m.joint(n).id for n in robot.joint_names]]
 
     @staticmethod
-    def _tables(robot: Robot, clearance: float):
+    def _tables(robot: Robot, clearance: float) -> tuple[list[tuple[mujoco.MjModel, np.ndarray]], np.ndarray]:
         """Per hand, a model in which only that hand's counted pairs collide (margin clearance +
         `WATCH`) and its finger joints (indices into the robot's joints); the counted table."""
         counted = counted_geom_pairs(robot)
