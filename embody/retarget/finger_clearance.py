@@ -35,7 +35,7 @@ ITERATIONS = 40
 #: comes back to it (the joint term pulls the fingers towards the target until they meet).
 WATCH = 0.01
 #: A frame's solve ends at an accepted step smaller than this (rad) on every joint.
-STEP = 1e-4
+STEP = 1e-3
 
 
 class FingerClearance:
@@ -106,15 +106,18 @@ class FingerClearance:
         rates = rates * (short > 0)[:, None]
         return float(((q[cols] - target) ** 2).sum() + WEIGHT * (short**2).sum()), short, rates
 
-    def solve_frame(self, hand: int, q: np.ndarray) -> np.ndarray:
-        """q (n,) with hand `hand`'s finger joints moved the least that clears its pairs."""
+    def solve_frame(self, hand: int, q: np.ndarray) -> np.ndarray | None:
+        """q (n,) with hand `hand`'s finger joints moved the least that clears its pairs, or None
+        when they are clear as they are. Each frame starts from its own target (starting from
+        the previous frame's solution halves MuJoCo's calls but stops farther from the target:
+        mean finger change 0.038 → 0.059 rad on synth seq 0)."""
         cols = self.hands[hand][2]
         q = q.copy()
         target = q[cols].copy()
         lo, hi = self.robot.lower[cols], self.robot.upper[cols]
         cost, short, rates = self._cost(hand, q, target)
         if not short.any():
-            return q
+            return None
         lam = 1e-3
         for _ in range(ITERATIONS):
             h = np.eye(len(cols)) + WEIGHT * rates.T @ rates
@@ -146,9 +149,11 @@ class FingerClearance:
         for hand, (_, _, cols) in enumerate(self.hands):
             if not all(j in where for j in cols):
                 continue  # a hand retargeted only in part keeps its targets
+            slots = [where[j] for j in cols]
             for t in range(len(out)):
                 qt = self.solve_frame(hand, q[t])
-                out[t, [where[j] for j in cols]] = qt[cols]
+                if qt is not None:
+                    out[t, slots] = qt[cols]
         return out
 
 
