@@ -389,7 +389,8 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
                  shared=True, files=_robot_files)
 # The whole-sequence IK solution on location-preserving targets (contact phase on MuJoCo's contacts,
 # the 50 Hz control-rate array repaired at every sample and held inside the motors' effort limits
-# and the standing robot's ZMP margin), with its validation counts.
+# and the standing robot's ZMP margin; finger targets clear of each other), with its validation
+# counts.
 RETARGET = Step("retarget", "18", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # Every critic round's IK solution, action and comparison sheet; the chosen round's control-rate

@@ -70,7 +70,9 @@ def test_a_palm_on_the_opposite_shoulder_folds_the_robot_thumb_only_there(setup)
     hold = slice(a + (b - a) // 3, b - (b - a) // 3)
     c = names.index("right_hand_thumb_1_joint")
     lower = robot.lower[robot.joint_index("right_hand_thumb_1_joint")]
-    assert np.all(targets.hand_q[hold, c] < 0.9 * lower)  # near its closed limit
+    # near its closed limit: as far as the palm's collision geometry lets it fold (the thumb tip
+    # stops 2 mm off the palm's hull at ~0.89 of the limit, `finger_clearance`)
+    assert np.all(targets.hand_q[hold, c] < 0.8 * lower)
     assert np.all(mapped[hold, c] > 0.2 * lower)  # the human's flat thumb: barely flexed
     left = [i for i, n in enumerate(names) if n.startswith("left_")]
     np.testing.assert_array_equal(targets.hand_q[:, left], mapped[:, left])

@@ -66,7 +66,9 @@ def test_collision_bitmasks_pass_exactly_the_counted_pairs(robot):
         model, counted = collision_model(robot, 0.002, movable_only=movable_only)
         ct, ca = model.geom_contype.astype(np.int64), model.geom_conaffinity.astype(np.int64)
         passes = ((ct[:, None] & ca[None]) | (ca[:, None] & ct[None])) != 0
-        passes &= model.geom_bodyid[:, None] != model.geom_bodyid[None]  # MuJoCo skips one body's geoms
+        b, parent = model.geom_bodyid, model.body_parentid
+        passes &= b[:, None] != b[None]  # MuJoCo skips one body's geoms,
+        passes &= (parent[b][:, None] != b[None]) & (parent[b][None] != b[:, None])  # and a parent's with its child's
         assert np.array_equal(passes, counted)
     body = np.array([0, 0, 1, 2])
     pairs = np.zeros((4, 4), bool)

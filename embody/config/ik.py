@@ -187,6 +187,9 @@ class IKConfig(Section):
     #: jittering human hand otherwise flips the thumb faster than it can move, the clamp rewrites
     #: it after the solve and the contact repair untangles what it then touches.
     hand_rate_limit: bool = True
+    #: Keep each hand's fingers out of each other and out of their palm (`finger_clearance`):
+    #: a handshape that would need them through each other is met as closely as the hand allows.
+    hand_self_clearance: bool = True
     #: Clamp per-step joint changes to the velocity limits at the trajectory's fps.
     enforce_velocity_limits: bool = True
     #: Remove what MuJoCo still finds penetrating after the solve (the proxies leak between

@@ -44,6 +44,7 @@ from embody.body.base import BodyModel
 from embody.body.landmarks import LandmarkSet, body_landmarks
 from embody.config.ik import IKConfig
 from embody.motion import Motion
+from embody.retarget.finger_clearance import clear_fingers
 from embody.retarget.hands import fold_thumbs, rate_limit, retarget_hands
 from embody.retarget.shape_fit import ShapeFit
 from embody.robot import Robot
@@ -323,6 +324,11 @@ def hand_gaps(motion: Motion, body: BodyModel, robot: Robot, cfg: IKConfig,
     return np.where(gap > cfg.hand_contact_eps, np.minimum(rho * gap, cap), 0.0)
 
 
+#: Rounds of finger rate limit then finger clearance (`build_targets`): each round's clearance
+#: moves fewer frames, by less, so the next limit brings fewer back into contact.
+RATE_CLEAR_ROUNDS = 3
+
+
 def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
                   cfg: IKConfig | None = None) -> Targets:
     """Targets for every frame of `motion` (its hands must be absolute, as `Motion` guarantees).
@@ -354,10 +360,20 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
         # a palm laid on the body: the robot thumb lies down too (`hands.fold_thumbs`)
         human = _human(motion, body)
         hand_q = fold_thumbs(hand_q, hand_joints, robot, palm_rest(motion, body, robot, cfg, human))
+    clearance = cfg is not None and cfg.hand_self_clearance and bool(hand_joints)
+    if clearance:
+        # a handshape the hand can take: fingers stop where they meet (`finger_clearance`)
+        hand_q = clear_fingers(robot, hand_q, hand_joints)
     if cfg is not None and cfg.hand_rate_limit and hand_joints:
         # fingers the robot can follow: the IK places the arms around the fingers it will get
-        hand_q = rate_limit(hand_q, robot.velocity_limits[[robot.joint_index(n) for n in hand_joints]]
-                            * (1.0 - cfg.velocity_headroom), motion.fps)
+        vmax = robot.velocity_limits[[robot.joint_index(n) for n in hand_joints]] * (1.0 - cfg.velocity_headroom)
+        for _ in range(RATE_CLEAR_ROUNDS if clearance else 1):
+            hand_q = rate_limit(hand_q, vmax, motion.fps)
+            if clearance:
+                # a finger slowed down on its way past another passes through it (synth seqs 0/5:
+                # 15-18 frames up to 18 mm, which the contact repair then pushed apart at the
+                # velocity limit, 5-10x the solve time): clear those frames, limit again
+                hand_q = clear_fingers(robot, hand_q, hand_joints)
     if preserving:
         anchored = anchored_targets(motion, body, fit, robot, wrist_rot, torso_rot, hand_q, hand_joints, cfg,
                                     human)

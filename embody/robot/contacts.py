@@ -3,8 +3,9 @@
 The sphere proxies steer the optimiser; this is the exact check. For every frame the root sits
 at its default pose, `mj_kinematics` + `mj_collision` run (positions only: no dynamics needed),
 and we count penetrating contacts (dist < 0) between collision geoms of non-adjacent bodies,
-skipping contacts inside one `ignore_subtrees` subtree (fingers closing on their own palm are by
-design) and the robot's documented structural `ignore_pairs`.
+skipping only the robot's documented `ignore_pairs` (each with its kind and reason, checked at
+load by `embody.robot.exclusions`): fingers of one hand against each other and against their
+palm count like any other pair.
 """
 
 from __future__ import annotations
@@ -40,10 +41,8 @@ def counted_geom_pairs(robot: Robot) -> np.ndarray:
     parent = model.body_parentid
     b1, b2 = body[g][:, None], body[g][None, :]
     ok = in_group[:, None] & in_group[None, :] & (b1 != b2) & (parent[b1] != b2) & (parent[b2] != b1)
-    for root in robot.spec.collision.ignore_subtrees:
-        inside = np.isin(body, list(subtree_ids(model, root)))
-        ok &= ~(inside[:, None] & inside[None, :])
-    for a, b in robot.spec.collision.ignore_pairs:
+    for pair in robot.spec.collision.ignore_pairs:
+        a, b = pair.bodies
         ia, ib = body == model.body(a).id, body == model.body(b).id
         ok &= ~((ia[:, None] & ib[None, :]) | (ib[:, None] & ia[None, :]))
     return ok
@@ -54,10 +53,10 @@ def collision_model(robot: Robot, margin: float = 0.0,
     """A copy of the robot's model whose `mj_collision` reports the counted pairs' contacts and
     (almost) nothing else, and the (ngeom, ngeom) table of those pairs; cached on the robot.
 
-    Geoms in no counted pair get no collision bits, and geoms inside one `ignore_subtrees`
-    subtree (a hand's palm and fingers) never reach the narrow phase together: the same counted
-    contacts as `robot.model`, for ~2/3 of its collision time on G1 (the verdict, the repair
-    and the IK's polish run it per frame). `margin`: every used geom's margin (contacts closer
+    Geoms in no counted pair get no collision bits, and (`pair_bits`) geoms of bodies that are in
+    no counted pair together never reach the narrow phase: the same counted contacts as
+    `robot.model`, for less of its collision time (the verdict, the repair and the IK's polish
+    run it per frame). `margin`: every used geom's margin (contacts closer
     than it are reported, dist ≥ 0 included). `movable_only`: only pairs whose relative pose
     the IK joints change (the IK's exact-contact rows; the verdict needs every counted pair)."""
     key = ("collision_model", float(margin), bool(movable_only))
@@ -77,14 +76,10 @@ def collision_model(robot: Robot, margin: float = 0.0,
     used = counted.any(1)
     if (contype[used] == 1).all() and (conaff[used] == 1).all():  # else keep the model's own bits
         exact = pair_bits(model.geom_bodyid, counted)
+        if exact is None:
+            exact = exclusion_bits(model, counted)
         if exact is not None:
             contype, conaff = exact
-        else:
-            bits = np.ones(model.ngeom, dtype=np.int64)
-            for k, root in enumerate(robot.spec.collision.ignore_subtrees[:30]):
-                bits[np.isin(model.geom_bodyid, list(subtree_ids(model, root)))] = 2 << k
-            every = int(np.bitwise_or.reduce(np.unique(bits)))
-            contype, conaff = bits, np.where(bits == 1, every, every & ~bits)
     model.geom_contype[:] = np.where(used, contype, 0)
     model.geom_conaffinity[:] = np.where(used, conaff, 0)
     model.geom_margin[used] = margin
@@ -118,6 +113,42 @@ def pair_bits(geom_body: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.
     affinity = np.array([np.bitwise_or.reduce(bit[row], initial=0) for row in rel], dtype=np.int64)
     contype, conaff = np.zeros(len(geom_body), np.int64), np.zeros(len(geom_body), np.int64)
     contype[g], conaff[g] = bit[idx[g]], affinity[idx[g]]
+    return contype, conaff
+
+
+def exclusion_bits(model: mujoco.MjModel, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """contype/conaffinity bits (ngeom,) under which MuJoCo (its bitmask filter, plus its own
+    skipping of one body's geoms and of a parent's with its child's) passes exactly `pairs`
+    among the geoms in some pair, or None when `pairs` is not "every pair of used geoms but a few
+    body pairs X" with the bodies of X fitting in 30 bits. Bodies in no pair of X get bit 0 in
+    contype and every bit in conaffinity; each body s in X gets a bit of its own b_s, contype b_s
+    and conaffinity bit 0 plus the bits of the X bodies it may meet. Why: `pair_bits` needs one
+    bit per distinct row of the body relation, and with the fingers of a hand counted (each
+    finger meets its own set of bodies) G1's verdict has 42, past MuJoCo's 31 bits."""
+    g = np.flatnonzero(pairs.any(1))
+    body, parent = model.geom_bodyid, model.body_parentid
+    b1, b2 = body[g][:, None], body[g][None, :]
+    skipped = (b1 == b2) | (parent[b1] == b2) | (parent[b2] == b1)  # MuJoCo's own filters
+    left_out = ~pairs[np.ix_(g, g)] & ~skipped  # geom pairs the bits must stop
+    xa, xb = np.nonzero(left_out)
+    x = {(int(body[g][i]), int(body[g][j])) for i, j in zip(xa, xb)}
+    members = sorted({b for pair in x for b in pair})
+    if len(members) > 30:
+        return None
+    bit = {b: 1 << (k + 1) for k, b in enumerate(members)}
+    every = (1 << (len(members) + 1)) - 1
+    contype, conaff = np.zeros(model.ngeom, np.int64), np.zeros(model.ngeom, np.int64)
+    for i in g:
+        b = int(body[i])
+        if b in bit:
+            contype[i] = bit[b]
+            conaff[i] = 1 | sum(bit[o] for o in members if (b, o) not in x)
+        else:
+            contype[i], conaff[i] = 1, every
+    ct, ca = contype[g], conaff[g]
+    passes = (((ct[:, None] & ca[None]) | (ca[:, None] & ct[None])) != 0) & ~skipped
+    if not np.array_equal(passes, pairs[np.ix_(g, g)] & ~skipped) or (pairs[np.ix_(g, g)] & skipped).any():
+        return None  # not of that form
     return contype, conaff
 
 

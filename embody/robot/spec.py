@@ -29,11 +29,26 @@ class LinkRef(_Strict):
     offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
+class IgnoredPair(_Strict):
+    """A body pair whose contacts are not self-collision, with why (checked at load,
+    `embody.robot.exclusions`)."""
+
+    bodies: tuple[str, str]
+    #: joint: a joint's two links (parent and child; MuJoCo never reports them);
+    #: always: in contact at every pose of the joints between them (sampled at load);
+    #: structural: a housing grazing its mount, never inside one hand.
+    kind: Literal["joint", "always", "structural"]
+    reason: str = Field(min_length=1)
+    #: Measured penetration (mm) of the pair's collision geoms at rest (range over the sampled
+    #: poses where it varies), for the record.
+    depth_mm: float | tuple[float, float] | None = None
+
+
 class CollisionSpec(_Strict):
     geom_groups: list[int] = [3]
-    ignore_subtrees: list[str] = []
-    #: Body pairs whose contact is structural (a joint housing against its mount).
-    ignore_pairs: list[tuple[str, str]] = []
+    #: Every excluded body pair, each with its kind and reason: nothing else is left out, fingers
+    #: of one hand included.
+    ignore_pairs: list[IgnoredPair] = []
 
 
 class ProxySpec(_Strict):

@@ -1,0 +1,98 @@
+"""Fingers of one hand collide like any other pair: caught by the verdict, kept apart in the
+finger targets and by the repair; the robot YAML may exclude only pairs that touch by construction."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+
+from embody.config import RobotConfig
+from embody.errors import ConfigError
+from embody.retarget.control import separate
+from embody.retarget.finger_clearance import CLEARANCE, FingerClearance, clear_fingers
+from embody.retarget.validation import validation_counts
+from embody.robot import load_robot, robots_dir
+from embody.robot.contacts import contact_pairs, self_collision_contacts
+
+#: Left thumb (thumb_0..2), index (0, 1), middle (0, 1): the thumb tip ~21 mm inside the index
+#: finger on the MJCF's collision geometry (found by sampling the hand's joint range).
+PINCH = np.array([-0.52, 0.70, 0.64, -1.29, -0.65, -1.16, -1.63])
+PAIR = ("left_hand_index_1_link", "left_hand_thumb_2_link")
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return load_robot(RobotConfig(name="unitree_g1_dex3"))
+
+
+def _pose(robot, hand: np.ndarray) -> np.ndarray:
+    q = robot.rest.copy()
+    q[[robot.joint_index(n) for n in robot.hand_joint_names("left")]] = hand
+    return q
+
+
+def _closest(robot, q: np.ndarray) -> float:
+    """Signed distance (m) of the left hand's closest counted pair within 5 cm at q (MuJoCo)."""
+    fc = FingerClearance(robot, clearance=0.05)
+    dist, _ = fc._contacts(0, q)
+    return float(dist.min(initial=np.inf))
+
+
+def test_thumb_index_penetration_is_caught(robot):
+    q = _pose(robot, PINCH)[None]
+    assert self_collision_contacts(robot, q)[0] > 0
+    assert set(contact_pairs(robot, q)) == {PAIR}
+    assert validation_counts(robot, q, 30.0)["self_collision_frames"] == 1.0
+
+
+def test_finger_targets_stop_where_the_fingers_meet(robot):
+    names = robot.hand_joint_names("left") + robot.hand_joint_names("right")
+    flat = np.zeros(len(names))
+    hand_q = np.stack([np.r_[PINCH, np.zeros(7)], flat])
+    out = clear_fingers(robot, hand_q, names)
+    q = _pose(robot, out[0, :7])[None]
+    assert self_collision_contacts(robot, q)[0] == 0
+    d = _closest(robot, q[0])
+    assert 0.0 <= d <= CLEARANCE + 1e-3  # met as closely as the hand allows, not pulled far apart
+    assert 0.02 < np.abs(out[0, :7] - PINCH).max() < 0.6
+    np.testing.assert_allclose(out[1], flat, atol=0)  # a clear hand keeps its targets
+
+
+def test_repair_separates_the_fingers(robot):
+    q = np.repeat(_pose(robot, PINCH)[None], 12, axis=0)
+    fixed = separate(robot, q, 30.0)
+    assert (self_collision_contacts(robot, fixed) == 0).all()
+    arms = robot.ik_mask
+    assert np.abs(fixed[:, ~arms] - q[:, ~arms]).max() > 0.01  # the fingers moved
+
+
+def _write_robot(tmp_path, name: str, extra: dict) -> RobotConfig:
+    """The default G1 with one more excluded pair, as robot `name` (robots load once per name)."""
+    spec = yaml.safe_load((robots_dir(RobotConfig()) / "unitree_g1_dex3.yaml").read_text())
+    spec["collision"]["ignore_pairs"].append(extra)
+    (tmp_path / f"{name}.yaml").write_text(yaml.safe_dump(spec))
+    return RobotConfig(name=name, robots_dir=str(tmp_path))
+
+
+def test_exclusion_of_a_pair_not_always_in_contact_is_refused(tmp_path):
+    cfg = _write_robot(tmp_path, "always", {"bodies": list(PAIR), "kind": "always", "reason": "thumb meets index"})
+    with pytest.raises(ConfigError, match=r"collision\.ignore_pairs\.\d+.*not in contact at every pose") as exc:
+        load_robot(cfg)
+    assert "\n" not in str(exc.value)
+
+
+def test_exclusions_inside_a_hand_must_touch_by_construction(tmp_path):
+    cfg = _write_robot(tmp_path, "joint", {"bodies": list(PAIR), "kind": "joint", "reason": "x"})
+    with pytest.raises(ConfigError, match="not a joint's two links"):
+        load_robot(cfg)
+    cfg = _write_robot(tmp_path, "structural", {"bodies": list(PAIR), "kind": "structural", "reason": "x"})
+    with pytest.raises(ConfigError, match="inside one hand"):
+        load_robot(cfg)
+
+
+def test_a_pair_in_contact_at_every_pose_is_accepted(tmp_path):
+    # the thumb's base sits 20 mm inside the palm's hull whatever the thumb does
+    cfg = _write_robot(tmp_path, "base", {"bodies": ["left_wrist_yaw_link", "left_hand_thumb_0_link"],
+                                          "kind": "always", "reason": "thumb base in the palm hull"})
+    assert load_robot(cfg).name == "base"
