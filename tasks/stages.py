@@ -238,7 +238,9 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     rows: dict[str, np.ndarray] = {}
     out: dict[str, Any] = {}
     if cfg.ik.location_preserving and cfg.fidelity.baseline:
-        plain = cfg.ik.model_copy(update={"location_preserving": False})
+        # the plain retargeter the paper compares with: no anchored targets, and its 50 Hz array
+        # not held inside the torque and ZMP limits (that solve is the export's, not a baseline's)
+        plain = cfg.ik.model_copy(update={"location_preserving": False, "dynamics_limits": False})
         plain_targets = _targets(ctx, motion, inputs["shape_fit"], plain, remember=False)
         # nothing anchored: the retarget step already solved this very problem
         same = same_problem(plain_targets, _targets(ctx, motion, inputs["shape_fit"], cfg.ik))
