@@ -389,10 +389,8 @@ COLLIDE = Step("collide", "12", ("body", "collision"), _collide, _collision_resu
 # Betas and scale fitted to the robot's proportions, once per robot and body (shared).
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
-# The whole-sequence IK solution on location-preserving targets (contact phase on MuJoCo's contacts,
-# the 50 Hz control-rate array repaired at every sample and held inside the motors' effort limits
-# and the standing robot's ZMP margin; finger targets clear of each other), with its validation
-# counts.
+# The whole-sequence IK on location-preserving targets; its 50 Hz array clear of contacts and inside
+# the effort limits and ZMP margin (`retarget.control`, `retarget.dynamics_limits`), with its counts.
 RETARGET = Step("retarget", "18", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # Every critic round's IK solution, action and comparison sheet; the chosen round's control-rate
@@ -406,15 +404,14 @@ RENDER = Step("render", "4", ("body", "robot", "render"), _render, _render_resul
 RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
                       files=_robot_files)
-# The exported control-rate array with its validation counts (torque included) and jerk, sign
-# fidelity of the three Table III rows on that array against the mitigated human, and the
-# report's wrist tracks.
+# The exported control-rate array, its validation counts (torque included) and jerk, Table III's
+# sign fidelity on it against the mitigated human, and the report's wrist tracks.
 METRICS = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
 METRICS_REFINED = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
-# v1: fixed-base and standing replay of the exported array with the robot's actuation.
+# The exported array replayed in MuJoCo with the robot's actuation, fixed base and standing.
 PHYSICS = Step("physics", "1", ("body", "robot", "fidelity"), _physics, _physics_result,
                (COLLIDE, METRICS), files=_robot_files)
 PHYSICS_REFINED = Step("physics", "1", ("body", "robot", "fidelity"), _physics, _physics_result,
