@@ -78,6 +78,9 @@ def child(step: str, frames: int) -> dict:
         res = mitigate_windowed(motion, body, cfg.collision)
         cpu, wall = time.process_time() - c0, time.perf_counter() - w0
         extra = {"steps": int(res.metrics.get("steps", 0)),
+                 "polish_steps": int(res.metrics.get("polish_steps", 0)),
+                 "windows": int(res.metrics.get("windows", 1)),
+                 "max_depth_mm_after": round(float(res.metrics.get("max_depth_mm_after", 0)), 2),
                  "energy_before": float(res.frame_energy_before.mean()),
                  "energy_after": float(res.frame_energy_after.mean())}
     else:
