@@ -32,7 +32,7 @@ before/after counts go into the metrics.
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -142,6 +142,23 @@ def mitigate(motion: Motion, body: BodyModel,
         return _mitigate(motion, body, cfg)
 
 
+def nearest_index(points: np.ndarray, frames: np.ndarray) -> np.ndarray:
+    """For each of `frames`, the index into the sorted `points` of the nearest one (the earlier
+    on a tie), by binary search: O((F + P) log P), where a dense |F|×|P| distance matrix took
+    gigabytes on a 20,000-frame sequence."""
+    frames = np.asarray(frames)
+    right = np.clip(np.searchsorted(points, frames), 0, len(points) - 1)
+    left = np.maximum(right - 1, 0)
+    take_left = np.abs(frames - points[left]) <= np.abs(frames - points[right])
+    return np.where(take_left, left, right)
+
+
+def nearest_distance(hits: np.ndarray, t: int) -> np.ndarray:
+    """(t,) distance (frames) from each frame to the nearest of the sorted, non-empty `hits`."""
+    frames = np.arange(t)
+    return np.abs(frames - hits[nearest_index(hits, frames)])
+
+
 def blend_weights(penetrating: np.ndarray, window: int) -> np.ndarray:
     """(T,) weight of the correction per frame: 1 on penetrating frames, falling smoothly
     (C¹ cosine) to exactly 0 at `window` frames from the nearest one and beyond."""
@@ -149,7 +166,7 @@ def blend_weights(penetrating: np.ndarray, window: int) -> np.ndarray:
     hits = np.flatnonzero(penetrating)
     if len(hits) == 0:
         return np.zeros(t)
-    dist = np.abs(np.arange(t)[:, None] - hits[None, :]).min(1).astype(np.float64)
+    dist = nearest_distance(hits, t).astype(np.float64)
     if window <= 0:
         return (dist == 0).astype(np.float64)
     return np.where(dist < window, 0.5 * (1.0 + np.cos(np.pi * dist / window)), 0.0)
@@ -221,23 +238,49 @@ def polish(body: BodyModel, motion: Motion, pose: np.ndarray, idx: np.ndarray,
     """Depth-guided polish: optimise again the frames the mesh judge finds deeper than
     `cfg.depth_polish`, with the every-vertex model (the `contact_stride` subsample can miss a
     fingertip inside the other hand), blended in over `blend_s` so every other frame is `pose`
-    bit for bit. Kept only if the judge then finds those frames shallower. Returns (pose,
-    optimiser steps, per-frame depth of the returned pose)."""
+    bit for bit. Each chunk (`polish_chunks`: runs of blended frames, at most
+    `cfg.window_frames` long unless one run is longer) is optimised alone and kept only if the
+    judge then finds its deep frames shallower and none of its frames deeper than the deepest
+    of `depth`. Why chunks: the runs share no term (frames between them are fixed), and one
+    optimisation over a whole long sequence ran until its last frame cleared, every step over
+    every frame, with the memory of every frame at once. Returns (pose, optimiser steps summed
+    over the kept chunks, per-frame depth of the returned pose)."""
     deep = depth > cfg.depth_polish
     if cfg.depth_polish <= 0 or not deep.any() or not cfg.enabled or cfg.steps == 0:
         return pose, 0, depth
     weight = blend_weights(deep, int(round(cfg.blend_s * motion.fps)))
     every = collision_model(body, motion.betas, vertex_stride=1, allow_pairs=cfg.allow_pairs,
                             max_overfill=cfg.max_overfill)
-    new, steps = _optimise(body, every, motion.with_pose(pose), idx, weight, cfg)
-    changed = np.flatnonzero((new != pose).reshape(len(pose), -1).any(1))
-    if steps == 0 or len(changed) == 0:
-        return pose, 0, depth
-    d1 = depth.copy()
-    d1[changed] = _mesh_depths(body, new[changed], motion.betas, cfg)
-    if d1[deep].max() >= depth[deep].max() or d1.max() > depth.max():
-        return pose, 0, depth  # never worse than the optimiser's own result
-    return new, steps, d1
+    out, d1, total = pose, depth, 0
+    for a, b in polish_chunks(weight > 0, cfg.window_frames):
+        part = replace(motion, pose=pose[a:b], transl=motion.transl[a:b])
+        new, steps = _optimise(body, every, part, idx, weight[a:b], cfg)
+        changed = np.flatnonzero((new != pose[a:b]).reshape(b - a, -1).any(1))
+        if steps == 0 or len(changed) == 0:
+            continue
+        dc = depth[a:b].copy()
+        dc[changed] = _mesh_depths(body, new[changed], motion.betas, cfg)
+        if dc[deep[a:b]].max() >= depth[a:b][deep[a:b]].max() or dc.max() > depth.max():
+            continue  # never worse than the optimiser's own result
+        if out is pose:
+            out, d1 = pose.copy(), depth.copy()
+        out[a:b], d1[a:b] = new, dc
+        total += steps
+    return (out, total, d1) if total else (pose, 0, depth)
+
+
+def polish_chunks(active: np.ndarray, size: int) -> list[tuple[int, int]]:
+    """[start, end) spans covering every run of `active` frames, consecutive runs merged while
+    the span stays within `size` frames (a single longer run is one span): a sequence within
+    one collision window is polished in one piece."""
+    runs = np.flatnonzero(np.diff(np.r_[0, active.astype(np.int8), 0]))
+    spans: list[tuple[int, int]] = []
+    for a, b in zip(runs[::2].tolist(), runs[1::2].tolist()):
+        if spans and b - spans[-1][0] <= size:
+            spans[-1] = (spans[-1][0], b)
+        else:
+            spans.append((a, b))
+    return spans
 
 
 def _bumps(need: np.ndarray, window: int) -> np.ndarray:
@@ -365,7 +408,7 @@ def pull_back(body: BodyModel, motion: Motion, pose: np.ndarray, depth: np.ndarr
                        cfg.pull_back_iterations)
     need[big] = hi
     small = np.setdiff1d(live, big)  # the nearest searched frame's s: no steeper fade
-    need[small] = hi[np.abs(small[:, None] - big[None, :]).argmin(1)]
+    need[small] = hi[nearest_index(big, small)]
     window = int(round(cfg.pull_back_window_s * motion.fps))
     for _ in range(8):
         s = np.minimum(_bumps(need, window), 1.0)
