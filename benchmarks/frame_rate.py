@@ -19,18 +19,6 @@ import argparse
 import numpy as np
 
 
-def _at_rate(m, k: int):
-    from scipy.spatial.transform import Rotation, Slerp
-
-    t0 = np.arange(m.num_frames) / m.fps
-    t1 = np.arange((m.num_frames - 1) * k + 1) / (m.fps * k)
-    pose = np.stack([Slerp(t0, Rotation.from_rotvec(m.pose[:, j]))(t1).as_rotvec()
-                     for j in range(m.pose.shape[1])], 1)
-    out = m.with_pose(pose, np.zeros((len(t1), 3)))
-    out.fps = m.fps * k
-    return out
-
-
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--n", type=int, default=3)
@@ -43,6 +31,7 @@ def main() -> None:
     from embody.body import load_body_model
     from embody.config import load_config
     from embody.metrics.trajectory import mean_jerk
+    from embody.motion import resample_motion
     from embody.retarget import retarget, shape_fit
     from embody.robot import load_robot
     from embody.synth import generate_sequence
@@ -58,7 +47,8 @@ def main() -> None:
         clip = generate_sequence(args.seed, i)
         base = None
         for k in ks:
-            targets, sol = retarget(_at_rate(clip, k) if k > 1 else clip, robot, body, fit, cfg.ik)
+            motion = resample_motion(clip, 30.0 * k) if k > 1 else clip
+            targets, sol = retarget(motion, robot, body, fit, cfg.ik)
             q = sol.q[:, robot.ik_mask]
             d = np.diff(sol.q[:, wrists], axis=0)
             moving = np.abs(d[1:]) + np.abs(d[:-1]) > 1e-6

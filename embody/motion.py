@@ -130,3 +130,16 @@ class Motion:
     def pose165(self) -> np.ndarray:
         """The flat (T,165) SMPL-X layout used by AMASS-style files."""
         return self.pose.reshape(self.num_frames, NUM_JOINTS * 3)
+
+
+def resample_motion(motion: Motion, fps: float) -> Motion:
+    """`motion` sampled at `fps` over the same duration: each joint's rotation by spherical
+    linear interpolation (slerp), the translation linearly. The same motion at another rate."""
+    from scipy.spatial.transform import Rotation, Slerp
+
+    t0 = np.arange(motion.num_frames) / motion.fps
+    t1 = np.arange(int(np.floor(t0[-1] * fps + 1e-9)) + 1) / fps
+    pose = np.stack([Slerp(t0, Rotation.from_rotvec(motion.pose[:, j]))(t1).as_rotvec()
+                     for j in range(motion.pose.shape[1])], 1)
+    transl = np.stack([np.interp(t1, t0, motion.transl[:, i]) for i in range(3)], 1)
+    return replace(motion, pose=pose, transl=transl, fps=float(fps), meta=dict(motion.meta))

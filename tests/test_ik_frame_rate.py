@@ -7,27 +7,24 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation, Slerp
 
 from embody.body import load_body_model
 from embody.config import Config
 from embody.metrics.trajectory import mean_jerk
-from embody.motion import Motion
+from embody.motion import resample_motion
 from embody.retarget import retarget, shape_fit
 from embody.retarget.ik import smoothness_scale
 from embody.robot import load_robot
 from embody.synth import generate_sequence
 
 
-def _at_rate(m: Motion, k: int) -> Motion:
-    """`m` sampled k times as densely (slerp per joint): the same motion at k× the rate."""
-    t0 = np.arange(m.num_frames) / m.fps
-    t1 = np.arange((m.num_frames - 1) * k + 1) / (m.fps * k)
-    pose = np.stack([Slerp(t0, Rotation.from_rotvec(m.pose[:, j]))(t1).as_rotvec()
-                     for j in range(m.pose.shape[1])], 1)
-    out = m.with_pose(pose, np.zeros((len(t1), 3)))
-    out.fps = m.fps * k
-    return out
+def test_resampling_keeps_the_motion():
+    clip = generate_sequence(0, 3)
+    fine = resample_motion(clip, 120.0)
+    assert fine.fps == 120.0 and fine.num_frames == (clip.num_frames - 1) * 4 + 1
+    np.testing.assert_allclose(fine.pose[::4], clip.pose, atol=1e-5)  # the 30 fps frames again
+    back = resample_motion(fine, 30.0)
+    np.testing.assert_allclose(back.pose, clip.pose, atol=1e-5)
 
 
 def test_smoothness_scale_is_per_second():
@@ -47,7 +44,7 @@ def solved():
     wrists = [robot.joint_index(n) for n in robot.joint_names if "wrist" in n]
     out = {}
     for k in (1, 2, 4):
-        targets, sol = retarget(_at_rate(clip, k), robot, body, fit, cfg.ik)
+        targets, sol = retarget(resample_motion(clip, 30.0 * k), robot, body, fit, cfg.ik)
         out[k] = (sol, targets, wrists, robot)
     return out
 

@@ -55,27 +55,12 @@ def _compiled(robot: Robot, drop: np.ndarray, fixed: bool, floor: float | None,
     """`_edit`'s model, kept as MJB in embody's cache (compiling the G1's meshes takes ~1 s), keyed
     by the MJCF's own key (`compiled_model`) and every edit."""
     import hashlib
-    import os
 
-    from embody.cache import cache_dir
-    from embody.robot.compiled import model_key
+    from embody.robot.compiled import cached_model, model_key
     blob = repr((_EDIT_VERSION, model_key(robot.mjcf_path), robot.joint_names, drop.tolist(), fixed,
                  floor, kp.tolist(), kd.tolist(), limit.tolist()))
-    path = cache_dir() / "mujoco" / f"replay-{hashlib.sha256(blob.encode()).hexdigest()[:20]}.mjb"
-    if path.is_file():
-        try:
-            return mujoco.MjModel.from_binary_path(str(path))
-        except (ValueError, OSError):
-            pass
-    model = _edit(robot, drop, fixed, floor, kp, kd, limit)
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        mujoco.mj_saveModel(model, str(tmp), None)
-        os.replace(tmp, path)
-    except OSError:
-        pass
-    return model
+    return cached_model(f"replay-{hashlib.sha256(blob.encode()).hexdigest()[:20]}",
+                        lambda: _edit(robot, drop, fixed, floor, kp, kd, limit))
 
 
 #: Bump when `_edit` builds another model from the same inputs.

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import os
 from pathlib import Path
+from typing import Callable
 
 import mujoco
 
@@ -29,22 +30,29 @@ def model_key(mjcf: Path) -> str:
     return hashlib.sha256(blob.encode()).hexdigest()[:20]
 
 
-def compiled_model(mjcf: str | Path) -> mujoco.MjModel:
-    """`MjModel.from_xml_path(mjcf)`, from the cache when it holds this model (ValueError from
-    MuJoCo when the MJCF does not compile, as from `from_xml_path`)."""
-    mjcf = Path(mjcf)
-    path = cache_dir() / "mujoco" / f"{mjcf.stem}-{model_key(mjcf)}.mjb"
+def cached_model(name: str, build: Callable[[], mujoco.MjModel]) -> mujoco.MjModel:
+    """The model cached as `<cache>/mujoco/<name>.mjb`, else `build()`'s, saved there (a temp
+    file renamed into place; a read-only cache only costs the build)."""
+    path = cache_dir() / "mujoco" / f"{name}.mjb"
     if path.is_file():
         try:
             return mujoco.MjModel.from_binary_path(str(path))
         except (ValueError, OSError):
-            pass  # unreadable (another MuJoCo build, a torn file): compile again
-    model = mujoco.MjModel.from_xml_path(str(mjcf))
+            pass  # unreadable (another MuJoCo build, a torn file): build again
+    model = build()
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         mujoco.mj_saveModel(model, str(tmp), None)
         os.replace(tmp, path)
     except OSError:
-        pass  # a read-only cache only costs the compile
+        pass
     return model
+
+
+def compiled_model(mjcf: str | Path) -> mujoco.MjModel:
+    """`MjModel.from_xml_path(mjcf)`, from the cache when it holds this model (ValueError from
+    MuJoCo when the MJCF does not compile, as from `from_xml_path`)."""
+    mjcf = Path(mjcf)
+    return cached_model(f"{mjcf.stem}-{model_key(mjcf)}",
+                        lambda: mujoco.MjModel.from_xml_path(str(mjcf)))
