@@ -51,7 +51,8 @@ def _valid_q() -> np.ndarray:
 
 @pytest.fixture(scope="module")
 def valid(tmp_path_factory) -> dict[str, Path]:
-    zero = {"joint_limit_violations": 0, "velocity_violations": 0, "self_collision_frames": 0}
+    zero = {"joint_limit_violations": 0, "velocity_violations": 0, "self_collision_frames": 0,
+            "torque_viol": 0}
     out = {}
     for fmt in SUFFIX:
         out[fmt] = tmp_path_factory.mktemp(f"valid-{fmt}")

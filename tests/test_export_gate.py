@@ -45,7 +45,8 @@ def _q(frames: int = 30) -> np.ndarray:
 
 
 def _traj(sid: str = "a", q: np.ndarray | None = None, dt: float = 0.02) -> Trajectory:
-    zero = {"joint_limit_violations": 0, "velocity_violations": 0, "self_collision_frames": 0}
+    zero = {"joint_limit_violations": 0, "velocity_violations": 0, "self_collision_frames": 0,
+            "torque_viol": 0}
     return Trajectory(id=sid, robot=ROBOT.name, joint_names=NAMES, q=_q() if q is None else q,
                       dt=dt, text="t", validation=zero)
 

@@ -358,7 +358,7 @@ def test_export_refuses_tampered_store(run, tmp_path) -> None:
     ok = [sid for sid, seq in sorted(manifest.sequences.items()) if seq["status"] == "ok"]
     exported = {t.id for t in run_trajectories(store, RUN, ROBOT)[0]
                 if not any(t.validation[k] for k in ("joint_limit_violations", "velocity_violations",
-                                                     "self_collision_frames"))}
+                                                     "self_collision_frames", "torque_viol"))}
     sid = sorted(exported)[0]
     group = zarr.open_group(str(st.path("metrics", manifest.sequences[sid]["steps"]["metrics"])),
                             mode="r+")
