@@ -20,15 +20,8 @@ import mujoco
 import numpy as np
 import pandas as pd
 
-#: BeyondMimic's G1 `joint_names` (HybridRobotics/whole_body_tracking scripts/csv_to_npz.py).
-BM = ["left_hip_pitch_joint", "left_hip_roll_joint", "left_hip_yaw_joint", "left_knee_joint",
-      "left_ankle_pitch_joint", "left_ankle_roll_joint", "right_hip_pitch_joint",
-      "right_hip_roll_joint", "right_hip_yaw_joint", "right_knee_joint", "right_ankle_pitch_joint",
-      "right_ankle_roll_joint", "waist_yaw_joint", "waist_roll_joint", "waist_pitch_joint",
-      "left_shoulder_pitch_joint", "left_shoulder_roll_joint", "left_shoulder_yaw_joint",
-      "left_elbow_joint", "left_wrist_roll_joint", "left_wrist_pitch_joint", "left_wrist_yaw_joint",
-      "right_shoulder_pitch_joint", "right_shoulder_roll_joint", "right_shoulder_yaw_joint",
-      "right_elbow_joint", "right_wrist_roll_joint", "right_wrist_pitch_joint", "right_wrist_yaw_joint"]
+# The sibling benchmark holds the one copy of BeyondMimic's joint list.
+from export_check import BEYONDMIMIC_G1_JOINTS as BM
 
 
 def _xpos(model: mujoco.MjModel, qpos: np.ndarray) -> np.ndarray:
