@@ -171,6 +171,10 @@ def _half_height(model: mujoco.MjModel, data: mujoco.MjData, g: int) -> float:
 #: impratio to make friction stiffer than the normal direction. At 10 that creep falls to
 #: 2 mm, and a higher ratio changes nothing further (100: the same slips within 1 mm).
 FOOT_IMPRATIO = 10.0
+# The feet's contact time constant is 2 physics steps (`geom_solref[0]`), the stiffest MuJoCo's
+# documentation allows for its step: at its default 0.02 s the loaded soles sink 3 mm and the
+# standing H1 rocked on them by 1.6° (its CoM ±25 mm) at rest; at 2 steps 0.5° (7 mm), the
+# G1 1 mm.
 
 
 def standing_model(robot: Robot) -> tuple[ReplayModel, np.ndarray, np.ndarray]:
@@ -199,6 +203,7 @@ def standing_model(robot: Robot) -> tuple[ReplayModel, np.ndarray, np.ndarray]:
     model.geom_conaffinity[:] = contype
     model.opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     model.opt.impratio = FOOT_IMPRATIO
+    model.geom_solref[feet, 0] = model.geom_solref[floor_geom, 0] = 2.0 * model.opt.timestep
     robot.derived[key] = (rm, qpos0, feet)
     return robot.derived[key]
 
@@ -422,9 +427,9 @@ def stance_torques(robot: Robot, rm: ReplayModel, qpos: np.ndarray, feet: np.nda
 
 @dataclass(frozen=True)
 class StandingReplay:
-    """The standing replay and, per 50 Hz sample, how the robot stood: pelvis tilt (rad),
-    horizontal drift (m) and sinking (m) from the start; each foot's tilt (rad), how far its
-    highest contact point rose (m) and how far it slid (m); the whole-body CoM's horizontal
+    """The standing replay and, per 50 Hz sample, how the robot stood: pelvis tilt (rad, from
+    its start orientation), horizontal drift (m) and sinking (m) from the start; each foot's
+    tilt (rad, from its start), how far its highest contact point rose (m) and how far it slid (m); the whole-body CoM's horizontal
     distance (m) from where the rigid stance puts it; `support`: the floor wrench the motion
     asks for (`stance_torques`)."""
 
@@ -468,18 +473,21 @@ def replay_standing(robot: Robot, cmd: Commands) -> StandingReplay:
     p0 = data.xpos[root].copy()
     z0 = data.geom_xpos[feet, 2].copy()
     f0 = data.xpos[bodies, :2].copy()
+    up0 = data.xmat[root].reshape(3, 3)[:, 2].copy()  # z axes at the start
+    fup0 = data.xmat[bodies].reshape(-1, 3, 3)[:, :, 2].copy()
     owner = model.geom_bodyid[feet]
     mass = np.where(model.body_rootid == root, model.body_mass, 0.0)
     for i, s in enumerate(k):
         data.qpos[:] = r.qpos[s]
         mujoco.mj_kinematics(model, data)
         com[i] = np.linalg.norm(mass @ data.xipos[:, :2] / mass.sum() - support.com[i, :2])
-        tilt[i] = np.arccos(np.clip(data.xmat[root, 8], -1.0, 1.0))
+        tilt[i] = np.arccos(np.clip(data.xmat[root].reshape(3, 3)[:, 2] @ up0, -1.0, 1.0))
         drift[i] = np.linalg.norm(data.xpos[root, :2] - p0[:2])
         drop[i] = p0[2] - data.xpos[root, 2]
         fslip[i] = np.linalg.norm(data.xpos[bodies, :2] - f0, axis=1)
+        up = data.xmat[bodies].reshape(-1, 3, 3)[:, :, 2]
+        ftilt[i] = np.arccos(np.clip((up * fup0).sum(1), -1.0, 1.0))
         for c, b in enumerate(bodies):
-            ftilt[i, c] = np.arccos(np.clip(data.xmat[b, 8], -1.0, 1.0))
             flift[i, c] = np.max((data.geom_xpos[feet, 2] - z0)[owner == b])
     return StandingReplay(rollout=r, pelvis_tilt=tilt, pelvis_drift=drift, pelvis_drop=drop,
                           foot_tilt=ftilt, foot_lift=flift, foot_slip=fslip, com_offset=com,
