@@ -16,7 +16,9 @@ Two setups, each a reduced model built once per robot:
 - fixed base: free joint and leg joints removed (pelvis welded, legs at 0, which is the stance
   of both robots here); contacts off: self-contacts are counted on the simulated motion.
 - standing: free base on a floor plane, finger joints removed (welded open), contacts only
-  between the feet and the floor; the legs under the stance controller (`stance_torques`).
+  between the feet and the floor (elliptic friction, `FOOT_IMPRATIO`, a 2-step contact time
+  constant); the legs under the stance controller: stiff PD toward the stance plus the
+  feed-forward of the feet carrying the moving body (`stance_torques`).
 """
 
 from __future__ import annotations
@@ -166,15 +168,16 @@ def _half_height(model: mujoco.MjModel, data: mujoco.MjData, g: int) -> float:
 
 #: Friction-to-normal impedance ratio of the feet's contacts, with elliptic (exact Coulomb)
 #: friction cones. MuJoCo's soft contacts let a loaded foot creep sideways under any tangential
-#: force (at impratio 1 a G1 foot slid 7 mm under a sequence whose floor wrench stays well
-#: inside the friction cone); MuJoCo's documentation recommends elliptic cones with a larger
+#: force (at impratio 1 a G1 foot slid 7 mm in seq_002, whose floor force stays at a third of
+#: the friction limit: |F_xy|/F_z 0.18 at μ 0.6); MuJoCo's documentation recommends elliptic cones with a larger
 #: impratio to make friction stiffer than the normal direction. At 10 that creep falls to
 #: 2 mm, and a higher ratio changes nothing further (100: the same slips within 1 mm).
 FOOT_IMPRATIO = 10.0
-# The feet's contact time constant is 2 physics steps (`geom_solref[0]`), the stiffest MuJoCo's
-# documentation allows for its step: at its default 0.02 s the loaded soles sink 3 mm and the
-# standing H1 rocked on them by 1.6° (its CoM ±25 mm) at rest; at 2 steps 0.5° (7 mm), the
-# G1 1 mm.
+#: The feet's and floor's contact time constant (`geom_solref[0]`) in physics steps: the
+#: stiffest MuJoCo's documentation allows for its step. At its default 0.02 s the loaded soles
+#: sink 3 mm and the standing H1 rocked on them by 1.6° (its CoM ±25 mm) at rest; at 2 steps
+#: 0.5° (7 mm), the G1 1 mm.
+FOOT_TIMECONST_STEPS = 2.0
 
 
 def standing_model(robot: Robot) -> tuple[ReplayModel, np.ndarray, np.ndarray]:
@@ -203,7 +206,7 @@ def standing_model(robot: Robot) -> tuple[ReplayModel, np.ndarray, np.ndarray]:
     model.geom_conaffinity[:] = contype
     model.opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     model.opt.impratio = FOOT_IMPRATIO
-    model.geom_solref[feet, 0] = model.geom_solref[floor_geom, 0] = 2.0 * model.opt.timestep
+    model.geom_solref[feet, 0] = model.geom_solref[floor_geom, 0] = FOOT_TIMECONST_STEPS * model.opt.timestep
     robot.derived[key] = (rm, qpos0, feet)
     return robot.derived[key]
 
@@ -429,9 +432,9 @@ def stance_torques(robot: Robot, rm: ReplayModel, qpos: np.ndarray, feet: np.nda
 class StandingReplay:
     """The standing replay and, per 50 Hz sample, how the robot stood: pelvis tilt (rad, from
     its start orientation), horizontal drift (m) and sinking (m) from the start; each foot's
-    tilt (rad, from its start), how far its highest contact point rose (m) and how far it slid (m); the whole-body CoM's horizontal
-    distance (m) from where the rigid stance puts it; `support`: the floor wrench the motion
-    asks for (`stance_torques`)."""
+    tilt (rad, from its start), how far its highest contact point rose (m) and how far it slid
+    (m); the whole-body CoM's horizontal distance (m) from where the rigid stance puts it;
+    `support`: the floor wrench the motion asks for (`stance_torques`)."""
 
     rollout: Rollout
     pelvis_tilt: np.ndarray
