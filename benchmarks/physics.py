@@ -35,13 +35,17 @@ def main() -> None:
     from embody.export.runs import load_result
     from embody.metrics.embodiments import human_track
     from embody.metrics.fidelity import resample_track
+    from collections import Counter
+
     from embody.physics import evaluate
+    from embody.physics.evaluate import sim_contacts
     from embody.report.reader import open_run, run_config
     from embody.robot import load_robot
     from embody.verdicts import physics_valid
 
     runs = args.run or sorted(p.parent.name for p in (Path(args.store) / "runs").glob("*/manifest.json"))
     rows, palm, cpu = [], [], []
+    pairs: Counter = Counter()
     steps = saturated = 0
     for run in runs:
         store, manifest = open_run(args.store, run)
@@ -68,17 +72,24 @@ def main() -> None:
             rows.append({"run": run, "id": sid, "valid": physics_valid(m), "kin_loc_mm": kin,
                          "sim_loc_mm": float(m.get("fidelity.location_err_mm", np.nan)), **m})
             palm.append(res.arrays["palm_err_mm"])
+            pairs.update({(robot.name, *k): v for k, v in sim_contacts(robot, res.arrays["q_sim"])[1].items()})
             steps += m["control_steps"]
             saturated += m["saturated_steps"]
             print(f"{run} {sid}: valid={rows[-1]['valid']} torque_over={m['torque_over_samples']} "
                   f"ratio_max={m['torque_ratio_max']:.2f} sat={m['saturated_step_pct']:.1f}% "
                   f"palm_p95={m.get('palm_err_p95_mm', float('nan')):.1f}mm contacts={m['sim_contact_samples']} "
-                  f"zmp_min={m['zmp_margin_min_mm']:.0f}mm standing={m['standing_holds']} "
-                  f"(tilt {m['standing_pelvis_tilt_max_deg']:.1f}°, drift {m['standing_pelvis_drift_max_mm']:.0f} mm) "
+                  f"zmp_min={m['zmp_margin_min_mm']:.0f}mm (multibody {m['zmp_multibody_margin_min_mm']:.0f}mm, "
+                  f"floor yaw {m['floor_yaw_moment_max_nm']:.0f} N·m) standing={m['standing_holds']} "
+                  f"(tilt {m['standing_pelvis_tilt_max_deg']:.1f}°, CoM off {m['standing_com_offset_max_mm']:.0f} mm, "
+                  f"foot slip {m['standing_foot_slip_max_mm']:.0f} mm, lift {m['standing_foot_lift_max_mm']:.1f} mm) "
                   f"loc {rows[-1]['kin_loc_mm']:.1f}->{rows[-1]['sim_loc_mm']:.1f} mm cpu={cpu[-1]:.2f}s",
                   flush=True)
     if not rows:
         raise SystemExit("no finished sequences")
+    print("self-contacts in simulation, per body pair (samples with that pair penetrating, the "
+          "kinematic check's rule; the exported arrays themselves have none):")
+    for (name, a, b), n in pairs.most_common():
+        print(f"  {name} {a} / {b}: {n}")
     kin = np.nanmean([r["kin_loc_mm"] for r in rows])
     sim = np.nanmean([r["sim_loc_mm"] for r in rows])
     all_palm = np.concatenate(palm)

@@ -412,9 +412,9 @@ METRICS_REFINED = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _tr
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 # The exported array replayed in MuJoCo with the robot's actuation, fixed base and standing.
-PHYSICS = Step("physics", "1", ("body", "robot", "fidelity"), _physics, _physics_result,
+PHYSICS = Step("physics", "2", ("body", "robot", "fidelity"), _physics, _physics_result,
                (COLLIDE, METRICS), files=_robot_files)
-PHYSICS_REFINED = Step("physics", "1", ("body", "robot", "fidelity"), _physics, _physics_result,
+PHYSICS_REFINED = Step("physics", "2", ("body", "robot", "fidelity"), _physics, _physics_result,
                        (COLLIDE, METRICS_REFINED), files=_robot_files)
 
 

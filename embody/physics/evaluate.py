@@ -10,6 +10,7 @@ model of the standing robot) and whether the standing replay stays up.
 
 from __future__ import annotations
 
+from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -18,24 +19,132 @@ import numpy as np
 
 from embody.physics.actuation import actuation
 from embody.physics.commands import Commands, commands
-from embody.physics.replay import replay_fixed, replay_standing
-from embody.robot.contacts import collision_model
-from embody.robot.dynamics import zmp
+from embody.physics.replay import StandingReplay, replay_fixed, replay_standing, standing_model
+from embody.robot.contacts import contact_pairs, self_collision_contacts
+from embody.robot.dynamics import center_of_mass, polygon_margin, stance_pose, support_polygon, zmp
+from embody.robot.exclusions import ancestors, hand_roots
 from embody.robot.model import Robot
 from embody.verdicts import PHYSICS_RULE, physics_valid
 
-#: A self-contact counts when two counted geoms are more than this far into each other (m).
-PENETRATION = 0.001
-#: Standing holds while the pelvis tilts at most this much (rad), drifts at most this far
-#: horizontally and sinks at most this far (m), and each foot stays flat: tilts at most
-#: FOOT_TILT and no contact point rises more than FOOT_LIFT.
-PELVIS_TILT = np.deg2rad(10.0)
-PELVIS_DRIFT = 0.05
-PELVIS_DROP = 0.05
-FOOT_TILT = np.deg2rad(5.0)
-FOOT_LIFT = 0.005
 #: The ZMP must stay at least this far inside the feet's polygon (m): the verdict's bound.
 ZMP_MARGIN = PHYSICS_RULE["zmp_margin_min_mm"][1] / 1000.0
+
+
+@dataclass(frozen=True)
+class StandingBounds:
+    """When the standing robot "stays up", derived from the one margin the ZMP rule budgets
+    (`ZMP_MARGIN`, δ) and the stance's CoM height h above the floor: the ZMP analysis assumes
+    the robot stands rigidly where the stance puts it, so the simulated robot must stay there
+    within δ. The whole-body CoM within δ (horizontally) of where the rigid stance puts it, and
+    the pelvis no more than δ lower; each foot slides at most δ (the support polygon moves by
+    less than the margin); the pelvis and each foot tilt at most δ/h (a rigid tilt about the
+    feet by that angle moves the CoM by δ); no foot contact point rises more than the foot's
+    length × δ/h (a foot tilted by δ/h about one edge lifts its far edge that much)."""
+
+    com_offset: float  # m
+    pelvis_drop: float  # m
+    foot_slip: float  # m
+    tilt: float  # rad, pelvis and feet
+    foot_lift: float  # m
+    com_height: float  # m, for the record
+
+
+def standing_bounds(robot: Robot) -> StandingBounds:
+    """`StandingBounds` of the robot's stance (cached on the robot)."""
+    key = "physics.standing_bounds"
+    if key not in robot.derived:
+        stand = stance_pose(robot)
+        _, floor = support_polygon(robot, stand)
+        height = float(center_of_mass(robot, stand[None])[0, 2] - floor)
+        tilt = ZMP_MARGIN / height
+        rm, qpos0, feet = standing_model(robot)
+        length = _foot_length(rm.model, rm.model.geom_bodyid[feet], qpos0, feet)
+        robot.derived[key] = StandingBounds(com_offset=ZMP_MARGIN, pelvis_drop=ZMP_MARGIN,
+                                            foot_slip=ZMP_MARGIN, tilt=tilt, foot_lift=length * tilt,
+                                            com_height=height)
+    return robot.derived[key]
+
+
+def _foot_length(model: mujoco.MjModel, owner: np.ndarray, qpos: np.ndarray, feet: np.ndarray) -> float:
+    """The longest distance between two contact geoms of one foot at the stance (m)."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = qpos
+    mujoco.mj_kinematics(model, data)
+    best = 0.0
+    for b in np.unique(owner):
+        p = data.geom_xpos[feet[owner == b], :2]
+        best = max(best, float(np.max(np.linalg.norm(p[:, None] - p[None], axis=-1))))
+    return best
+
+
+def standing_metrics(robot: Robot, stand: StandingReplay) -> dict[str, Any]:
+    """The standing replay's figures and whether the robot stays up (`StandingBounds`)."""
+    b = standing_bounds(robot)
+    figures = {"com_offset": stand.com_offset.max(), "pelvis_drop": stand.pelvis_drop.max(),
+               "foot_slip": stand.foot_slip.max(), "pelvis_tilt": stand.pelvis_tilt.max(),
+               "foot_tilt": stand.foot_tilt.max(), "foot_lift": stand.foot_lift.max()}
+    bound = {"com_offset": b.com_offset, "pelvis_drop": b.pelvis_drop, "foot_slip": b.foot_slip,
+             "pelvis_tilt": b.tilt, "foot_tilt": b.tilt, "foot_lift": b.foot_lift}
+    holds = all(figures[k] <= bound[k] for k in figures)
+    polygon, _ = support_polygon(robot, stance_pose(robot))
+    support = stand.support
+    out: dict[str, Any] = {"standing_holds": bool(holds)}
+    for k in ("com_offset", "pelvis_drop", "foot_slip", "foot_lift"):
+        out[f"standing_{k}_max_mm"] = float(figures[k] * 1000.0)
+    out["standing_pelvis_drift_max_mm"] = float(stand.pelvis_drift.max() * 1000.0)
+    for k in ("pelvis_tilt", "foot_tilt"):
+        out[f"standing_{k}_max_deg"] = float(np.rad2deg(figures[k]))
+    r = stand.rollout
+    out["standing_saturated_step_pct"] = 100.0 * float((np.abs(r.demand) >= r.limit * (1 - 1e-9)).any(1).mean())
+    out["zmp_multibody_margin_min_mm"] = float(polygon_margin(support.zmp, polygon).min() * 1000.0)
+    fz = np.maximum(support.force[:, 2], 1e-9)
+    out["floor_friction_ratio_max"] = float((np.linalg.norm(support.force[:, :2], axis=1) / fz).max())
+    out["floor_yaw_moment_max_nm"] = float(np.abs(support.yaw_moment).max())
+    return out
+
+
+def sim_contacts(robot: Robot, q: np.ndarray) -> tuple[dict[str, Any], Counter]:
+    """Self-contacts of the simulated motion q (T,n) under the kinematic check's own rule
+    (`contacts.self_collision_contacts`: the same counted geom pairs, the robot YAML's
+    documented `ignore_pairs` left out, any penetration): the samples with one, and per kind of
+    body pair (both in one hand, one in each hand, a hand against the rest of the body, other)
+    its pair-samples (a sample counts once per penetrating body pair); and the pair-samples
+    per body pair (names sorted)."""
+    hit = np.flatnonzero(self_collision_contacts(robot, q) > 0)
+    pairs = contact_pairs(robot, q[hit]) if len(hit) else Counter()
+    out: dict[str, Any] = {"sim_contact_samples": int(len(hit))}
+    kinds = dict.fromkeys(("same_hand", "two_hands", "hand_body", "other"), 0)
+    hand_of = _hand_of_body(robot)
+    for (a, b), n in pairs.items():
+        kinds[_pair_kind(hand_of, a, b)] += n
+    out.update({f"sim_contact_pairs.{k}": v for k, v in kinds.items()})
+    return out, pairs
+
+
+def _hand_of_body(robot: Robot) -> dict[str, int]:
+    """Body name → index of the hand it belongs to (bodies under a hand's root; cached)."""
+    key = "physics.hand_of_body"
+    if key in robot.derived:
+        return robot.derived[key]
+    m = robot.model
+    out: dict[str, int] = {}
+    for i, root in enumerate(hand_roots(m, robot.spec)):
+        for b in range(m.nbody):
+            if root in ancestors(m, b):
+                out[m.body(b).name] = i
+    robot.derived[key] = out
+    return out
+
+
+def _pair_kind(hand_of: dict[str, int], a: str, b: str) -> str:
+    ha, hb = hand_of.get(a), hand_of.get(b)
+    if ha is not None and ha == hb:
+        return "same_hand"
+    if ha is not None and hb is not None:
+        return "two_hands"
+    if ha is not None or hb is not None:
+        return "hand_body"
+    return "other"
 
 
 @dataclass
@@ -54,22 +163,6 @@ class PhysicsResult:
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> "PhysicsResult":
         return cls(dict(attrs.get("metrics", {})), {k: np.asarray(v) for k, v in arrays.items()})
-
-
-def penetrating_samples(robot: Robot, q: np.ndarray, depth: float = PENETRATION) -> np.ndarray:
-    """Per sample (T,), counted self-contacts deeper than `depth` (the pairs `contacts` counts)."""
-    model, counted = collision_model(robot)
-    data = mujoco.MjData(model)
-    data.qpos[:] = model.qpos0
-    out = np.zeros(len(q), dtype=np.int64)
-    for t, qt in enumerate(np.atleast_2d(q)):
-        data.qpos[robot.qpos_adr] = qt
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_collision(model, data)
-        if data.ncon:
-            geom = data.contact.geom[: data.ncon]
-            out[t] = int(np.sum((data.contact.dist[: data.ncon] < -depth) & counted[geom[:, 0], geom[:, 1]]))
-    return out
 
 
 def _stats(err_mm: np.ndarray, name: str) -> dict[str, float]:
@@ -120,25 +213,20 @@ def evaluate(robot: Robot, q: np.ndarray, fps: float, human: Any = None, fidelit
     palm = np.array([n.endswith("_palm") for n in names])
     out.update(_stats(err[:, palm], "palm_err"))
     out.update(_stats(err[:, ~palm], "fingertip_err"))
-    contacts = penetrating_samples(robot, fixed.q50)
-    out["sim_contact_samples"] = int((contacts > 0).sum())
+    contact_figures, _ = sim_contacts(robot, fixed.q50)
+    out.update(contact_figures)
+    # joint tracking per group: what the contacts and palm errors come from
+    err_q = np.abs(fixed.q50 - q)[:, r.joints]  # at the samples
+    for g, name in enumerate(act.group_names):
+        cols = act.group[r.joints] == g
+        if cols.any():
+            out[f"joint_err_max_deg.{name}"] = float(np.rad2deg(err_q[:, cols].max()))
     # balance: cart-table ZMP of the exported array, standing replay
     point, _, margin = zmp(robot, q, 1.0 / fps)
     out["zmp_margin_min_mm"] = float(margin.min() * 1000.0)
     out["zmp_outside_samples"] = int((margin < 0).sum())
     out["zmp_short_samples"] = int((margin < ZMP_MARGIN).sum())
-    stand = replay_standing(robot, cmd)
-    holds = bool(stand.pelvis_tilt.max() <= PELVIS_TILT and stand.pelvis_drift.max() <= PELVIS_DRIFT
-                 and stand.pelvis_drop.max() <= PELVIS_DROP and stand.foot_tilt.max() <= FOOT_TILT
-                 and stand.foot_lift.max() <= FOOT_LIFT)
-    out.update({"standing_holds": holds,
-                "standing_pelvis_tilt_max_deg": float(np.rad2deg(stand.pelvis_tilt.max())),
-                "standing_pelvis_drift_max_mm": float(stand.pelvis_drift.max() * 1000.0),
-                "standing_pelvis_drop_max_mm": float(stand.pelvis_drop.max() * 1000.0),
-                "standing_foot_tilt_max_deg": float(np.rad2deg(stand.foot_tilt.max())),
-                "standing_foot_lift_max_mm": float(stand.foot_lift.max() * 1000.0),
-                "standing_saturated_step_pct": 100.0 * float(
-                    (np.abs(stand.rollout.demand) >= stand.rollout.limit * (1 - 1e-9)).any(1).mean())})
+    out.update(standing_metrics(robot, replay_standing(robot, cmd)))
     if human is not None and fidelity_cfg is not None:
         from embody.metrics.embodiments import scored_robot_track
         from embody.metrics.fidelity import compare_with

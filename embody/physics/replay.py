@@ -16,7 +16,9 @@ Two setups, each a reduced model built once per robot:
 - fixed base: free joint and leg joints removed (pelvis welded, legs at 0, which is the stance
   of both robots here); contacts off: self-contacts are counted on the simulated motion.
 - standing: free base on a floor plane, finger joints removed (welded open), contacts only
-  between the feet and the floor; the legs under the stance controller (`stance_torques`).
+  between the feet and the floor (elliptic friction, `FOOT_IMPRATIO`, a 2-step contact time
+  constant); the legs under the stance controller: stiff PD toward the stance plus the
+  feed-forward of the feet carrying the moving body (`stance_torques`).
 """
 
 from __future__ import annotations
@@ -164,6 +166,20 @@ def _half_height(model: mujoco.MjModel, data: mujoco.MjData, g: int) -> float:
     return float(model.geom_rbound[g])
 
 
+#: Friction-to-normal impedance ratio of the feet's contacts, with elliptic (exact Coulomb)
+#: friction cones. MuJoCo's soft contacts let a loaded foot creep sideways under any tangential
+#: force (at impratio 1 a G1 foot slid 7 mm in seq_002, whose floor force stays at a third of
+#: the friction limit: |F_xy|/F_z 0.18 at μ 0.6); MuJoCo's documentation recommends elliptic cones with a larger
+#: impratio to make friction stiffer than the normal direction. At 10 that creep falls to
+#: 2 mm, and a higher ratio changes nothing further (100: the same slips within 1 mm).
+FOOT_IMPRATIO = 10.0
+#: The feet's and floor's contact time constant (`geom_solref[0]`) in physics steps: the
+#: stiffest MuJoCo's documentation allows for its step. At its default 0.02 s the loaded soles
+#: sink 3 mm and the standing H1 rocked on them by 1.6° (its CoM ±25 mm) at rest; at 2 steps
+#: 0.5° (7 mm), the G1 1 mm.
+FOOT_TIMECONST_STEPS = 2.0
+
+
 def standing_model(robot: Robot) -> tuple[ReplayModel, np.ndarray, np.ndarray]:
     """The standing replay model, its initial qpos (stance) and its foot geoms (cached)."""
     key = "physics.standing_model"
@@ -188,6 +204,9 @@ def standing_model(robot: Robot) -> tuple[ReplayModel, np.ndarray, np.ndarray]:
     contype[floor_geom] = 1
     model.geom_contype[:] = contype
     model.geom_conaffinity[:] = contype
+    model.opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
+    model.opt.impratio = FOOT_IMPRATIO
+    model.geom_solref[feet, 0] = model.geom_solref[floor_geom, 0] = FOOT_TIMECONST_STEPS * model.opt.timestep
     robot.derived[key] = (rm, qpos0, feet)
     return robot.derived[key]
 
@@ -293,84 +312,186 @@ def _at_samples(r: Rollout, cmd: Commands) -> np.ndarray:
     return q
 
 
-def stance_torques(robot: Robot, rm: ReplayModel, qpos: np.ndarray, feet: np.ndarray) -> np.ndarray:
-    """Static torques (m,) of the driven joints at `qpos` with the feet carrying the body: joint
-    gravity torques minus Jᵀf of one vertical force at the bottom of each foot geom, the forces
-    chosen (non-negative least squares) so that the floating base's six rows balance: no net
-    force or moment on the pelvis, the weight carried by the floor through the feet."""
+def _contact_points(model: mujoco.MjModel, data: mujoco.MjData, feet: np.ndarray) -> np.ndarray:
+    """World points (F,3) where each foot geom meets the floor: its lowest point."""
+    return np.array([data.geom_xpos[g] - [0.0, 0.0, _half_height(model, data, int(g))] for g in feet])
+
+
+def _inverse_model(robot: Robot, rm: ReplayModel) -> mujoco.MjModel:
+    """The standing model without contacts, limits or other constraints (cached on the robot):
+    `mj_inverse` on it gives the generalised forces of a motion, the floating base's six rows
+    included."""
+    key = "physics.standing_inverse_model"
+    if key not in robot.derived or robot.derived[key][0] is not rm:
+        model = rm.model.__copy__()
+        model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONSTRAINT | mujoco.mjtDisableBit.mjDSBL_CONTACT
+                                      | mujoco.mjtDisableBit.mjDSBL_LIMIT)
+        robot.derived[key] = (rm, model)
+    return robot.derived[key][1]
+
+
+@dataclass(frozen=True)
+class StanceSupport:
+    """What the floor must supply for the standing robot to move its upper body along a motion
+    with its legs still, per 50 Hz sample: the legs' feed-forward torque (T,m), the floor's
+    force (T,3, world, N) and its multibody ZMP (T,2, world xy: the point on the floor about
+    which the floor's moment has no horizontal part; inertia of every link, angular momentum
+    included) and the floor's moment about the vertical through that point (T,, N·m)."""
+
+    torque: np.ndarray
+    force: np.ndarray
+    zmp: np.ndarray
+    yaw_moment: np.ndarray
+    #: The whole-body CoM (T,3, world) of the rigid stance moving along the motion.
+    com: np.ndarray
+
+
+#: Ridge on the contact forces (1/N): among the forces that balance the base, the smallest.
+_SUPPORT_RIDGE = 1e-3
+
+
+def stance_torques(robot: Robot, rm: ReplayModel, qpos: np.ndarray, feet: np.ndarray,
+                   q: np.ndarray | None = None, fps: float = 50.0) -> StanceSupport:
+    """The feet carrying the body while the driven joints move along `q` (T,m; default: held
+    at `qpos`), the legs still and the base at `qpos`'s pose.
+
+    Whole-body inverse dynamics (`mj_inverse` with contacts and constraints off, central-
+    difference accelerations at `fps`) gives each joint's torque and the wrench the floor must
+    supply (the floating base's six rows). That wrench is shared among the foot contact points:
+    a non-negative vertical force at each point and one horizontal force per foot, the smallest
+    such forces that balance the base (non-negative least squares with a light ridge). The legs'
+    feed-forward is their inverse-dynamics torque minus Jᵀf of those forces: with it the leg PD
+    only corrects errors, so the robot stands as one rigid body on its feet. Where the motion's
+    ZMP leaves the feet no non-negative vertical forces balance the base: the feed-forward is
+    the nearest support, and the robot tips, as it should."""
     from scipy.optimize import nnls
-    free = rm.model
-    data = mujoco.MjData(free)
+
+    from embody.robot.dynamics import derivatives
+    model = _inverse_model(robot, rm)
+    data = mujoco.MjData(model)
     data.qpos[:] = qpos
-    data.qvel[:] = 0.0
-    mujoco.mj_kinematics(free, data)
-    mujoco.mj_comPos(free, data)
-    bias = np.zeros(free.nv)
-    mujoco.mj_rne(free, data, 0, bias)  # at rest: gravity only
-    jac = []
-    for g in feet:
-        point = data.geom_xpos[g] - [0.0, 0.0, _half_height(free, data, int(g))]
-        jp = np.zeros((3, free.nv))
-        mujoco.mj_jac(free, data, jp, None, point, int(free.geom_bodyid[g]))
-        jac.append(jp[2])  # a vertical force at the geom's bottom
-    jz = np.array(jac)  # (feet, nv)
+    q = np.atleast_2d(qpos[rm.qpos_adr] if q is None else q)
+    qd, qdd = derivatives(q, 1.0 / fps)
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)  # mj_jac reads the bodies' com-based frames
+    # the legs are still and the base at qpos: the contact points and their Jacobians are fixed
+    points = _contact_points(model, data, feet)
+    floor = float(points[:, 2].min())
+    owner = model.geom_bodyid[feet]
+    jac = np.zeros((len(feet), 3, model.nv))
+    for i, g in enumerate(feet):
+        mujoco.mj_jac(model, data, jac[i], None, points[i], int(owner[i]))
+    cols = [jac[:, 2].T]  # unknowns: f_z at each point (≥ 0), then f_x, f_y per foot (free)
+    for b in np.unique(owner):
+        jb = np.zeros((3, model.nv))
+        mujoco.mj_jac(model, data, jb, None, points[owner == b].mean(0), int(b))
+        cols += [jb[0][:, None], jb[1][:, None]]
+    jt = np.concatenate(cols, axis=1)  # (nv, unknowns): generalised force of each unknown
     root = np.arange(6)
-    f, _ = nnls(jz[:, root].T, bias[root])
-    return (bias - jz.T @ f)[rm.dof_adr]
+    n_z, n_f = len(feet), jt.shape[1]
+    ridge = _SUPPORT_RIDGE * np.eye(n_f)
+    a = np.vstack([jt[root], ridge])
+    # the same with each horizontal force split into two non-negative parts (for nnls)
+    split = np.concatenate([jt[root][:, :n_z], jt[root][:, n_z:], -jt[root][:, n_z:]], axis=1)
+    a_split = np.vstack([split, _SUPPORT_RIDGE * np.eye(split.shape[1])])
+    base = model.body(robot.spec.root_body).id
+    rot = data.xmat[base].reshape(3, 3).copy()
+    origin = data.xpos[base].copy()
+    height = origin[2] - floor
+    gen = np.empty((len(q), model.nv))
+    com = np.empty((len(q), 3))
+    for t in range(len(q)):
+        data.qpos[rm.qpos_adr] = q[t]
+        data.qvel[:] = 0.0
+        data.qvel[rm.dof_adr] = qd[t]
+        data.qacc[:] = 0.0
+        data.qacc[rm.dof_adr] = qdd[t]
+        mujoco.mj_inverse(model, data)
+        gen[t] = data.qfrc_inverse
+        com[t] = data.subtree_com[base]
+    # ridge least squares for every sample at once; where a vertical force comes out negative
+    # (the bound active), non-negative least squares on that sample
+    rhs = np.concatenate([gen[:, root], np.zeros((len(q), n_f))], axis=1)
+    f = np.linalg.lstsq(a, rhs.T, rcond=None)[0].T  # (T, unknowns)
+    for t in np.flatnonzero((f[:, :n_z] < 0).any(1)):
+        x, _ = nnls(a_split, np.concatenate([rhs[t], np.zeros(split.shape[1] - n_f)]))
+        f[t] = np.concatenate([x[:n_z], x[n_z:n_f] - x[n_f:]])
+    torque = gen[:, rm.dof_adr] - f @ jt[rm.dof_adr].T
+    force = gen[:, :3]  # the free joint's rows: world force, then moment in the base frame
+    moment = gen[:, 3:6] @ rot.T
+    # the floor wrench about the base origin, moved to the floor point with no horizontal moment
+    fz = np.maximum(force[:, 2], 1e-9)
+    zmp = np.stack([origin[0] - (moment[:, 1] + height * force[:, 0]) / fz,
+                    origin[1] + (moment[:, 0] - height * force[:, 1]) / fz], axis=1)
+    arm = np.concatenate([zmp - origin[:2], np.full((len(q), 1), -height)], axis=1)
+    yaw = moment[:, 2] + np.cross(-arm, force)[:, 2]
+    return StanceSupport(torque=torque, force=force, zmp=zmp, yaw_moment=yaw, com=com)
 
 
 @dataclass(frozen=True)
 class StandingReplay:
+    """The standing replay and, per 50 Hz sample, how the robot stood: pelvis tilt (rad, from
+    its start orientation), horizontal drift (m) and sinking (m) from the start; each foot's
+    tilt (rad, from its start), how far its highest contact point rose (m) and how far it slid
+    (m); the whole-body CoM's horizontal distance (m) from where the rigid stance puts it;
+    `support`: the floor wrench the motion asks for (`stance_torques`)."""
+
     rollout: Rollout
-    #: Per 50 Hz sample: pelvis tilt (rad), horizontal drift (m) and height change (m) from the
-    #: start, each foot's tilt (rad) and how far its highest-risen contact point rose (m).
     pelvis_tilt: np.ndarray
     pelvis_drift: np.ndarray
     pelvis_drop: np.ndarray
     foot_tilt: np.ndarray
     foot_lift: np.ndarray
+    foot_slip: np.ndarray
+    com_offset: np.ndarray
+    support: StanceSupport
 
 
 def replay_standing(robot: Robot, cmd: Commands) -> StandingReplay:
     """The commands played on the robot standing on the floor: arms, waist (and every other
     non-leg joint except the fingers) follow the commands; the legs hold the stance pose under
-    PD at the YAML's `actuation.stance` gains (else their group's) plus the stance feed-forward
-    (`stance_torques`)."""
+    PD at the YAML's `actuation.stance` gains (else their group's) plus the feed-forward of the
+    feet carrying the moving body (`stance_torques`)."""
     rm, qpos0, feet = standing_model(robot)
     legs = leg_joints(robot)[rm.joints]
     stand = stance_pose(robot)
-    # the legs' command: the stance, held; their feed-forward: the feet carrying the body
     held = Commands(fps=cmd.fps, q=cmd.q.copy(), qd=cmd.qd.copy(), tau_ff=cmd.tau_ff.copy(),
                     kp=cmd.kp, kd=cmd.kd)
     leg_cols = rm.joints[legs]
     held.q[:, leg_cols] = stand[leg_cols]
     held.qd[:, leg_cols] = 0.0
-    held.tau_ff[:, leg_cols] = 0.0
-    start = qpos0.copy()
-    start[rm.qpos_adr] = held.q[0, rm.joints]
-    extra = np.where(legs, stance_torques(robot, rm, start, feet), 0.0)
-    r = _roll(robot, rm, held, qpos0, extra)
+    support = stance_torques(robot, rm, qpos0, feet, held.q[:, rm.joints], cmd.fps)
+    held.tau_ff[:, leg_cols] = support.torque[:, legs]
+    r = _roll(robot, rm, held, qpos0)
     k = np.minimum(np.round(cmd.times / r.dt).astype(int), len(r.qpos) - 1)
     model = rm.model
     data = mujoco.MjData(model)
     n = len(k)
-    tilt, drift, drop = np.zeros(n), np.zeros(n), np.zeros(n)
+    tilt, drift, drop, com = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
     bodies = sorted({int(model.geom_bodyid[g]) for g in feet})
-    ftilt, flift = np.zeros((n, len(bodies))), np.zeros((n, len(bodies)))
+    ftilt, flift, fslip = (np.zeros((n, len(bodies))) for _ in range(3))
     root = model.body(robot.spec.root_body).id
     data.qpos[:] = r.qpos[0]
     mujoco.mj_kinematics(model, data)
     p0 = data.xpos[root].copy()
     z0 = data.geom_xpos[feet, 2].copy()
+    f0 = data.xpos[bodies, :2].copy()
+    up0 = data.xmat[root].reshape(3, 3)[:, 2].copy()  # z axes at the start
+    fup0 = data.xmat[bodies].reshape(-1, 3, 3)[:, :, 2].copy()
     owner = model.geom_bodyid[feet]
+    mass = np.where(model.body_rootid == root, model.body_mass, 0.0)
     for i, s in enumerate(k):
         data.qpos[:] = r.qpos[s]
         mujoco.mj_kinematics(model, data)
-        tilt[i] = np.arccos(np.clip(data.xmat[root, 8], -1.0, 1.0))
+        com[i] = np.linalg.norm(mass @ data.xipos[:, :2] / mass.sum() - support.com[i, :2])
+        tilt[i] = np.arccos(np.clip(data.xmat[root].reshape(3, 3)[:, 2] @ up0, -1.0, 1.0))
         drift[i] = np.linalg.norm(data.xpos[root, :2] - p0[:2])
         drop[i] = p0[2] - data.xpos[root, 2]
+        fslip[i] = np.linalg.norm(data.xpos[bodies, :2] - f0, axis=1)
+        up = data.xmat[bodies].reshape(-1, 3, 3)[:, :, 2]
+        ftilt[i] = np.arccos(np.clip((up * fup0).sum(1), -1.0, 1.0))
         for c, b in enumerate(bodies):
-            ftilt[i, c] = np.arccos(np.clip(data.xmat[b, 8], -1.0, 1.0))
             flift[i, c] = np.max((data.geom_xpos[feet, 2] - z0)[owner == b])
     return StandingReplay(rollout=r, pelvis_tilt=tilt, pelvis_drift=drift, pelvis_drop=drop,
-                          foot_tilt=ftilt, foot_lift=flift)
+                          foot_tilt=ftilt, foot_lift=flift, foot_slip=fslip, com_offset=com,
+                          support=support)

@@ -126,6 +126,13 @@ def torque_ratio(robot: Robot, tau: np.ndarray) -> np.ndarray:
 def leg_joints(robot: Robot) -> np.ndarray:
     """Bool (n,): joints below the root that carry neither the torso nor anything on it (the
     legs): a joint whose body is neither an ancestor of the torso body nor inside its subtree."""
+    key = "dynamics.leg_joints"
+    if key not in robot.derived:
+        robot.derived[key] = _leg_joints(robot)
+    return robot.derived[key].copy()
+
+
+def _leg_joints(robot: Robot) -> np.ndarray:
     m = robot.model
     torso = m.body(robot.spec.torso_body).id
     chain = {torso}
@@ -149,6 +156,13 @@ def stance_pose(robot: Robot) -> np.ndarray:
     """Leg joint values (n,) of the standing robot (other joints at the T-pose): Menagerie's
     `stand` keyframe where the model has it, else the robot YAML's `actuation.stance.pose`,
     else the YAML T-pose."""
+    key = "dynamics.stance_pose"
+    if key not in robot.derived:
+        robot.derived[key] = _stance_pose(robot)
+    return robot.derived[key].copy()
+
+
+def _stance_pose(robot: Robot) -> np.ndarray:
     q = robot.tpose.copy()
     m = robot.model
     legs = leg_joints(robot)
@@ -227,9 +241,18 @@ def support_polygon(robot: Robot, q_stand: np.ndarray | None = None) -> tuple[np
     Foot geoms are the collision geoms (the robot's `collision.geom_groups`, with contact bits)
     whose lowest point lies within 5 mm of the robot's lowest; their bottom points within 5 mm
     of the floor span the polygon."""
+    q = stance_pose(robot) if q_stand is None else np.asarray(q_stand, dtype=np.float64)
+    key = ("dynamics.support_polygon", q.tobytes())
+    if key not in robot.derived:
+        robot.derived[key] = _support_polygon(robot, q)
+    polygon, floor = robot.derived[key]
+    return polygon.copy(), floor
+
+
+def _support_polygon(robot: Robot, q: np.ndarray) -> tuple[np.ndarray, float]:
     m = robot.model
     data = mujoco.MjData(m)
-    data.qpos[:] = robot.qpos(stance_pose(robot) if q_stand is None else q_stand)
+    data.qpos[:] = robot.qpos(q)
     mujoco.mj_kinematics(m, data)
     geoms = np.flatnonzero(np.isin(m.geom_group, list(robot.spec.collision.geom_groups))
                            & ((m.geom_contype | m.geom_conaffinity) != 0) & (m.geom_bodyid > 0))
