@@ -27,8 +27,11 @@ class DaskProcesses:
     ends. `folder/scheduler`, `folder/worker-<i>/{cwd,tmp,dask}` hold each process's files."""
 
     def __init__(self, folder: str | Path, workers: int = 2, env: dict[str, str] | None = None,
-                 startup_timeout_s: float = 120.0) -> None:
+                 startup_timeout_s: float = 120.0, preload: bool = True) -> None:
         self.folder = Path(folder)
+        #: `--preload embody.flows.preload` (what embody's steps need, see there); tests of
+        #: stand-in steps go without it
+        self.preload = preload
         self.n_workers = workers
         self.extra_env = dict(env or {})
         self.startup_timeout_s = startup_timeout_s
@@ -84,7 +87,7 @@ class DaskProcesses:
         proc = self._spawn(
             ["worker", self.address, "--nthreads", "1", "--no-nanny", "--no-dashboard",
              "--name", f"w{i}", "--local-directory", str(home / "dask"),
-             "--preload", "embody.flows.preload"], home, "worker")
+             *(["--preload", "embody.flows.preload"] if self.preload else [])], home, "worker")
         self.workers.append(proc)
         return proc
 

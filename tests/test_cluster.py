@@ -9,7 +9,7 @@ missing PostgreSQL installation skips it.
 
 They test orchestration, so the steps are cheap: one test runs the real chain with cheap
 configs on 3 four-frame sequences; the others use stand-in steps wired like the real chain
-(source → collide → shape_fit (shared) → retarget → metrics) that compute in microseconds,
+(source → collide → shape fit (shared) → retarget → metrics, under names of their own) that compute in microseconds,
 with `TOY_SLOW` seconds of sleep per sequence on the workers so a kill lands mid-batch.
 """
 
@@ -63,19 +63,20 @@ def _fit(ctx, inputs):
 
 def _retarget(ctx, inputs):
     _slow()
-    return Toy(inputs["collide"].x * inputs["shape_fit"].x[0], {})
+    return Toy(inputs["toy_collide"].x * inputs["toy_fit"].x[0], {})
 
 
 def _metrics(ctx, inputs):
-    return Toy(np.array(float(inputs["retarget"].x.std())),
-               {"std": float(inputs["retarget"].x.std())})
+    return Toy(np.array(float(inputs["toy_retarget"].x.std())),
+               {"std": float(inputs["toy_retarget"].x.std())})
 
 
-COLLIDE = Step("collide", "1", ("body", "collision"), _collide, Toy.from_arrays, (SOURCE,))
-SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _fit, Toy.from_arrays, shared=True)
-RETARGET = Step("retarget", "1", ("body", "robot", "ik"), _retarget, Toy.from_arrays,
+# names of their own: a driver warms the real steps' models for the real names
+COLLIDE = Step("toy_collide", "1", ("body", "collision"), _collide, Toy.from_arrays, (SOURCE,))
+SHAPE_FIT = Step("toy_fit", "1", ("body", "robot", "ik"), _fit, Toy.from_arrays, shared=True)
+RETARGET = Step("toy_retarget", "1", ("body", "robot", "ik"), _retarget, Toy.from_arrays,
                 (COLLIDE, SHAPE_FIT))
-METRICS = Step("metrics", "1", (), _metrics, Toy.from_arrays, (RETARGET,))
+METRICS = Step("toy_metrics", "1", (), _metrics, Toy.from_arrays, (RETARGET,))
 TOY = Pipeline(SOURCE, (COLLIDE, SHAPE_FIT, RETARGET, METRICS))
 
 
@@ -131,10 +132,11 @@ def _env(api: str, home: Path, **extra: str) -> dict[str, str]:
     return env
 
 
-def _cluster(folder: Path, workers: int = 2, slow: float = 0.0) -> DaskProcesses:
-    env = _env("", folder, TOY_SLOW=str(slow))
+def _cluster(folder: Path, workers: int = 2, slow: float = 0.0,
+             preload: bool = True) -> DaskProcesses:
+    env = _env("", folder)
     return DaskProcesses(folder, workers, env={"PYTHONPATH": env["PYTHONPATH"],
-                                               "TOY_SLOW": str(slow)})
+                                               "TOY_SLOW": str(slow)}, preload=preload)
 
 
 def _driver(data: Path, cfg: dict, env: dict[str, str], out: Path) -> subprocess.Popen:
@@ -173,7 +175,8 @@ def _wait_until(what: str, ready, timeout: float = 240) -> None:
 
 
 def _cfg(store: Path, name: str, **run) -> dict:
-    return {"run": {"store": str(store), "name": name, "batch_size": 3, "report": False, **run}}
+    return {"run": {"store": str(store), "name": name, "batch_size": 3, "report": False,
+                    "render": False, "critic": False, **run}}
 
 
 # -- tests ---------------------------------------------------------------------------------------
@@ -229,7 +232,7 @@ def test_a_killed_worker_loses_only_its_batch_and_a_rerun_recomputes_only_the_re
         prefect_pg, tmp_path):
     n = 12
     data = write_amass(tmp_path / "data", n)
-    cluster = _cluster(tmp_path / "cluster", slow=0.3)
+    cluster = _cluster(tmp_path / "cluster", slow=0.3, preload=False)  # stand-ins: no torch
     with cluster as address:
         # 1. SIGKILL a worker in the middle of its batch: the scheduler hands the batch to the
         #    other worker, which finds what the dead one published and computes only the rest.
@@ -238,7 +241,7 @@ def test_a_killed_worker_loses_only_its_batch_and_a_rerun_recomputes_only_the_re
         cfg = _cfg(store.root, "a", runner="dask", dask_address=address)
         proc = _driver(data, cfg, _env(prefect_pg, tmp_path / "driver"), tmp_path / "a.out")
         _wait_until("the first worker's first collide", lambda: any(
-            r["pid"] == victim and r["step"] == "collide" for r in store.computations()))
+            r["pid"] == victim and r["step"] == "toy_collide" for r in store.computations()))
         cluster.kill_worker(0)
         killed_at = time.time()
         summary = _finish(proc, tmp_path / "a.out")
@@ -260,7 +263,7 @@ def test_a_killed_worker_loses_only_its_batch_and_a_rerun_recomputes_only_the_re
         cfg = _cfg(store.root, "b", runner="dask", dask_address=address)
         proc = _driver(data, cfg, _env(prefect_pg, tmp_path / "driver"), tmp_path / "b.out")
         _wait_until("half the sequences' retarget",
-                    lambda: len(store.computations("retarget")) >= n // 2)
+                    lambda: len(store.computations("toy_retarget")) >= n // 2)
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
         cluster.kill_worker(1)
@@ -286,7 +289,8 @@ def test_task_runs_per_flow_run_stay_under_the_bound(prefect_pg, tmp_path):
     n, bound = 12, 9
     data = write_amass(tmp_path / "data", n)
     store = ArtifactStore(tmp_path / "store")
-    cfg = _cfg(store.root, "bounded", batch_size=1, max_task_runs=bound, workers=2)
+    cfg = _cfg(store.root, "bounded", batch_size=1, max_task_runs=bound, workers=2,
+               worker_processes=False)
     before = {r["id"] for r in _api(prefect_pg, "flow_runs/filter")}
     proc = _driver(data, cfg, _env(prefect_pg, tmp_path / "driver"), tmp_path / "out")
     summary = _finish(proc, tmp_path / "out")
