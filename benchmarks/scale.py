@@ -275,6 +275,22 @@ def _rss(pid: int) -> int:
         return 0
 
 
+def warm_compute(rows: list[dict[str, Any]]) -> tuple[float, float]:
+    """(median compute seconds per sequence summed over the per-sequence steps, the shared
+    steps' seconds): a worker's first call of a step also loads or compiles its kernels
+    (minutes for numba's cold cache on a loaded machine), which a short run cannot amortise
+    and a 1,000-sequence run pays once per worker."""
+    import statistics
+    per_step: dict[str, list[float]] = {}
+    shared = 0.0
+    for r in rows:
+        if r.get("sequence") is None:
+            shared += float(r.get("compute_s") or 0.0)
+        else:
+            per_step.setdefault(r["step"], []).append(float(r.get("compute_s") or 0.0))
+    return sum(statistics.median(v) for v in per_step.values()), shared
+
+
 def full_run(args: argparse.Namespace, work: Path) -> None:
     """The production-shaped run (`--full`): see the module docstring."""
     import httpx
@@ -354,6 +370,9 @@ def full_run(args: argparse.Namespace, work: Path) -> None:
     steady = 60 * len(done) / span if span else rate
     print("compute seconds per sequence (summed over workers): " + " ".join(
         f"{k}={v / n:.2f}" for k, v in sorted(compute.items())), flush=True)
+    median_s, shared_s = warm_compute(rows)
+    # hours for N sequences at the warm per-sequence compute, W workers busy, plus the shared fit
+    hours = {m: (m * median_s / args.workers + shared_s) / 3600 for m in (1000, 20000)}
     if summary.get("failed"):
         print(f"  {summary['failed']} failed; first: {summary['failures'][0]}", flush=True)
     print(f"RESULT mode=full sequences={n} ok={summary.get('ok')} wall_s={wall:.1f} "
@@ -363,7 +382,8 @@ def full_run(args: argparse.Namespace, work: Path) -> None:
           f"store_mb_per_seq={size / n / 2**20:.2f} "
           f"compute_s_per_seq={sum(compute.values()) / n:.2f} "
           f"max_task_runs_per_flow_run={max(per_run, default=0)} flow_runs={len(flow_runs)} "
-          f"projected_h_1000={1000 / steady / 60:.1f} projected_h_20k={20000 / steady / 60:.1f} "
+          f"warm_compute_s_per_seq={median_s:.2f} projected_h_1000={hours[1000]:.1f} "
+          f"projected_h_20k={hours[20000]:.1f} "
           f"workers={args.workers} batch={args.batch_size} database=postgresql "
           f"store={'local' if '://' not in store else store.split('://')[0]} "
           f"render=on configs=default load_avg={os.getloadavg()[0]:.1f}", flush=True)
