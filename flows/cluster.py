@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -20,6 +21,12 @@ from pathlib import Path
 from typing import IO
 
 __all__ = ["DaskProcesses"]
+
+
+def _dask() -> str:
+    """The `dask` command of this interpreter's environment (else the one on PATH)."""
+    local = Path(sys.executable).with_name("dask")
+    return str(local) if local.is_file() else (shutil.which("dask") or "dask")
 
 
 class DaskProcesses:
@@ -59,7 +66,7 @@ class DaskProcesses:
         cwd.mkdir(parents=True, exist_ok=True)
         log = open(home / f"{name}.log", "ab")
         self._logs.append(log)
-        return subprocess.Popen([str(Path(sys.executable).with_name("dask")), *args],
+        return subprocess.Popen([_dask(), *args],
                                 cwd=cwd, env=self._env(home), stdout=log,
                                 stderr=subprocess.STDOUT, start_new_session=True)
 

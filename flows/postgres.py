@@ -59,7 +59,7 @@ class LocalPostgres:
 
     @property
     def url(self) -> str:
-        return (f"postgresql+asyncpg://{self.user}@127.0.0.1:{self.port}/{self.database}")
+        return f"postgresql+asyncpg://{self.user}@127.0.0.1:{self.port}/{self.database}"
 
     def _run(self, *args: str, timeout: float = 120) -> subprocess.CompletedProcess:
         return subprocess.run([*self._runas, *args], capture_output=True, text=True,

@@ -106,7 +106,7 @@ def postgres():
         _unavailable("PostgreSQL", "initdb not found (apt-get install postgresql)")
     server = LocalPostgres()
     try:
-        url = server.start()
+        server.start()
     except Exception as exc:  # installed but unusable: a failure, never a silent skip
         server.stop()
         pytest.fail(f"PostgreSQL could not start: {exc}", pytrace=False)
@@ -123,19 +123,23 @@ def prefect_pg(postgres, tmp_path_factory):
         yield api
 
 
-def _env(api: str, home: Path, **extra: str) -> dict[str, str]:
+def _pythonpath() -> str:
+    """The tests folder (the stand-in steps) and this checkout, before the caller's path."""
+    old = os.environ.get("PYTHONPATH")
+    return os.pathsep.join([str(TESTS), str(ROOT)] + ([old] if old else []))
+
+
+def _env(api: str, home: Path) -> dict[str, str]:
+    """A driver's environment: the Prefect API and a `PREFECT_HOME` of its own."""
     env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_")}
-    path = [str(TESTS), str(ROOT)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else [])
     env.update(PREFECT_API_URL=api, PREFECT_HOME=str(home), DO_NOT_TRACK="1",
-               PREFECT_SERVER_ANALYTICS_ENABLED="false", PYTHONPATH=os.pathsep.join(path),
-               **extra)
+               PREFECT_SERVER_ANALYTICS_ENABLED="false", PYTHONPATH=_pythonpath())
     return env
 
 
 def _cluster(folder: Path, workers: int = 2, slow: float = 0.0,
              preload: bool = True) -> DaskProcesses:
-    env = _env("", folder)
-    return DaskProcesses(folder, workers, env={"PYTHONPATH": env["PYTHONPATH"],
+    return DaskProcesses(folder, workers, env={"PYTHONPATH": _pythonpath(),
                                                "TOY_SLOW": str(slow)}, preload=preload)
 
 
