@@ -19,12 +19,22 @@ The figures measure orchestration, so per-sequence compute is made tiny, through
 and the output says so: render off (benchmarks/render.py measures it), no end-of-run report
 (benchmarks/report.py), sequences of `--frames` (default 20) frames, and every step kept but
 cheap (`CHEAP`: collision detection without the optimiser or the depth judge, one IK
-iteration, a 10-step shape fit, one critic round, no fidelity IK baseline). `--full` keeps the
-default stage configs. `api_errors` counts 5xx / "database is locked" / tracebacks in the
-server log and in the runs' stderr. Peak RSS: the driver process alone; workers: the largest
+iteration, a 10-step shape fit, one critic round, no fidelity IK baseline). `api_errors`
+counts 5xx / "database is locked" / tracebacks in the server log and in the runs' stderr. Peak RSS: the driver process alone; workers: the largest
 child process (Prefect process-pool workers, Dask nanny/worker processes).
 
     python benchmarks/scale.py [--n 1000] [--frames 20] [--workers 2] [--batch-size 16] [--out DIR]
+
+`--full` is the production-shaped run instead (`full_run`): N sequences of the default synthetic
+dataset (default lengths, default stage configs, render on; the end-of-run report off) through
+`embody run --runner dask --dask-address` on a `dask scheduler` and W `dask worker` processes
+started from their command lines (`embody.flows.cluster`), with the Prefect server on a
+throwaway PostgreSQL (`embody.flows.postgres`) and the store given by `--store-url` (default a
+local folder). It prints seq/min, the driver's and the workers' peak RSS, API errors, the
+store's files and bytes per sequence, the most task runs any flow run held, and the hours the
+same rate needs for 1,000 and 20,000 sequences:
+
+    python benchmarks/scale.py --full --n 1000     # hours on 2 cores: see docs/orchestration.md
 """
 
 from __future__ import annotations
@@ -145,7 +155,7 @@ class Bench:
         return [*EMBODY, "run", str(self.data), "--store", str(store), "--name", "scale",
                 "--runner", runner, "--workers", str(workers), "--batch-size", str(a.batch_size),
                 "--no-render", "--set", "run.report=false", "--no-progress", "--json",
-                *([] if a.full else CHEAP), *extra]
+                *CHEAP, *extra]
 
     def _server_cpu(self) -> float:
         import psutil
@@ -257,6 +267,128 @@ class Bench:
         return res
 
 
+def _rss(pid: int) -> int:
+    import psutil
+    try:
+        return int(psutil.Process(pid).memory_info().rss)
+    except psutil.Error:
+        return 0
+
+
+def warm_compute(rows: list[dict[str, Any]]) -> tuple[float, float]:
+    """(median compute seconds per sequence summed over the per-sequence steps, the shared
+    steps' seconds): a worker's first call of a step also loads or compiles its kernels
+    (minutes for numba's cold cache on a loaded machine), which a short run cannot amortise
+    and a 1,000-sequence run pays once per worker."""
+    import statistics
+    per_step: dict[str, list[float]] = {}
+    shared = 0.0
+    for r in rows:
+        if r.get("sequence") is None:
+            shared += float(r.get("compute_s") or 0.0)
+        else:
+            per_step.setdefault(r["step"], []).append(float(r.get("compute_s") or 0.0))
+    return sum(statistics.median(v) for v in per_step.values()), shared
+
+
+def full_run(args: argparse.Namespace, work: Path) -> None:
+    """The production-shaped run (`--full`): see the module docstring."""
+    import httpx
+    import psutil
+
+    from embody.flows.cluster import DaskProcesses
+    from embody.flows.postgres import LocalPostgres
+    from embody.flows.server import LocalServer
+    from embody.store import ArtifactStore
+    from embody.synth import default_dataset
+
+    t_data = time.perf_counter()
+    data = default_dataset(work / "data", n=args.n, seed=0)
+    print(f"dataset: {args.n} default synthetic sequences in {time.perf_counter() - t_data:.0f} s "
+          f"({data})", flush=True)
+    store = args.store_url or str(work / "store-full")
+    pg = LocalPostgres()
+    errors = 0
+    with pg as db_url, LocalServer(work / "prefect-home", database_url=db_url) as api:
+        print(f"prefect server {api} on PostgreSQL ({db_url})", flush=True)
+        cluster = DaskProcesses(work / "cluster", args.workers)
+        with cluster as address:
+            print(f"dask scheduler {address}, {args.workers} workers", flush=True)
+            env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_")}
+            env.update(PREFECT_API_URL=api, PREFECT_HOME=str(work / "driver-prefect"),
+                       PYTHONPATH=str(ROOT), DO_NOT_TRACK="1",
+                       PREFECT_SERVER_ANALYTICS_ENABLED="false")
+            cmd = [*EMBODY, "run", str(data), "--store", store, "--name", "full",
+                   "--runner", "dask", "--dask-address", address, "--workers", str(args.workers),
+                   "--batch-size", str(args.batch_size), "--set", "run.report=false",
+                   "--no-progress", "--json"]
+            err_path, out_path = work / "full.stderr", work / "full.json"
+            started, t0 = time.time(), time.perf_counter()
+            peak_driver = peak_worker = 0
+            with open(err_path, "w") as err, open(out_path, "w") as out:
+                proc = subprocess.Popen(cmd, env=env, cwd=work, stdout=out, stderr=err,
+                                        start_new_session=True)
+                try:
+                    ps = psutil.Process(proc.pid)
+                    while proc.poll() is None:
+                        try:
+                            tree = [ps] + ps.children(recursive=True)
+                            peak_driver = max(peak_driver, sum(
+                                p.memory_info().rss for p in tree if p.is_running()))
+                        except psutil.Error:
+                            pass
+                        peak_worker = max([peak_worker] + [_rss(w.pid) for w in cluster.workers])
+                        time.sleep(0.5)
+                finally:
+                    if proc.poll() is None:
+                        os.killpg(proc.pid, signal.SIGKILL)
+                    proc.wait()
+            wall = time.perf_counter() - t0
+            logs = [err_path, work / "prefect-home" / "server.log",
+                    *(work / "cluster").glob("worker-*/worker.log")]
+            for path in logs:
+                if path.is_file():
+                    errors += sum(bool(_ERRORS.search(line)) for line in
+                                  path.read_text(errors="replace").splitlines())
+        flow_runs = httpx.post(api + "/flow_runs/filter", json={}, timeout=60).json()
+        per_run = [int(httpx.post(api + "/task_runs/count", json={
+            "flow_runs": {"id": {"any_": [r["id"]]}}}, timeout=60).json()) for r in flow_runs]
+    summary = json.loads(out_path.read_text() or "{}")
+    rows = [r for r in ArtifactStore(store).computations() if r["time"] >= started]
+    done = [r["time"] for r in rows if r["step"] == "metrics"]
+    span = (max(done) - min(r["time"] for r in rows)) if len(done) > 1 else None
+    compute: dict[str, float] = {}
+    for r in rows:
+        compute[r["step"]] = compute.get(r["step"], 0.0) + float(r.get("compute_s") or 0.0)
+    files = size = 0
+    for root, _, names in os.walk(store):
+        for name in names:
+            files += 1
+            size += os.path.getsize(os.path.join(root, name))
+    n = args.n
+    rate = 60 * n / wall
+    steady = 60 * len(done) / span if span else rate
+    print("compute seconds per sequence (summed over workers): " + " ".join(
+        f"{k}={v / n:.2f}" for k, v in sorted(compute.items())), flush=True)
+    median_s, shared_s = warm_compute(rows)
+    # hours for N sequences at the warm per-sequence compute, W workers busy, plus the shared fit
+    hours = {m: (m * median_s / args.workers + shared_s) / 3600 for m in (1000, 20000)}
+    if summary.get("failed"):
+        print(f"  {summary['failed']} failed; first: {summary['failures'][0]}", flush=True)
+    print(f"RESULT mode=full sequences={n} ok={summary.get('ok')} wall_s={wall:.1f} "
+          f"seq_per_min={rate:.2f} steady_seq_per_min={steady:.2f} "
+          f"peak_driver_rss_mb={peak_driver / 2**20:.0f} peak_worker_rss_mb={peak_worker / 2**20:.0f} "
+          f"api_errors={errors} store_files_per_seq={files / n:.1f} "
+          f"store_mb_per_seq={size / n / 2**20:.2f} "
+          f"compute_s_per_seq={sum(compute.values()) / n:.2f} "
+          f"max_task_runs_per_flow_run={max(per_run, default=0)} flow_runs={len(flow_runs)} "
+          f"warm_compute_s_per_seq={median_s:.2f} projected_h_1000={hours[1000]:.1f} "
+          f"projected_h_20k={hours[20000]:.1f} "
+          f"workers={args.workers} batch={args.batch_size} database=postgresql "
+          f"store={'local' if '://' not in store else store.split('://')[0]} "
+          f"render=on configs=default load_avg={os.getloadavg()[0]:.1f}", flush=True)
+
+
 def interleaved(b: Bench, size: int, rounds: int) -> tuple[dict[str, float], list[dict[str, Any]]]:
     """1 and 2 workers on alternating chunks of `size` fresh sequences (order ABBA, so a load
     change during the measurement hits both alike); rates over the steady spans."""
@@ -314,7 +446,11 @@ def main() -> None:
                         help="Sequences of the kill/resume and Dask phases (N for both costs "
                              "hours on a shared 2-core machine).")
     parser.add_argument("--full", action="store_true",
-                        help="Default stage configs (hours at N=1000 on 2 cores).")
+                        help="The production-shaped run: default configs and lengths, render on, "
+                             "a dask scheduler and workers, Prefect on PostgreSQL (hours at "
+                             "N=1000 on 2 cores).")
+    parser.add_argument("--store-url", default=None,
+                        help="--full: the store (a folder or URL; default a folder in --out).")
     parser.add_argument("--chunk", type=int, default=64,
                         help="Sequences per chunk of the interleaved 1-vs-2-worker phase.")
     parser.add_argument("--rounds", type=int, default=2,
@@ -328,10 +464,17 @@ def main() -> None:
     work.mkdir(parents=True, exist_ok=True)
     for old in work.glob("store-*"):
         shutil.rmtree(old, ignore_errors=True)
+    if args.full:
+        shutil.rmtree(work / "prefect-home", ignore_errors=True)
+        print(f"scale --full: {args.n} default synthetic sequences (default lengths and "
+              f"configs, render on, report off), batch {args.batch_size}, {args.workers} dask "
+              f"workers; {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}; work {work}",
+              flush=True)
+        full_run(args, work)
+        return
     print(f"scale: {args.n} synthetic sequences of {args.frames} frames, batch {args.batch_size}, "
           f"{args.workers} workers; render OFF, end-of-run report OFF; "
-          + ("stage configs default" if args.full else
-             "stage configs cheap (orchestration-bound): " + " ".join(CHEAP[1::2]))
+          + "stage configs cheap (orchestration-bound): " + " ".join(CHEAP[1::2])
           + f"; {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}; work {work}", flush=True)
 
     from embody.flows.server import LocalServer
@@ -401,7 +544,7 @@ def main() -> None:
           f"load_avg={cold['load_avg']} task_runs={cold['task_runs']} "
           f"driver_cpu_ms_per_task_run={1000 * cold['driver_cpu_s'] / max(1, cold['task_runs']):.0f} "
           f"compute_s_per_seq={round(sum(steps.values()), 3)} batch={args.batch_size} "
-          f"render=off frames={args.frames} configs={'default' if args.full else 'cheap'}")
+          f"render=off frames={args.frames} configs=cheap")
 
 
 if __name__ == "__main__":

@@ -141,9 +141,17 @@ class _Driver:
         self._save_every = _SAVE_EVERY_S
         self.recovered = 0
         self.save_error: str | None = None
+        #: Task runs this flow run may still be given (`run.max_task_runs`, `flows.chunks`)
+        #: and the most the batches of this `run` call can need: tail splits stay within it.
+        self.budget = self.planned = 0
 
-    def run(self, batches: list[list[dict[str, Any]]]) -> None:
+    def run(self, batches: list[list[dict[str, Any]]], budget: int | None = None) -> None:
+        """Drive `batches` to the end (one chunk of a run: `flows.chunks`)."""
         self.batches = batches
+        self.step_of, self.next_batch, self.inflight = {}, 0, 0
+        unsubmitted = sum(s.name not in self.shared for s in self.pipeline.shared)
+        self.planned = len(batches) * len(self.steps) + unsubmitted
+        self.budget = budget if budget is not None else 1 << 30
         self._submit_shared()
         self._fill()
         while self.ready or self.outstanding:
@@ -218,6 +226,8 @@ class _Driver:
         ok = [r for r in records if r["status"] == "ok"]
         if self.workers < 2 or len(ok) < 2 or self.next_batch < len(self.batches):
             return None
+        if self.planned + len(self.steps) - i > self.budget:  # the flow run's task-run bound
+            return None
         busy = self.outstanding + len(self.ready) + 1  # this batch's task included
         lags = any(step > i for other, step in self.step_of.items() if other != b)
         if busy >= self.workers and not lags:
@@ -228,6 +238,7 @@ class _Driver:
         self.batches[b] = first
         self.batches.append(second)
         self.step_of[len(self.batches) - 1] = i
+        self.planned += len(self.steps) - i
         self.next_batch = len(self.batches)
         self.inflight += 1
         return second
@@ -417,9 +428,16 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
                      workers=cfg.run.workers)
     from embody.tasks.workers import worker_pool
     failure = None
+    from embody.flows.chunks import plan_chunks, run_chunks
+    bound = cfg.run.max_task_runs
+    chunks = plan_chunks(batches, len(pipeline.per_sequence), len(pipeline.shared), bound)
     with worker_threads(cfg.run.workers), worker_pool(ctx, pipeline):
         try:
-            driver.run(batches)
+            if len(chunks) == 1:
+                driver.run(batches, bound)
+            else:  # at most `bound` task runs per flow run: one subflow run per chunk
+                run_chunks(run, chunks, lambda chunk: driver.run(chunk, bound),
+                           lambda: make_task_runner(cfg.run))
         except Exception as exc:  # Prefect's API failed (its database's disk full, ...)
             failure = orchestration_failure(exc, store.root, "not finished: Prefect failed")
             driver.abandon(failure)
@@ -493,8 +511,9 @@ def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
 
     run = run_name(cfg, dataset, split)
     _SUMMARIES.pop(run, None)
+    from embody.flows.runners import local_dask_cluster
     try:
-        with prefect_api(warm=warm), _quiet_prefect():
+        with prefect_api(warm=warm), _quiet_prefect(), local_dask_cluster(cfg) as cfg:
             return prefect_flow().with_options(task_runner=make_task_runner(cfg.run))(
                 str(dataset), split, cfg.model_dump(mode="json"), pipeline, progress)
     except Exception as exc:  # Prefect itself failed: its server, its database, its API

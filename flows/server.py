@@ -2,8 +2,9 @@
 
 Schedules only fire on a persistent server, and big runs want one outside the driver. Used by
 `benchmarks/scale.py` and the real-server test; users run `prefect server start` themselves.
-The server gets its own `PREFECT_HOME` (SQLite database), listens on loopback only, and is
-offline (no telemetry, no UI).
+The server gets its own `PREFECT_HOME` (SQLite database there, or `database_url`: PostgreSQL,
+the production configuration, see `flows.postgres`), listens on loopback only, and is offline
+(no telemetry, no UI).
 """
 
 from __future__ import annotations
@@ -30,8 +31,9 @@ class LocalServer:
     """`with LocalServer(home) as api_url:` runs a server until the block ends (even on error)."""
 
     def __init__(self, home: str | Path, port: int | None = None, log: str | Path | None = None,
-                 startup_timeout_s: float = 240.0) -> None:
+                 startup_timeout_s: float = 240.0, database_url: str | None = None) -> None:
         self.home = Path(home)
+        self.database_url = database_url
         self.port = port or free_port()
         self.log_path = Path(log) if log else self.home / "server.log"
         self.startup_timeout_s = startup_timeout_s
@@ -47,6 +49,8 @@ class LocalServer:
         env.update(PREFECT_HOME=str(self.home), DO_NOT_TRACK="1",
                    PREFECT_SERVER_ANALYTICS_ENABLED="false", PREFECT_UI_ENABLED="false",
                    PREFECT_LOGGING_LEVEL="WARNING")
+        if self.database_url:
+            env["PREFECT_API_DATABASE_CONNECTION_URL"] = self.database_url
         return env
 
     def start(self) -> str:

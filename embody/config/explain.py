@@ -27,6 +27,7 @@ USER_KEYS: dict[str, str] = {
     "run.runner": "threads, processes or dask (choice)",
     "run.dask_address": "Dask scheduler to run on, e.g. tcp://host:8786; null: a local cluster (address)",
     "run.batch_size": "sequences per task submission; raise it for datasets of thousands (count)",
+    "run.max_task_runs": "most task runs per Prefect flow run; more run as subflows of this size (count)",
     "run.limit": "process only the first N sequences; null: all (count)",
     "run.offset": "skip the first N sequences, to split a dataset between drivers (count)",
     "run.critic": "run the critic refinement step (on/off)",

@@ -23,6 +23,10 @@ class RunConfig(Section):
     dask_address: str | None = None
     #: Sequences per task submission: 20k sequences become 20k/batch_size task runs per step.
     batch_size: int = Field(8, ge=1, le=10_000)
+    #: Most task runs one Prefect flow run holds: a run that needs more runs its batches in
+    #: consecutive subflow runs ("chunks") of at most this many (Prefect stalls and leaks
+    #: past about a thousand task runs per flow run on Dask and Ray).
+    max_task_runs: int = Field(1000, ge=8, le=100_000)
     limit: int | None = Field(None, ge=1)
     #: Skip the first N sequences (before `limit`): with `limit`, a window of the dataset, so
     #: several drivers can split one dataset under one run name (their manifests merge).

@@ -1,0 +1,156 @@
+"""A Dask cluster of separate processes, started from Dask's own command lines.
+
+What a user runs on a cluster, on one machine: `dask scheduler` and `dask worker ADDRESS`
+processes, each worker with its own working directory and temporary folder, sharing nothing
+with the driver but the scheduler's address, the store and the Prefect API (which reaches the
+workers inside each task's serialized context). Used by the cluster tests and
+`benchmarks/scale.py --full`; `embody run --runner dask --dask-address ADDRESS` is the driver.
+Workers run without a nanny, so one process is one worker: killing it loses that worker.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import IO
+
+__all__ = ["DaskProcesses"]
+
+
+def _dask() -> str:
+    """The `dask` command of this interpreter's environment (else the one on PATH)."""
+    local = Path(sys.executable).with_name("dask")
+    return str(local) if local.is_file() else (shutil.which("dask") or "dask")
+
+
+class DaskProcesses:
+    """`with DaskProcesses(folder, workers=2) as address:` scheduler and workers until the block
+    ends. `folder/scheduler`, `folder/worker-<i>/{cwd,tmp,dask}` hold each process's files."""
+
+    def __init__(self, folder: str | Path, workers: int = 2, env: dict[str, str] | None = None,
+                 startup_timeout_s: float = 120.0, preload: bool = True) -> None:
+        self.folder = Path(folder)
+        #: `--preload embody.flows.preload` (what embody's steps need, see there); tests of
+        #: stand-in steps go without it
+        self.preload = preload
+        self.n_workers = workers
+        self.extra_env = dict(env or {})
+        self.startup_timeout_s = startup_timeout_s
+        self.scheduler: subprocess.Popen | None = None
+        self.workers: list[subprocess.Popen] = []
+        self.killed: set[int] = set()
+        self.address = ""
+        self._logs: list[IO[bytes]] = []
+
+    def _env(self, home: Path) -> dict[str, str]:
+        """The parent's environment without its Prefect settings and temp folder: a worker
+        gets its own `PREFECT_HOME` and `TMPDIR`; single-threaded BLAS (one task per worker)."""
+        env = {k: v for k, v in os.environ.items()
+               if not k.startswith(("PREFECT_", "DASK_")) and k not in ("TMPDIR", "TMP", "TEMP")}
+        tmp = home / "tmp"
+        tmp.mkdir(parents=True, exist_ok=True)
+        env.update(TMPDIR=str(tmp), PREFECT_HOME=str(home / "prefect"), DO_NOT_TRACK="1",
+                   PREFECT_SERVER_ANALYTICS_ENABLED="false", PREFECT_LOGGING_LEVEL="WARNING",
+                   OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
+                   **self.extra_env)
+        return env
+
+    def _spawn(self, args: list[str], home: Path, name: str) -> subprocess.Popen:
+        cwd = home / "cwd"
+        cwd.mkdir(parents=True, exist_ok=True)
+        log = open(home / f"{name}.log", "ab")
+        self._logs.append(log)
+        return subprocess.Popen([_dask(), *args],
+                                cwd=cwd, env=self._env(home), stdout=log,
+                                stderr=subprocess.STDOUT, start_new_session=True)
+
+    def start(self) -> str:
+        home = self.folder / "scheduler"
+        info = home / "scheduler.json"
+        info.unlink(missing_ok=True)
+        self.scheduler = self._spawn(
+            ["scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+             "--scheduler-file", str(info)], home, "scheduler")
+        deadline = time.monotonic() + self.startup_timeout_s
+        while not info.is_file() or not info.read_text().strip():
+            self._check(self.scheduler, "scheduler", deadline)
+            time.sleep(0.1)
+        self.address = json.loads(info.read_text())["address"]
+        for i in range(self.n_workers):
+            self.add_worker()
+        self.wait_for_workers(self.n_workers, deadline)
+        return self.address
+
+    def add_worker(self) -> subprocess.Popen:
+        """Start one more `dask worker` (its own cwd, temp folder and Dask local directory)."""
+        i = len(self.workers)
+        home = self.folder / f"worker-{i}"
+        proc = self._spawn(
+            ["worker", self.address, "--nthreads", "1", "--no-nanny", "--no-dashboard",
+             "--name", f"w{i}", "--local-directory", str(home / "dask"),
+             *(["--preload", "embody.flows.preload"] if self.preload else [])], home, "worker")
+        self.workers.append(proc)
+        return proc
+
+    def wait_for_workers(self, n: int, deadline: float | None = None) -> None:
+        from distributed import Client
+
+        deadline = deadline or time.monotonic() + self.startup_timeout_s
+        with Client(self.address, timeout=30) as client:
+            while len(client.scheduler_info(n_workers=-1)["workers"]) < n:
+                for i, w in enumerate(self.workers):
+                    if w.poll() is None or i in self.killed:
+                        continue
+                    raise RuntimeError(f"dask worker {i} exited ({w.returncode}); see "
+                                       f"{self.folder / f'worker-{i}' / 'worker.log'}")
+                if time.monotonic() > deadline:
+                    raise TimeoutError(f"{n} dask workers not up within the timeout")
+                time.sleep(0.2)
+
+    def _check(self, proc: subprocess.Popen, name: str, deadline: float) -> None:
+        if proc.poll() is not None:
+            raise RuntimeError(f"dask {name} exited ({proc.returncode}); see {self.folder}")
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"dask {name} not up within {self.startup_timeout_s:.0f} s")
+
+    def kill_worker(self, i: int) -> None:
+        """SIGKILL worker `i` (a crash: no goodbye to the scheduler)."""
+        proc = self.workers[i]
+        self.killed.add(i)
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait()
+
+    def stop(self) -> None:
+        for proc in [*self.workers, self.scheduler]:
+            if proc is None or proc.poll() is not None:
+                continue
+            try:
+                os.killpg(proc.pid, signal.SIGTERM)
+                proc.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+            except ProcessLookupError:
+                pass
+        for log in self._logs:
+            log.close()
+        self._logs = []
+
+    def __enter__(self) -> str:
+        try:
+            return self.start()
+        except BaseException:
+            self.stop()
+            raise
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
