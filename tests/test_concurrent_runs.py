@@ -19,6 +19,7 @@ import numpy as np
 
 from embody.store import ArtifactStore, Manifest
 from embody.store.writers import locked
+from s3_server import s3_endpoint, s3_url, store_root  # noqa: F401 (fixtures)
 
 K = "ab" * 32
 #: `embody ...` in a subprocess, with this interpreter.
@@ -33,8 +34,8 @@ def _finish(m: Manifest, ids: list[str], status: str = "ok") -> None:
         m.finish_sequence(sid)
 
 
-def test_two_writers_merge_and_finish_only_when_both_are_done(tmp_path):
-    store = ArtifactStore(tmp_path)
+def test_two_writers_merge_and_finish_only_when_both_are_done(store_root):
+    store = ArtifactStore(store_root)
     a, b = Manifest(store, "r"), Manifest(store, "r")
     a.start(["s1", "s2", "s3"], dataset="d")
     b.start(["s3", "s4"], dataset="d")  # s3 overlaps
@@ -55,8 +56,8 @@ def test_two_writers_merge_and_finish_only_when_both_are_done(tmp_path):
     assert disk.keys() == {("source", K)}
 
 
-def test_a_rerun_restarts_its_own_sequences_and_keeps_the_others(tmp_path):
-    store = ArtifactStore(tmp_path)
+def test_a_rerun_restarts_its_own_sequences_and_keeps_the_others(store_root):
+    store = ArtifactStore(store_root)
     first = Manifest(store, "r")
     first.start(["s1", "s2"])
     _finish(first, ["s1", "s2"])

@@ -110,7 +110,8 @@ def command(run: str | None, store_root: str, out_dir: str | None, ablation: boo
     target = Path(out_dir) if out_dir else default_out_dir(run)
     (target / SOURCE_STAMP).unlink(missing_ok=True)
     paths = write_report(data, target)
-    stamp_report(paths.out_dir, source_digest(open_run(store_root, run)[1].path))
+    stamp_report(paths.out_dir, source_digest(text=open_run(store_root, run)[0]
+                                              .read_manifest_text(run)))
     summary = json.loads(paths.summary.read_text())
     if as_json:
         emit_json({"run": run, "out_dir": str(paths.out_dir), "index": str(paths.index),
