@@ -577,6 +577,36 @@ class ArtifactStore:
             return mtime(meta)
         return self.manifest_path(run).stat().st_mtime
 
+    @property
+    def work_dir(self) -> Path:
+        """A local folder for what must live on this machine's disk beside the store (Prefect's
+        home, a generated dataset): the store's own folder, or, for an object store,
+        `$EMBODY_WORK_DIR` else `~/.cache/embody/<bucket-prefix>-<hash>`."""
+        if self.objects is None:
+            return self.root
+        import hashlib
+        import re
+
+        base = os.environ.get("EMBODY_WORK_DIR") or Path("~/.cache/embody").expanduser()
+        name = re.sub(r"[^A-Za-z0-9_.-]+", "-", self.root.split("://", 1)[1]).strip("-.")[:60]
+        digest = hashlib.sha256(self.root.encode("utf-8")).hexdigest()[:8]
+        return Path(base).expanduser().resolve() / f"{name}-{digest}"
+
+    def write_run_file(self, run: str, name: str, data: bytes) -> Any:
+        """Write `runs/<run>/<name>` (e.g. `sequences.csv`) whole, atomically; its location."""
+        if self.objects is not None:
+            self.objects.put(f"runs/{run}/{name}", data)
+            return f"{self.root}/runs/{run}/{name}"
+        path = self.runs_dir / run / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{name}.{os.getpid()}.tmp")
+        try:
+            tmp.write_bytes(data)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
+        return path
+
     def run_names(self) -> list[str]:
         """The runs that have a manifest, by name."""
         if self.objects is not None:

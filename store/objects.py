@@ -168,14 +168,14 @@ class Objects:
         """Every object under `prefix/` (path relative to the store URL, size, last_modified)."""
         import obstore
 
-        for batch in obstore.list(self.store, prefix=prefix.rstrip("/") + "/"):
+        for batch in obstore.list(self.store, prefix=_folder(prefix)):
             yield from batch
 
     def children(self, prefix: str) -> list[str]:
         """The names one level below `prefix/` (folders and objects)."""
         import obstore
 
-        out = obstore.list_with_delimiter(self.store, prefix=prefix.rstrip("/") + "/")
+        out = obstore.list_with_delimiter(self.store, prefix=_folder(prefix))
         names = [p.rstrip("/").rsplit("/", 1)[-1] for p in out["common_prefixes"]]
         return sorted(names + [o["path"].rsplit("/", 1)[-1] for o in out["objects"]])
 
@@ -184,6 +184,12 @@ class Objects:
         import zarr.storage
 
         return zarr.storage.ObjectStore(self.store, read_only=True)
+
+
+def _folder(prefix: str) -> str | None:
+    """`a/b` → `a/b/` (objects below it, not `a/bc`); `` → the whole store."""
+    prefix = prefix.strip("/")
+    return prefix + "/" if prefix else None
 
 
 def _loop_running() -> bool:

@@ -36,7 +36,9 @@ def ablation_store(store_root: str | Path) -> Path:
     """Table II's own store (`<store>/ablation`): every setting is computed there by the same
     flow, so its times are measured the same way (a cache hit on the main run's collision
     results would carry timings taken under the full pipeline's load)."""
-    return Path(store_root).expanduser().resolve() / "ablation"
+    from embody.store import ArtifactStore
+
+    return ArtifactStore(store_root).work_dir / "ablation"  # local: the store's own folder
 
 
 def run_ablation(store_root: str, run: str, say: Any = None) -> dict[str, Any]:
@@ -47,7 +49,7 @@ def run_ablation(store_root: str, run: str, say: Any = None) -> dict[str, Any]:
 
     say = say or (lambda text: None)
     store, manifest = open_run(store_root, run)
-    configure(store.root)
+    configure(store.work_dir)
     dataset, split = manifest.data.get("dataset"), manifest.data.get("split")
     if not dataset:
         raise InputError(manifest.path, "dataset", "the run does not record its dataset")

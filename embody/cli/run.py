@@ -105,6 +105,13 @@ def prepare(dataset: str | None, split: str | None, cfg: Config, overwrite: bool
 
     check_up_front(cfg, dataset)
     from embody.flows.dataset import check_run_reuse, resolve_dataset, run_name
+    from embody.store import ArtifactStore
+
+    store = ArtifactStore(cfg.run.store)
+    if dataset is None and not store.is_local:  # the synthetic set is generated locally
+        from embody.synth import default_dataset
+        dataset = str(default_dataset(store.work_dir / "data", n=cfg.run.synth_n,
+                                      seed=cfg.run.seed))
     path = resolve_dataset(dataset, cfg)
     load_dataset(path, split, cfg.io)
     check_run_reuse(cfg.run.store, run_name(cfg, path, split), path, split, cfg.robot.name,
@@ -143,9 +150,18 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
         f"store {cfg.run.store}")
     path = prepare(dataset, split, cfg, overwrite)
     with claim_run(path, split, cfg):
-        configure(cfg.run.store)
+        configure(local_home(cfg.run.store))
         on_sigterm()  # SIGTERM cleans up like Ctrl-C: the ephemeral Prefect server is stopped
         return _run(path, split, cfg, say, progress, as_json)
+
+
+def local_home(store_text: str) -> Path | str:
+    """Where Prefect's home goes (`flows.env.configure`): inside a local store, and for an
+    object store in the store's local work folder (`ArtifactStore.work_dir`)."""
+    from embody.store import ArtifactStore
+
+    store = ArtifactStore(store_text)
+    return store_text if store.is_local else store.work_dir
 
 
 def claim_run(path: Path, split: str | None, cfg: Config) -> Any:
