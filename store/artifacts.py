@@ -396,7 +396,8 @@ class ArtifactStore:
         with warnings.catch_warnings():  # its consolidated metadata (zarr-python's extension)
             warnings.simplefilter("ignore", UserWarning)
             return zarr.open_group(store=self.objects.zarr_store(),
-                                   path=f"{self._base(step, key)}/{folder}", mode="r")
+                                   path=f"{self._base(step, key)}/{folder}", mode="r",
+                                   zarr_format=3)
 
     def _artifact_objects(self) -> dict[tuple[str, str], dict[str, Any]]:
         """Object store: (step, key) → {"ref": bool, "folders": {name: (bytes, newest mtime)}}."""
