@@ -172,3 +172,25 @@ def test_run_files_and_the_local_work_dir(s3_url, tmp_path, monkeypatch):
     local = ArtifactStore(tmp_path / "local")
     assert local.work_dir == local.root
     assert local.write_run_file("r1", "x.csv", b"a") == local.runs_dir / "r1" / "x.csv"
+
+
+def test_reports_find_their_runs_on_s3(s3_url):
+    """`embody report`'s reader finds runs by the store's API (no paths): the latest main run,
+    a named run's manifest, one line naming the known runs for an unknown one."""
+    from embody.errors import InputError
+    from embody.report.reader import latest_run, open_run, sequence_text
+
+    store = ArtifactStore(s3_url)
+    store.publish("source", K1, _arrays(), {"meta": {"text": "HELLO"}}, {})
+    for run in ("older", "newer", "newer.ablation-x"):
+        m = Manifest(store, run)
+        m.start(["s1"])
+        m.update({"id": "s1", "keys": {"source": K1}, "status": "ok"})
+        m.save(finished=True)
+        time.sleep(1.1)  # S3 last-modified has one-second resolution
+    assert latest_run(s3_url) == "newer"
+    opened, manifest = open_run(s3_url, "older")
+    assert manifest.sequences["s1"]["steps"] == {"source": K1}
+    assert sequence_text(opened, manifest.sequences["s1"]) == "HELLO"
+    with pytest.raises(InputError, match="runs: newer, newer.ablation-x, older"):
+        open_run(s3_url, "missing")

@@ -80,7 +80,8 @@ def run_ablation(store_root: str, run: str, say: Any = None) -> dict[str, Any]:
 @click.command("report")
 @click.argument("run", required=False)
 @click.option("--store", "store_root", default="embody-store", show_default=True,
-              type=click.Path(file_okay=False), help="Artifact store root.")
+              type=click.Path(file_okay=False),
+              help="Artifact store: a directory, or s3://bucket/prefix (gs://, az://).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False),
               help="Output folder [default: reports/<run>].")
 @click.option("--ablation", is_flag=True,
