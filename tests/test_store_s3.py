@@ -194,3 +194,26 @@ def test_reports_find_their_runs_on_s3(s3_url):
     assert sequence_text(opened, manifest.sequences["s1"]) == "HELLO"
     with pytest.raises(InputError, match="runs: newer, newer.ablation-x, older"):
         open_run(s3_url, "missing")
+
+
+_FORK = """
+import os, sys
+from embody.store import ArtifactStore
+store = ArtifactStore(sys.argv[1])
+store.has("ik", "a" * 64)  # the parent has used the client
+pid = os.fork()
+if pid == 0:
+    try:
+        ArtifactStore(sys.argv[1]).has("ik", "a" * 64)
+        os._exit(3)
+    except RuntimeError as exc:
+        os._exit(7 if "fork" in str(exc) else 4)
+_, status = os.waitpid(pid, 0)
+sys.exit(os.waitstatus_to_exitcode(status))
+"""
+
+
+def test_a_process_forked_after_use_gets_an_error_not_a_hang(s3_url):
+    """obstore's runtime does not survive fork (its requests would hang in the child)."""
+    done = subprocess.run([sys.executable, "-c", _FORK, s3_url], cwd=ROOT, timeout=120)
+    assert done.returncode == 7
