@@ -93,6 +93,6 @@ def s3_url(s3_endpoint: str) -> str:
 def store_root(request: pytest.FixtureRequest, tmp_path) -> str:
     """A fresh store, once on the local filesystem and once on the S3 server: the tests that
     take it hold the local store's promises on both."""
-    if request.param == "local":
+    if getattr(request, "param", "local") == "local":
         return str(tmp_path / "store")
     return request.getfixturevalue("s3_url")

@@ -16,6 +16,7 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from embody.store import ArtifactStore, Manifest
 from embody.store.writers import locked
@@ -111,17 +112,19 @@ def _write(folder: Path, n: int, frames: int = 4) -> Path:
     return folder
 
 
-def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp_path):
+@pytest.mark.parametrize("store_root", ["local"], indirect=True)
+def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp_path,
+                                                           store_root):
     data = _write(tmp_path / "data", 8)
-    store = tmp_path / "store"
-    env = dict(os.environ, PREFECT_API_URL=prefect_harness, PYTHONPATH=str(Path(__file__)
-                                                                           .resolve().parents[1]))
+    store = store_root
+    env = dict(os.environ, EMBODY_WORK_DIR=str(tmp_path / "work"), PREFECT_API_URL=prefect_harness,
+               PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     cheap = ["--critic", "none", "--no-render", "--workers", "1", "--batch-size", "1",
              "--set", "collision.enabled=false", "--set", "ik.iterations=1",
              "--set", "ik.shape_iterations=10", "--set", "run.report=false"]
     windows = [(0, 4), (2, 4), (4, 4)]  # seq000-003, seq002-005, seq004-007
     procs = [subprocess.Popen(
-        [*EMBODY, "run", str(data), "--store", str(store),
+        [*EMBODY, "run", str(data), "--store", store,
          "--name", "shared", "--limit", str(limit), "--set", f"run.offset={offset}",
          "--json", "--no-progress", *cheap],
         cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -130,7 +133,7 @@ def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp
     for p, (out, err) in zip(procs, outs):
         assert p.returncode == 0, err[-2000:]
         assert json.loads(out)["ok"] == 4
-    doc = json.loads((store / "runs" / "shared" / "manifest.json").read_text())
+    doc = Manifest.load(ArtifactStore(store), "shared").data
     assert sorted(doc["sequences"]) == [f"seq{i:03d}" for i in range(8)]
     assert {s["status"] for s in doc["sequences"].values()} == {"ok"}
     steps = {"source", "collide", "retarget", "metrics", "physics"}
@@ -140,6 +143,7 @@ def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp
     rows = ArtifactStore(store).computations()
     published = Counter((r["step"], r.get("sequence")) for r in rows if r.get("published"))
     assert set(published.values()) == {1} and len(published) == 8 * len(steps) + 1
-    verify = subprocess.run([*EMBODY, "store", "verify", "--store", str(store), "--json"], env=env, capture_output=True, text=True)
+    verify = subprocess.run([*EMBODY, "store", "verify", "--store", store, "--json"], env=env,
+                            capture_output=True, text=True)
     assert verify.returncode == 0, verify.stderr
     assert json.loads(verify.stdout) == {"checked": 8 * len(steps) + 1, "corrupt": []}
