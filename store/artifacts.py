@@ -365,14 +365,20 @@ class ArtifactStore:
     def read(self, step: str, key: str, check: bool = True) -> Artifact:
         """The artifact's arrays and attrs; with `check`, CorruptArtifact when any array's
         bytes differ from its recorded digest (a deleted chunk reads as fill values)."""
-        try:
-            group = self._group(step, key)
-            arrays = {name: np.asarray(arr[...]) for name, arr in group.arrays()}
-            attrs = dict(group.attrs)
-        except Exception as exc:  # unreadable metadata or chunk
-            if not check:
-                raise
-            raise CorruptArtifact(step, key, f"unreadable: {type(exc).__name__}: {exc}") from None
+        for attempt in range(2):
+            try:
+                group = self._group(step, key)
+                arrays = {name: np.asarray(arr[...]) for name, arr in group.arrays()}
+                attrs = dict(group.attrs)
+                break
+            except Exception as exc:  # unreadable metadata or chunk
+                if attempt == 0 and self.objects is not None and (step, key) in self._refs:
+                    self._refs.pop((step, key))  # the ref remembered may be a removed one
+                    continue
+                if not check:
+                    raise
+                raise CorruptArtifact(step, key,
+                                      f"unreadable: {type(exc).__name__}: {exc}") from None
         info = attrs.get("embody", {})
         if check:
             digests = info.get("digests")
@@ -509,7 +515,7 @@ class ArtifactStore:
                 return False
         return path.resolve().is_relative_to(self.root)
 
-    def stale_temps(self, max_age_s: float = 24 * 3600) -> list[Path]:
+    def stale_temps(self, max_age_s: float = 24 * 3600) -> list[Any]:
         """Temps of writers that died (same host, PID gone) or are older than `max_age_s`:
         artifact groups and manifest temps (`runs/<run>/.manifest.json.<pid>.tmp`)."""
         host, now, out = socket.gethostname(), time.time(), []

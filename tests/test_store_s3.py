@@ -217,3 +217,16 @@ def test_a_process_forked_after_use_gets_an_error_not_a_hang(s3_url):
     """obstore's runtime does not survive fork (its requests would hang in the child)."""
     done = subprocess.run([sys.executable, "-c", _FORK, s3_url], cwd=ROOT, timeout=120)
     assert done.returncode == 7
+
+
+def test_a_reader_follows_an_artifact_republished_by_another_process(s3_url):
+    """A process remembers the refs it read; when another removes and republishes the key,
+    the next read follows the new ref instead of reporting the artifact corrupt."""
+    reader, other = ArtifactStore(s3_url), ArtifactStore(s3_url)
+    assert reader.publish("ik", K1, _arrays(0), {"v": 0}, {})
+    assert reader.read("ik", K1).attrs == {"v": 0}
+    other.remove("ik", K1)
+    assert other.publish("ik", K1, _arrays(1), {"v": 1}, {})
+    art = reader.read("ik", K1)
+    assert art.attrs == {"v": 1}
+    np.testing.assert_array_equal(art.arrays["q"], _arrays(1)["q"])
