@@ -10,6 +10,18 @@ A group is written under a temporary sibling name and renamed into place, so a r
 sees a complete artifact or none, and a killed writer leaves only a temp that `gc` removes.
 Directory renames are atomic on one filesystem and fail when the target exists, which is what
 makes concurrent writers (threads, processes, Dask workers) safe: the loser discards its temp.
+
+On an object store (`s3://bucket/prefix`, `gs://`, `az://`: `store.objects`) there is no
+rename, so a writer uploads the group under a folder of its own and then publishes it by
+creating one small object, `artifacts/<step>/<kk>/<key>/ref.json` (the folder's name and the
+group's attributes), with a create-only conditional write (S3 `If-None-Match: *`)::
+
+    artifacts/<step>/<kk>/<key>/ref.json          the publish: exactly one writer creates it
+    artifacts/<step>/<kk>/<key>/<writer>/...      zarr group of the writer that won
+    counters/<step>/<time>-<writer>.json          one object per computation (no append)
+
+A reader that finds no `ref.json` sees no artifact; a killed writer leaves only its folder,
+which `gc` removes like a local temp; a losing writer deletes its folder.
 """
 
 from __future__ import annotations
@@ -31,6 +43,7 @@ import zarr
 
 from embody.errors import ConfigError, EmbodyError
 from embody.store.keys import arrays_checksum
+from embody.store.objects import Conflict, Objects, is_url, mtime
 
 __all__ = ["Artifact", "ArtifactStore", "CorruptArtifact", "array_digest", "jsonable",
            "package_versions"]
@@ -54,6 +67,20 @@ def array_digest(a: np.ndarray) -> str:
     return h.hexdigest()
 
 _TMP = ".tmp-"
+#: The object that publishes an artifact on an object store (see the module docstring).
+REF = "ref.json"
+
+
+def writer_tag() -> str:
+    """`<host>-<pid>-<random>`: names a writer's temp (or object-store folder) so `gc` can tell
+    a dead writer's leftovers from a live one's."""
+    return f"{socket.gethostname()}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+
+
+def _tag_writer(tag: str) -> tuple[str, int]:
+    """(host, pid) from a `writer_tag`."""
+    host, _, rest = tag.rpartition("-")[0].rpartition("-")
+    return host, int(rest) if rest.isdigit() else -1
 
 
 @lru_cache(maxsize=1)
@@ -109,62 +136,156 @@ def pid_alive(pid: int) -> bool:
         return True
 
 
+def store_location(text: str | Path) -> str | Path:
+    """A store given as a path, `file://` URL or object-store URL: the local Path, or the URL;
+    ConfigError for another scheme."""
+    text = str(text)
+    if text.startswith("file://"):
+        from urllib.parse import unquote, urlparse
+
+        url = urlparse(text)
+        if url.netloc not in ("", "localhost"):
+            raise ConfigError("run.store", f"a file:// store must be on this host, got {text!r}")
+        return Path(unquote(url.path))
+    if "://" in text:
+        if not is_url(text):
+            raise ConfigError("run.store", f"unsupported store URL {text!r}: use a local path, "
+                              "file://, s3://, gs:// or az://")
+        if not text.split("://", 1)[1].strip("/"):
+            raise ConfigError("run.store", f"the store URL {text!r} names no bucket")
+        return text.rstrip("/")
+    return Path(text)
+
+
 class ArtifactStore:
-    """Content-addressed zarr artifacts on a local filesystem."""
+    """Content-addressed zarr artifacts on a local filesystem or an object store.
+
+    `root` is the store's folder (a Path) or its URL (a str); `url` is either as text, what
+    to hand to another process. Locations (`path`, `entries`, `stale_temps`) are Paths on a
+    local store and URLs on an object store; `remove_path` and `size` take either.
+    """
 
     def __init__(self, root: str | Path) -> None:
-        text = str(root)
-        if "://" in text:
-            raise ConfigError("run.store", f"the store must be a local path, got {text!r}")
-        self.root = Path(root).expanduser().resolve()
+        where = store_location(root)
+        self.objects: Objects | None = None
+        if isinstance(where, str):
+            self.objects = Objects(where)
+            self._refs: dict[tuple[str, str], dict[str, Any]] = {}
+            self.root: Any = where
+            self.artifacts_dir = self.counters_dir = self.runs_dir = None  # type: ignore[assignment]
+            return
+        self.root = where.expanduser().resolve()
         self.artifacts_dir = self.root / "artifacts"
         self.counters_dir = self.root / "counters"
         self.runs_dir = self.root / "runs"
 
+    @property
+    def url(self) -> str:
+        """The store as text: its absolute folder, or its URL."""
+        return str(self.root)
+
+    @property
+    def is_local(self) -> bool:
+        return self.objects is None
+
+    def exists(self) -> bool:
+        """The store's folder exists, or its prefix holds any object."""
+        if self.objects is None:
+            return self.root.is_dir()
+        return bool(self.objects.children(""))
+
     # -- artifacts -------------------------------------------------------------------------
-    def path(self, step: str, key: str) -> Path:
+    def _base(self, step: str, key: str) -> str:
+        return f"artifacts/{step}/{key[:2]}/{key}"
+
+    def path(self, step: str, key: str) -> Any:
+        """The artifact's folder (Path), or its URL on an object store."""
+        if self.objects is not None:
+            return f"{self.root}/{self._base(step, key)}"
         return self.artifacts_dir / step / key[:2] / key
 
     def has(self, step: str, key: str) -> bool:
+        if self.objects is not None:
+            self._refs.pop((step, key), None)
+            try:
+                self._ref(step, key)  # a GET, not a HEAD: `intact`/`read` reuse what it read
+            except (OSError, ValueError):
+                return False
+            return True
         return (self.path(step, key) / "zarr.json").is_file()
+
+    def _remember(self, step: str, key: str, ref: dict[str, Any]) -> None:
+        if len(self._refs) > 4096:
+            self._refs.clear()
+        self._refs[(step, key)] = ref
+
+    def _ref(self, step: str, key: str) -> dict[str, Any]:
+        """The published `ref.json` of an artifact on an object store; FileNotFoundError.
+        A published ref never changes (only `remove` deletes it), so this process keeps the
+        last one it read or wrote; a ref another process removed since is read as a corrupt
+        artifact and recomputed, as a local group removed under a reader is."""
+        assert self.objects is not None
+        ref = self._refs.get((step, key))
+        if ref is None:
+            got = self.objects.get(f"{self._base(step, key)}/{REF}")
+            if got is None:
+                raise FileNotFoundError(self.path(step, key))
+            ref = json.loads(got[0])
+            self._remember(step, key, ref)
+        return ref
+
+    def _encode(self, step: str, key: str, arrays: Mapping[str, np.ndarray],
+                attrs: Mapping[str, Any], info: Mapping[str, Any],
+                consolidate: bool = False) -> dict[str, bytes]:
+        """The zarr group's files (relative path → bytes), encoded in memory by zarr; with
+        `consolidate`, the group's zarr.json also holds its arrays' metadata, so a reader over
+        the network opens the group with one request instead of one per array."""
+        arrays = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
+        blobs: dict[str, Any] = {}
+        group = zarr.open_group(store=zarr.storage.MemoryStore(blobs), mode="w", zarr_format=3)
+        for name, a in arrays.items():
+            arr = group.create_array(name, shape=a.shape, dtype=a.dtype,
+                                     chunks=a.shape if a.ndim else (), overwrite=True)
+            arr[...] = a
+        # Chunk files and sizes as written (zarr skips all-fill chunks): `intact` checks
+        # them. In path order (as the folder's sorted paths were listed before).
+        files = {k: len(blobs[k]) for k in sorted(blobs, key=lambda k: k.split("/"))
+                 if k.rsplit("/", 1)[-1] != "zarr.json"}
+        group.attrs.update(jsonable({
+            "embody": {**info, "step": step, "key": key, "status": "ok",
+                       "checksum": arrays_checksum(arrays),
+                       "digests": {n: array_digest(a) for n, a in arrays.items()},
+                       "files": files, "versions": package_versions(),
+                       "host": socket.gethostname(), "created": time.time()},
+            "result": dict(attrs),
+        }))
+        if consolidate:
+            import warnings
+
+            with warnings.catch_warnings():  # v3 consolidation is zarr-python's extension
+                warnings.simplefilter("ignore", UserWarning)
+                zarr.consolidate_metadata(group.store)
+        return {rel: blobs[rel].to_bytes() for rel in sorted(blobs)}
 
     def publish(self, step: str, key: str, arrays: Mapping[str, np.ndarray],
                 attrs: Mapping[str, Any], info: Mapping[str, Any]) -> bool:
         """Write an artifact atomically; False when another writer published the key first."""
+        if self.objects is not None:
+            return self._publish_object(step, key, arrays, attrs, info)
         final = self.path(step, key)
         if self.has(step, key):
             return False
         final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = final.parent / f"{key}{_TMP}{socket.gethostname()}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
+        tmp = final.parent / f"{key}{_TMP}{writer_tag()}"
         try:
-            arrays = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
             # zarr encodes the group into memory, then its files are written here: the same
             # bytes as zarr's LocalStore writes, without its thread hop and temp-file rename
             # per key (~11 → ~7 CPU-ms a publish, 2026-11-27); the group is still published
             # by one rename of its folder
-            blobs: dict[str, Any] = {}
-            group = zarr.open_group(store=zarr.storage.MemoryStore(blobs), mode="w",
-                                    zarr_format=3)
-            for name, a in arrays.items():
-                arr = group.create_array(name, shape=a.shape, dtype=a.dtype,
-                                         chunks=a.shape if a.ndim else (), overwrite=True)
-                arr[...] = a
-            # Chunk files and sizes as written (zarr skips all-fill chunks): `intact` stats
-            # them. In path order (as the folder's sorted paths were listed before).
-            files = {k: len(blobs[k]) for k in sorted(blobs, key=lambda k: k.split("/"))
-                     if k.rsplit("/", 1)[-1] != "zarr.json"}
-            group.attrs.update(jsonable({
-                "embody": {**info, "step": step, "key": key, "status": "ok",
-                           "checksum": arrays_checksum(arrays),
-                           "digests": {n: array_digest(a) for n, a in arrays.items()},
-                           "files": files, "versions": package_versions(),
-                           "host": socket.gethostname(), "created": time.time()},
-                "result": dict(attrs),
-            }))
-            for rel in sorted(blobs):
+            for rel, data in self._encode(step, key, arrays, attrs, info).items():
                 path = tmp / rel
                 path.parent.mkdir(parents=True, exist_ok=True)
-                path.write_bytes(blobs[rel].to_bytes())
+                path.write_bytes(data)
             os.rename(tmp, final)
             return True
         except OSError:
@@ -174,6 +295,33 @@ class ArtifactStore:
         finally:
             if tmp.exists():
                 shutil.rmtree(tmp, ignore_errors=True)
+
+    def _publish_object(self, step: str, key: str, arrays: Mapping[str, np.ndarray],
+                        attrs: Mapping[str, Any], info: Mapping[str, Any]) -> bool:
+        """Upload the group under a folder of this writer's, then create `ref.json` (create-only):
+        the one writer whose create succeeds has published; the others delete their folder."""
+        assert self.objects is not None
+        base = self._base(step, key)
+        folder = writer_tag()  # no `has` first: the create below settles a race either way
+        blobs = self._encode(step, key, arrays, attrs, info, consolidate=True)
+        keys = [f"{base}/{folder}/{rel}" for rel in blobs]
+        published = False
+        try:
+            self.objects.put_many(dict(zip(keys, blobs.values())))
+            attributes = json.loads(blobs["zarr.json"])["attributes"]
+            ref = json.dumps({"data": folder, "attributes": attributes}, sort_keys=True)
+            self.objects.put(f"{base}/{REF}", ref.encode("utf-8"), create=True)
+            self._remember(step, key, json.loads(ref))
+            published = True
+            return True
+        except Conflict:
+            return False
+        finally:
+            if not published:
+                try:
+                    self.objects.delete(keys)
+                except Exception:  # a leftover folder is what `gc` removes
+                    pass
 
     def info(self, step: str, key: str) -> dict[str, Any]:
         """The bookkeeping attrs of an artifact, read without opening its arrays."""
@@ -185,6 +333,8 @@ class ArtifactStore:
 
     def _attributes(self, step: str, key: str) -> dict[str, Any]:
         """The group attributes in the artifact's `zarr.json` (bookkeeping and the stage's)."""
+        if self.objects is not None:
+            return self._ref(step, key).get("attributes", {})
         doc = json.loads((self.path(step, key) / "zarr.json").read_text())
         return doc.get("attributes", {})
 
@@ -199,6 +349,13 @@ class ArtifactStore:
             return False
         if files is None:  # written before files were recorded
             return True
+        if self.objects is not None:
+            try:
+                folder = f"{self._base(step, key)}/{self._ref(step, key)['data']}"
+                sizes = {o["path"][len(folder) + 1:]: o["size"] for o in self.objects.list(folder)}
+            except (OSError, ValueError, KeyError):
+                return False
+            return all(sizes.get(rel) == size for rel, size in files.items())
         root = self.path(step, key)
         try:
             return all((root / rel).stat().st_size == size for rel, size in files.items())
@@ -208,14 +365,20 @@ class ArtifactStore:
     def read(self, step: str, key: str, check: bool = True) -> Artifact:
         """The artifact's arrays and attrs; with `check`, CorruptArtifact when any array's
         bytes differ from its recorded digest (a deleted chunk reads as fill values)."""
-        try:
-            group = zarr.open_group(str(self.path(step, key)), mode="r")
-            arrays = {name: np.asarray(arr[...]) for name, arr in group.arrays()}
-            attrs = dict(group.attrs)
-        except Exception as exc:  # unreadable metadata or chunk
-            if not check:
-                raise
-            raise CorruptArtifact(step, key, f"unreadable: {type(exc).__name__}: {exc}") from None
+        for attempt in range(2):
+            try:
+                group = self._group(step, key)
+                arrays = {name: np.asarray(arr[...]) for name, arr in group.arrays()}
+                attrs = dict(group.attrs)
+                break
+            except Exception as exc:  # unreadable metadata or chunk
+                if attempt == 0 and self.objects is not None and (step, key) in self._refs:
+                    self._refs.pop((step, key))  # the ref remembered may be a removed one
+                    continue
+                if not check:
+                    raise
+                raise CorruptArtifact(step, key,
+                                      f"unreadable: {type(exc).__name__}: {exc}") from None
         info = attrs.get("embody", {})
         if check:
             digests = info.get("digests")
@@ -229,8 +392,42 @@ class ArtifactStore:
                 raise CorruptArtifact(step, key, "checksum mismatch")
         return Artifact(step, key, arrays, attrs.get("result", {}), info)
 
-    def entries(self) -> Iterator[tuple[str, str, Path]]:
-        """Every published artifact as (step, key, path); temps are skipped."""
+    def _group(self, step: str, key: str) -> Any:
+        """The artifact's zarr group, opened read-only (through zarr's ObjectStore remotely)."""
+        if self.objects is None:
+            return zarr.open_group(str(self.path(step, key)), mode="r")
+        import warnings
+
+        folder = self._ref(step, key)["data"]
+        with warnings.catch_warnings():  # its consolidated metadata (zarr-python's extension)
+            warnings.simplefilter("ignore", UserWarning)
+            return zarr.open_group(store=self.objects.zarr_store(),
+                                   path=f"{self._base(step, key)}/{folder}", mode="r",
+                                   zarr_format=3)
+
+    def _artifact_objects(self) -> dict[tuple[str, str], dict[str, Any]]:
+        """Object store: (step, key) → {"ref": bool, "folders": {name: (bytes, newest mtime)}}."""
+        assert self.objects is not None
+        out: dict[tuple[str, str], dict[str, Any]] = {}
+        for meta in self.objects.list("artifacts"):
+            parts = meta["path"].split("/")
+            if len(parts) < 5 or parts[2] != parts[3][:2]:
+                continue
+            entry = out.setdefault((parts[1], parts[3]), {"ref": False, "folders": {}})
+            if len(parts) == 5 and parts[4] == REF:
+                entry["ref"] = True
+            elif len(parts) > 5:
+                size, newest = entry["folders"].get(parts[4], (0, 0.0))
+                entry["folders"][parts[4]] = (size + int(meta["size"]), max(newest, mtime(meta)))
+        return out
+
+    def entries(self) -> Iterator[tuple[str, str, Any]]:
+        """Every published artifact as (step, key, location); temps are skipped."""
+        if self.objects is not None:
+            for (step, key), entry in sorted(self._artifact_objects().items()):
+                if entry["ref"]:
+                    yield step, key, self.path(step, key)
+            return
         if not _real_dir(self.artifacts_dir):
             return
         for step_dir in sorted(p for p in self.artifacts_dir.iterdir() if _real_dir(p)):
@@ -253,10 +450,45 @@ class ArtifactStore:
         return None
 
     def remove(self, step: str, key: str) -> None:
+        if self.objects is not None:  # the ref first: from then on it is a miss
+            base = self._base(step, key)
+            self._refs.pop((step, key), None)  # the ref as stored now, not as remembered
+            try:
+                folder = self._ref(step, key).get("data")
+            except (OSError, ValueError):
+                folder = None
+            self._refs.pop((step, key), None)
+            self.objects.delete([f"{base}/{REF}"])
+            if folder:
+                self.objects.delete(o["path"] for o in self.objects.list(f"{base}/{folder}"))
+            return
         self.remove_path(self.path(step, key))
 
-    def remove_path(self, path: Path) -> None:
+    def _relative(self, where: Any) -> str:
+        """An object-store location (URL) relative to the store; ValueError outside it."""
+        text = str(where)
+        if not text.startswith(f"{self.root}/") or ".." in text.split("/"):
+            raise ValueError(f"refusing to delete {text}: not inside the store {self.root}")
+        return text[len(str(self.root)) + 1:].strip("/")
+
+    def size(self, where: Any) -> int:
+        """Bytes under a location (an artifact, a temp) of the store."""
+        if self.objects is not None:
+            return sum(int(o["size"]) for o in self.objects.list(self._relative(where)))
+        path = Path(where)
+        if path.is_dir() and not path.is_symlink():
+            return sum(p.lstat().st_size for p in path.rglob("*") if p.is_file() and not p.is_symlink())
+        return path.lstat().st_size if path.exists() or path.is_symlink() else 0
+
+    def remove_path(self, path: Any) -> None:
         """Delete a file or folder of the store; never through a symlink, never outside."""
+        if self.objects is not None:
+            parts = self._relative(path).split("/")
+            if len(parts) == 4 and parts[0] == "artifacts":
+                self.remove(parts[1], parts[3])
+            else:
+                self.objects.delete(o["path"] for o in self.objects.list("/".join(parts)))
+            return
         if not self.contains(path):
             raise ValueError(f"refusing to delete {path}: not inside the store {self.root}")
         if path.is_dir() and not path.is_symlink():
@@ -264,8 +496,13 @@ class ArtifactStore:
         else:
             path.unlink(missing_ok=True)
 
-    def contains(self, path: Path) -> bool:
+    def contains(self, path: Any) -> bool:
         """`path` lies inside the store and no component below the root is a symlink."""
+        if self.objects is not None:
+            try:
+                return bool(self._relative(path))
+            except ValueError:
+                return False
         path = Path(os.path.abspath(path))
         try:
             rel = path.relative_to(self.root)
@@ -278,10 +515,12 @@ class ArtifactStore:
                 return False
         return path.resolve().is_relative_to(self.root)
 
-    def stale_temps(self, max_age_s: float = 24 * 3600) -> list[Path]:
+    def stale_temps(self, max_age_s: float = 24 * 3600) -> list[Any]:
         """Temps of writers that died (same host, PID gone) or are older than `max_age_s`:
         artifact groups and manifest temps (`runs/<run>/.manifest.json.<pid>.tmp`)."""
         host, now, out = socket.gethostname(), time.time(), []
+        if self.objects is not None:
+            return self._stale_folders(max_age_s)
         if _real_dir(self.runs_dir):
             for path in self.runs_dir.glob("*/.*.tmp"):
                 pid = path.name.rsplit(".", 2)[-2]
@@ -293,17 +532,108 @@ class ArtifactStore:
         for path in self.artifacts_dir.glob(f"*/*/*{_TMP}*"):
             if not self.contains(path):
                 continue
-            tag = path.name.split(_TMP, 1)[1]
-            t_host, _, rest = tag.rpartition("-")[0].rpartition("-")
-            pid = int(rest) if rest.isdigit() else -1
+            t_host, pid = _tag_writer(path.name.split(_TMP, 1)[1])
             dead = t_host == host and not pid_alive(pid)
             if dead or now - path.stat().st_mtime > max_age_s:
                 out.append(path)
         return out
 
+    def _stale_folders(self, max_age_s: float) -> list[str]:
+        """Object store: writers' folders no `ref.json` names, of dead writers (same host, PID
+        gone) or older than `max_age_s` (a live writer's upload is never taken)."""
+        host, now, out = socket.gethostname(), time.time(), []
+        for (step, key), entry in sorted(self._artifact_objects().items()):
+            folders = entry["folders"]
+            if not folders or (entry["ref"] and len(folders) == 1):
+                continue
+            current = None
+            if entry["ref"]:
+                try:
+                    current = self._ref(step, key).get("data")
+                except (OSError, ValueError):
+                    continue
+            for name, (_size, newest) in sorted(folders.items()):
+                if name == current:
+                    continue
+                t_host, pid = _tag_writer(name)
+                if (t_host == host and not pid_alive(pid)) or now - newest > max_age_s:
+                    out.append(f"{self.path(step, key)}/{name}")
+        return out
+
+    # -- runs ------------------------------------------------------------------------------
+    def manifest_path(self, run: str) -> Any:
+        """Where a run's manifest lives: a Path, or its URL on an object store."""
+        if self.objects is not None:
+            return f"{self.root}/runs/{run}/manifest.json"
+        return self.runs_dir / run / "manifest.json"
+
+    def read_manifest_text(self, run: str) -> str | None:
+        """A run's manifest as text; None when there is none (OSError when unreadable)."""
+        if self.objects is not None:
+            got = self.objects.get(f"runs/{run}/manifest.json")
+            return None if got is None else got[0].decode("utf-8")
+        path = self.manifest_path(run)
+        return path.read_text(encoding="utf-8") if path.is_file() else None
+
+    def manifest_mtime(self, run: str) -> float:
+        """When a run's manifest was last written (epoch seconds)."""
+        if self.objects is not None:
+            meta = self.objects.head(f"runs/{run}/manifest.json")
+            if meta is None:
+                raise FileNotFoundError(self.manifest_path(run))
+            return mtime(meta)
+        return self.manifest_path(run).stat().st_mtime
+
+    @property
+    def work_dir(self) -> Path:
+        """A local folder for what must live on this machine's disk beside the store (Prefect's
+        home, a generated dataset): the store's own folder, or, for an object store,
+        `$EMBODY_WORK_DIR` else `~/.cache/embody/<bucket-prefix>-<hash>`."""
+        if self.objects is None:
+            return self.root
+        import hashlib
+        import re
+
+        base = os.environ.get("EMBODY_WORK_DIR") or Path("~/.cache/embody").expanduser()
+        name = re.sub(r"[^A-Za-z0-9_.-]+", "-", self.root.split("://", 1)[1]).strip("-.")[:60]
+        digest = hashlib.sha256(self.root.encode("utf-8")).hexdigest()[:8]
+        return Path(base).expanduser().resolve() / f"{name}-{digest}"
+
+    def write_run_file(self, run: str, name: str, data: bytes) -> Any:
+        """Write `runs/<run>/<name>` (e.g. `sequences.csv`) whole, atomically; its location."""
+        if self.objects is not None:
+            self.objects.put(f"runs/{run}/{name}", data)
+            return f"{self.root}/runs/{run}/{name}"
+        path = self.runs_dir / run / name
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{name}.{os.getpid()}.tmp")
+        try:
+            tmp.write_bytes(data)
+            os.replace(tmp, path)
+        finally:
+            tmp.unlink(missing_ok=True)
+        return path
+
+    def run_names(self) -> list[str]:
+        """The runs that have a manifest, by name."""
+        if self.objects is not None:
+            names = {o["path"].split("/")[1] for o in self.objects.list("runs")
+                     if o["path"].count("/") == 2 and o["path"].endswith("/manifest.json")}
+            return sorted(names)
+        if not self.runs_dir.is_dir():
+            return []
+        return sorted(p.parent.name for p in self.runs_dir.glob("*/manifest.json"))
+
     # -- counters --------------------------------------------------------------------------
     def record(self, step: str, key: str, **fields: Any) -> None:
-        """Append one computation line; a single O_APPEND write keeps concurrent lines whole."""
+        """Append one computation line; a single O_APPEND write keeps concurrent lines whole
+        (on an object store, which cannot append, one object per line)."""
+        if self.objects is not None:
+            line = json.dumps({"step": step, "key": key, "time": time.time(), "pid": os.getpid(),
+                               **fields}, sort_keys=True, default=str)
+            name = f"{time.time_ns():020d}-{writer_tag()}.json"
+            self.objects.put(f"counters/{step}/{name}", line.encode("utf-8"))
+            return
         self.counters_dir.mkdir(parents=True, exist_ok=True)
         line = json.dumps({"step": step, "key": key, "time": time.time(), "pid": os.getpid(),
                            **fields}, sort_keys=True, default=str) + "\n"
@@ -315,6 +645,11 @@ class ArtifactStore:
 
     def computations(self, step: str | None = None) -> list[dict[str, Any]]:
         """Every recorded computation (of one step, or all), oldest first."""
+        if self.objects is not None:
+            keys = [o["path"] for o in self.objects.list(f"counters/{step}" if step else "counters")]
+            blobs = self.objects.get_many(keys)
+            return sorted((json.loads(blobs[k]) for k in keys if k in blobs),
+                          key=lambda r: r["time"])
         if not self.counters_dir.is_dir():
             return []
         files = [self.counters_dir / f"{step}.jsonl"] if step else sorted(self.counters_dir.glob("*.jsonl"))

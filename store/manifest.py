@@ -1,8 +1,9 @@
 """Run manifests: which artifact each sequence's steps produced in one named run.
 
 `runs/<run>/manifest.json` maps sequence id → {status, error, steps: {step: key}, metrics}. It is
-rewritten atomically (temp + `os.replace`) as sequences finish, so a killed run still leaves a
-valid manifest, and `gc` can tell which artifacts any run still references.
+rewritten atomically (temp + `os.replace`; on an object store one PUT, conditional on the
+version it merged into: `store.writers.ObjectRunWriter`) as sequences finish, so a killed run
+still leaves a valid manifest, and `gc` can tell which artifacts any run still references.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any, Iterable
 
 from embody.errors import ConfigError, InputError
 from embody.store.artifacts import ArtifactStore
-from embody.store.writers import RunWriter
+from embody.store.writers import ObjectRunWriter, RunWriter
 
 __all__ = ["Manifest", "check_run_name", "load_manifests", "write_json_atomic"]
 
@@ -58,8 +59,11 @@ class Manifest:
     def __init__(self, store: ArtifactStore, run: str) -> None:
         self.store = store
         self.run = check_run_name(run)
-        self.path = store.runs_dir / run / "manifest.json"
-        self.writer = RunWriter(self.path)  # concurrent writers of one run merge, never overwrite
+        self.path = store.manifest_path(run)
+        # concurrent writers of one run merge, never overwrite
+        self.writer: RunWriter | ObjectRunWriter = (
+            RunWriter(self.path) if store.objects is None
+            else ObjectRunWriter(store.objects, f"runs/{run}/manifest.json"))
         self.data: dict[str, Any] = {"run": run, "created": time.time(), "shared": {},
                                      "sequences": {}}
 
@@ -69,7 +73,10 @@ class Manifest:
         (gc must stop rather than treat that run's artifacts as unreferenced)."""
         m = cls(store, run)
         try:
-            m.data = json.loads(m.path.read_text(encoding="utf-8"))
+            text = store.read_manifest_text(run)
+            if text is None:
+                raise FileNotFoundError(f"no such manifest: {m.path}")
+            m.data = json.loads(text)
         except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise InputError(m.path, None, f"corrupt run manifest: {type(exc).__name__}: "
                                            f"{' '.join(str(exc).split())}") from None
@@ -118,6 +125,10 @@ class Manifest:
             self.data["finished"] = time.time()
         self.writer.save(self.data, write_json_atomic)
 
+    def modified(self) -> float:
+        """When the manifest was last written (epoch seconds)."""
+        return self.store.manifest_mtime(self.run)
+
     @property
     def finished(self) -> bool:
         return self.data.get("finished") is not None
@@ -132,6 +143,4 @@ class Manifest:
 
 def load_manifests(store: ArtifactStore) -> list[Manifest]:
     """Every run's manifest (read only: a symlinked run still protects what it references)."""
-    if not store.runs_dir.is_dir():
-        return []
-    return [Manifest.load(store, p.parent.name) for p in sorted(store.runs_dir.glob("*/manifest.json"))]
+    return [Manifest.load(store, run) for run in store.run_names()]

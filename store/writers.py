@@ -31,7 +31,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Iterator
 
-__all__ = ["LOCKS", "RunWriter", "locked", "merge", "writer_alive"]
+__all__ = ["LOCKS", "ObjectRunWriter", "RunWriter", "locked", "merge", "writer_alive"]
 
 #: Lock files live beside the run folders (`runs/.locks/<run>.lock`), never inside one.
 LOCKS = ".locks"
@@ -177,3 +177,51 @@ class RunWriter:
             write(self.path, doc)
             self._last = (_signature(self.path), doc)
         return doc
+
+
+class ObjectRunWriter:
+    """`RunWriter` on an object store, which has no lock: the same read-merge-write, made safe
+    by writing the merged manifest only if it is still the version that was read (S3
+    `If-Match: <ETag>`, `If-None-Match: *` for the first). A writer that loses re-reads and
+    merges again, so no writer ever drops another's sequences."""
+
+    def __init__(self, objects: Any, key: str) -> None:
+        self.objects, self.key = objects, key
+        self.path = f"{objects.url}/{key}"
+        self._writer = RunWriter(Path(key))  # only for its identity
+        self._last: tuple[str | None, dict[str, Any] | None] = (None, None)
+
+    @property
+    def identity(self) -> dict[str, Any]:
+        return self._writer.identity
+
+    def save(self, data: dict[str, Any], write: Any = None) -> dict[str, Any]:
+        """Merge `data` into the stored manifest and write it (compare-and-swap, retried)."""
+        from embody.store.objects import Conflict
+
+        finished = data.get("finished")
+        wait = 0.005
+        for _ in range(1000):
+            etag, cached = self._last
+            if etag is None or cached is None:
+                got = self.objects.get(self.key)
+                try:
+                    disk, etag = (json.loads(got[0]), got[1]) if got is not None else (None, None)
+                except ValueError:
+                    disk = None  # unreadable: nothing of others' to keep
+                exists = got is not None
+            else:
+                disk, exists = cached, True  # our own last write: if it changed, the put fails
+            doc = merge(disk, data, self.identity, finished)
+            body = json.dumps(doc, indent=1, sort_keys=True, default=str).encode("utf-8")
+            try:
+                new = self.objects.put(self.key, body, create=not exists,
+                                       etag=etag if exists else None)
+            except Conflict:
+                self._last = (None, None)
+                time.sleep(wait * (0.5 + uuid.uuid4().int % 1000 / 1000))
+                wait = min(2 * wait, 0.5)
+                continue
+            self._last = (new, doc) if new else (None, None)
+            return doc
+        raise TimeoutError(f"{self.path}: 1000 conflicting writers in a row")

@@ -16,9 +16,11 @@ from collections import Counter
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from embody.store import ArtifactStore, Manifest
 from embody.store.writers import locked
+from s3_server import s3_endpoint, s3_url, store_root  # noqa: F401 (fixtures)
 
 K = "ab" * 32
 #: `embody ...` in a subprocess, with this interpreter.
@@ -33,8 +35,8 @@ def _finish(m: Manifest, ids: list[str], status: str = "ok") -> None:
         m.finish_sequence(sid)
 
 
-def test_two_writers_merge_and_finish_only_when_both_are_done(tmp_path):
-    store = ArtifactStore(tmp_path)
+def test_two_writers_merge_and_finish_only_when_both_are_done(store_root):
+    store = ArtifactStore(store_root)
     a, b = Manifest(store, "r"), Manifest(store, "r")
     a.start(["s1", "s2", "s3"], dataset="d")
     b.start(["s3", "s4"], dataset="d")  # s3 overlaps
@@ -55,8 +57,8 @@ def test_two_writers_merge_and_finish_only_when_both_are_done(tmp_path):
     assert disk.keys() == {("source", K)}
 
 
-def test_a_rerun_restarts_its_own_sequences_and_keeps_the_others(tmp_path):
-    store = ArtifactStore(tmp_path)
+def test_a_rerun_restarts_its_own_sequences_and_keeps_the_others(store_root):
+    store = ArtifactStore(store_root)
     first = Manifest(store, "r")
     first.start(["s1", "s2"])
     _finish(first, ["s1", "s2"])
@@ -110,17 +112,19 @@ def _write(folder: Path, n: int, frames: int = 4) -> Path:
     return folder
 
 
-def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp_path):
+@pytest.mark.parametrize("store_root", ["local"], indirect=True)
+def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp_path,
+                                                           store_root):
     data = _write(tmp_path / "data", 8)
-    store = tmp_path / "store"
-    env = dict(os.environ, PREFECT_API_URL=prefect_harness, PYTHONPATH=str(Path(__file__)
-                                                                           .resolve().parents[1]))
+    store = store_root
+    env = dict(os.environ, EMBODY_WORK_DIR=str(tmp_path / "work"), PREFECT_API_URL=prefect_harness,
+               PYTHONPATH=str(Path(__file__).resolve().parents[1]))
     cheap = ["--critic", "none", "--no-render", "--workers", "1", "--batch-size", "1",
              "--set", "collision.enabled=false", "--set", "ik.iterations=1",
              "--set", "ik.shape_iterations=10", "--set", "run.report=false"]
     windows = [(0, 4), (2, 4), (4, 4)]  # seq000-003, seq002-005, seq004-007
     procs = [subprocess.Popen(
-        [*EMBODY, "run", str(data), "--store", str(store),
+        [*EMBODY, "run", str(data), "--store", store,
          "--name", "shared", "--limit", str(limit), "--set", f"run.offset={offset}",
          "--json", "--no-progress", *cheap],
         cwd=tmp_path, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -129,7 +133,7 @@ def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp
     for p, (out, err) in zip(procs, outs):
         assert p.returncode == 0, err[-2000:]
         assert json.loads(out)["ok"] == 4
-    doc = json.loads((store / "runs" / "shared" / "manifest.json").read_text())
+    doc = Manifest.load(ArtifactStore(store), "shared").data
     assert sorted(doc["sequences"]) == [f"seq{i:03d}" for i in range(8)]
     assert {s["status"] for s in doc["sequences"].values()} == {"ok"}
     steps = {"source", "collide", "retarget", "metrics", "physics"}
@@ -139,6 +143,7 @@ def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp
     rows = ArtifactStore(store).computations()
     published = Counter((r["step"], r.get("sequence")) for r in rows if r.get("published"))
     assert set(published.values()) == {1} and len(published) == 8 * len(steps) + 1
-    verify = subprocess.run([*EMBODY, "store", "verify", "--store", str(store), "--json"], env=env, capture_output=True, text=True)
+    verify = subprocess.run([*EMBODY, "store", "verify", "--store", store, "--json"], env=env,
+                            capture_output=True, text=True)
     assert verify.returncode == 0, verify.stderr
     assert json.loads(verify.stdout) == {"checked": 8 * len(steps) + 1, "corrupt": []}

@@ -24,7 +24,8 @@ def _shown(text: object, limit: int = 200) -> str:
 @click.option("--robot", default=None, help="Robot the trajectories must be for (robot.name); "
               "with --check, overrides the robot library.json names.")
 @click.option("--store", "store_root", default="embody-store", show_default=True,
-              type=click.Path(file_okay=False), help="Artifact store root.")
+              type=click.Path(file_okay=False),
+              help="Artifact store: a directory, or s3://bucket/prefix (gs://, az://).")
 @click.option("--format", "fmt", type=click.Choice(list(FORMATS)), default="npz",
               show_default=True, help="npz (q, joint names, dt, source, validation), csv, "
               "gmr (GMR motion pickle) or beyondmimic (BeyondMimic csv_to_npz input).")

@@ -36,7 +36,9 @@ def ablation_store(store_root: str | Path) -> Path:
     """Table II's own store (`<store>/ablation`): every setting is computed there by the same
     flow, so its times are measured the same way (a cache hit on the main run's collision
     results would carry timings taken under the full pipeline's load)."""
-    return Path(store_root).expanduser().resolve() / "ablation"
+    from embody.store import ArtifactStore
+
+    return ArtifactStore(store_root).work_dir / "ablation"  # local: the store's own folder
 
 
 def run_ablation(store_root: str, run: str, say: Any = None) -> dict[str, Any]:
@@ -47,7 +49,7 @@ def run_ablation(store_root: str, run: str, say: Any = None) -> dict[str, Any]:
 
     say = say or (lambda text: None)
     store, manifest = open_run(store_root, run)
-    configure(store.root)
+    configure(store.work_dir)
     dataset, split = manifest.data.get("dataset"), manifest.data.get("split")
     if not dataset:
         raise InputError(manifest.path, "dataset", "the run does not record its dataset")
@@ -78,7 +80,8 @@ def run_ablation(store_root: str, run: str, say: Any = None) -> dict[str, Any]:
 @click.command("report")
 @click.argument("run", required=False)
 @click.option("--store", "store_root", default="embody-store", show_default=True,
-              type=click.Path(file_okay=False), help="Artifact store root.")
+              type=click.Path(file_okay=False),
+              help="Artifact store: a directory, or s3://bucket/prefix (gs://, az://).")
 @click.option("--out", "out_dir", type=click.Path(file_okay=False),
               help="Output folder [default: reports/<run>].")
 @click.option("--ablation", is_flag=True,
@@ -110,7 +113,8 @@ def command(run: str | None, store_root: str, out_dir: str | None, ablation: boo
     target = Path(out_dir) if out_dir else default_out_dir(run)
     (target / SOURCE_STAMP).unlink(missing_ok=True)
     paths = write_report(data, target)
-    stamp_report(paths.out_dir, source_digest(open_run(store_root, run)[1].path))
+    stamp_report(paths.out_dir, source_digest(text=open_run(store_root, run)[0]
+                                              .read_manifest_text(run)))
     summary = json.loads(paths.summary.read_text())
     if as_json:
         emit_json({"run": run, "out_dir": str(paths.out_dir), "index": str(paths.index),

@@ -18,8 +18,9 @@ def run_options(f):
     for opt in reversed([
         click.argument("dataset", required=False, type=click.Path()),
         click.option("--split", default=None, help="SOKE split (train/val/test)."),
-        click.option("--store", default=None, type=click.Path(file_okay=False),
-                     help="Artifact store directory [default: run.store, ./embody-store]."),
+        click.option("--store", default=None,
+                     help="Artifact store: a directory, or s3://bucket/prefix (gs://, az://, "
+                          "file://) [default: run.store, ./embody-store]."),
         click.option("--limit", type=int, default=None, help="Only the first N sequences."),
         click.option("--workers", type=int, default=None, help="Concurrent tasks."),
         click.option("--runner", type=click.Choice(["threads", "processes", "dask"]), default=None),
@@ -60,14 +61,21 @@ def config_from_options(config_files: tuple[str, ...], sets: tuple[str, ...],
     return build_config(config_files, tuple(sets) + tuple(extra))
 
 
-def check_store_path(text: str) -> Path:
-    """The store must be a local path whose parent exists: checked before anything is created
-    (a URL would otherwise become a junk `./http:/...` folder)."""
+def check_store_path(text: str) -> Path | str:
+    """A local store's parent must exist; an object store's URL must be one the store serves
+    (`store.artifacts.store_location`): checked before anything is created (another URL would
+    otherwise become a junk `./http:/...` folder)."""
     from embody.errors import ConfigError
+    from embody.store.artifacts import store_location
 
-    if "://" in text or text.startswith(("http:", "https:", "file:")):
-        raise ConfigError("run.store", f"the store must be a local path, got {text!r}")
-    path = Path(text).expanduser().absolute()
+    if text.startswith(("http:", "https:")) or (text.startswith("file:")
+                                                and not text.startswith("file://")):
+        raise ConfigError("run.store", f"the store must be a local path or an object-store URL "
+                          f"(s3://, gs://, az://, file://), got {text!r}")
+    where = store_location(text)
+    if isinstance(where, str):
+        return where
+    path = where.expanduser().absolute()
     if path.exists() and not path.is_dir():
         raise ConfigError("run.store", f"{path} exists and is not a directory")
     if not path.exists() and not path.parent.is_dir():
@@ -97,6 +105,13 @@ def prepare(dataset: str | None, split: str | None, cfg: Config, overwrite: bool
 
     check_up_front(cfg, dataset)
     from embody.flows.dataset import check_run_reuse, resolve_dataset, run_name
+    from embody.store import ArtifactStore
+
+    store = ArtifactStore(cfg.run.store)
+    if dataset is None and not store.is_local:  # the synthetic set is generated locally
+        from embody.synth import default_dataset
+        dataset = str(default_dataset(store.work_dir / "data", n=cfg.run.synth_n,
+                                      seed=cfg.run.seed))
     path = resolve_dataset(dataset, cfg)
     load_dataset(path, split, cfg.io)
     check_run_reuse(cfg.run.store, run_name(cfg, path, split), path, split, cfg.robot.name,
@@ -135,20 +150,30 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
         f"store {cfg.run.store}")
     path = prepare(dataset, split, cfg, overwrite)
     with claim_run(path, split, cfg):
-        configure(cfg.run.store)
+        configure(local_home(cfg.run.store))
         on_sigterm()  # SIGTERM cleans up like Ctrl-C: the ephemeral Prefect server is stopped
         return _run(path, split, cfg, say, progress, as_json)
+
+
+def local_home(store_text: str) -> Path | str:
+    """Where Prefect's home goes (`flows.env.configure`): inside a local store, and for an
+    object store in the store's local work folder (`ArtifactStore.work_dir`)."""
+    from embody.store import ArtifactStore
+
+    store = ArtifactStore(store_text)
+    return store_text if store.is_local else store.work_dir
 
 
 def claim_run(path: Path, split: str | None, cfg: Config) -> Any:
     """The run name claimed for this dataset, split and robot while the run lasts (`store.claims`):
     a concurrent run of the name over other data is refused (exit 2) before anything is written."""
     from embody.flows.dataset import run_name
-    from embody.store.claims import claimed
+    from embody.store import ArtifactStore
+    from embody.store.claims import claim_run
 
-    run_dir = Path(cfg.run.store).expanduser().resolve() / "runs" / run_name(cfg, path, split)
-    return claimed(run_dir, {"dataset": str(Path(path).expanduser().resolve()), "split": split,
-                             "robot": cfg.robot.name})
+    return claim_run(ArtifactStore(cfg.run.store), run_name(cfg, path, split),
+                     {"dataset": str(Path(path).expanduser().resolve()), "split": split,
+                      "robot": cfg.robot.name})
 
 
 def _run(path: Path, split: str | None, cfg: Config, say: Any, progress: bool,

@@ -50,7 +50,8 @@ def command(dataset: str | None, split: str | None, config_files: tuple[str, ...
     from embody.flows.env import configure
 
     check_up_front(cfg, dataset)  # nothing created for a bad store path or VLM config
-    configure(cfg.run.store)  # before Prefect is imported
+    from embody.cli.run import local_home
+    configure(local_home(cfg.run.store))  # before Prefect is imported
     from prefect.client.schemas.schedules import CronSchedule
 
     try:

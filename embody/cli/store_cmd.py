@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import shutil
 from collections import defaultdict
-from pathlib import Path
 from typing import Any
 
 import click
@@ -14,7 +13,8 @@ from embody.verdicts import plural
 from embody.cli.common import emit_json, json_option
 
 _store_option = click.option("--store", "store_dir", default="embody-store", show_default=True,
-                             type=click.Path(file_okay=False), help="Artifact store directory.")
+                             help="Artifact store: a directory, or s3://bucket/prefix "
+                                  "(gs://, az://, file://).")
 
 
 def _open(store_dir: str) -> Any:
@@ -22,13 +22,10 @@ def _open(store_dir: str) -> Any:
     from embody.errors import InputError
 
     store = ArtifactStore(store_dir)
-    if not store.root.is_dir():
-        raise InputError(store.root, None, "no such store directory")
+    if not store.exists():
+        raise InputError(store.root, None, "no such store directory" if store.is_local
+                         else "no store there (no objects under this URL)")
     return store
-
-
-def _size(path: Path) -> int:
-    return sum(p.lstat().st_size for p in path.rglob("*") if p.is_file() and not p.is_symlink())
 
 
 @click.group("store")
@@ -47,7 +44,7 @@ def ls(store_dir: str, as_json: bool) -> int:
     steps: dict[str, dict[str, int]] = defaultdict(lambda: {"artifacts": 0, "bytes": 0})
     for step, _key, path in store.entries():
         steps[step]["artifacts"] += 1
-        steps[step]["bytes"] += _size(path)
+        steps[step]["bytes"] += store.size(path)
     runs = {}
     for m in load_manifests(store):
         status = [s["status"] for s in m.sequences.values()]
@@ -124,7 +121,7 @@ def gc(store_dir: str, dry_run: bool, older_than: str | None, as_json: bool) -> 
     for m in load_manifests(store):
         referenced |= m.keys()
         if not m.finished:
-            age = time.time() - m.path.stat().st_mtime
+            age = time.time() - m.modified()
             if max_age is None or age < max_age:
                 live.append(m.run)
 
@@ -139,8 +136,7 @@ def gc(store_dir: str, dry_run: bool, older_than: str | None, as_json: bool) -> 
     doomed = [(step, key, path) for step, key, path in store.entries()
               if (step, key) not in referenced and not owned_by_live_run(step, key)]
     temps = store.stale_temps()
-    freed = sum(_size(p) for _, _, p in doomed) + sum(_size(p) if p.is_dir() else p.stat().st_size
-                                                       for p in temps)
+    freed = sum(store.size(p) for _, _, p in doomed) + sum(store.size(p) for p in temps)
     if not dry_run:
         for _step, _key, path in doomed:
             store.remove_path(path)

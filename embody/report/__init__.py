@@ -41,8 +41,11 @@ def build_report(store_root: str | Path, run_name: str, out_dir: str | Path | No
     from embody.report.stamp import current_report, source_digest, stamp_report
     from embody.store.artifacts import ArtifactStore
 
-    manifest = ArtifactStore(store_root).runs_dir / run_name / "manifest.json"
-    digest = source_digest(manifest) if manifest.is_file() else ""
+    try:
+        text = ArtifactStore(store_root).read_manifest_text(run_name)
+    except OSError:
+        text = None
+    digest = source_digest(text=text) if text else ""
     out = Path(out_dir) if out_dir is not None else Path("reports") / run_name
     if reuse and digest:
         current = current_report(out, digest)

@@ -35,11 +35,11 @@ def open_run(store_root: str | Path, run: str) -> tuple[Any, Any]:
     from embody.store.manifest import Manifest, check_run_name
 
     store = ArtifactStore(store_root)
-    path = store.runs_dir / check_run_name(run, "RUN") / "manifest.json"
-    if not path.is_file():
-        runs = sorted(p.parent.name for p in store.runs_dir.glob("*/manifest.json"))
-        known = ", ".join(runs) or "none"
-        raise InputError(path, None, f"no run {run!r} in the store (runs: {known})")
+    names = store.run_names()
+    if check_run_name(run, "RUN") not in names:
+        known = ", ".join(names) or "none"
+        raise InputError(store.manifest_path(run), None,
+                         f"no run {run!r} in the store (runs: {known})")
     return store, Manifest.load(store, run)
 
 
@@ -68,11 +68,14 @@ def is_main_run(name: str) -> bool:
 
 def latest_run(store_root: str | Path) -> str:
     """The most recently written main run of a store (what `embody report` shows by default)."""
-    runs = sorted((p for p in Path(store_root, "runs").glob("*/manifest.json")
-                   if is_main_run(p.parent.name)), key=lambda p: p.stat().st_mtime)
+    from embody.store.artifacts import ArtifactStore
+
+    store = ArtifactStore(store_root)
+    runs = sorted((r for r in store.run_names() if is_main_run(r)), key=store.manifest_mtime)
     if not runs:
-        raise InputError(Path(store_root), None, "the store has no runs (run `embody run` first)")
-    return runs[-1].parent.name
+        raise InputError(Path(str(store_root)), None,
+                         "the store has no runs (run `embody run` first)")
+    return runs[-1]
 
 
 def metrics_frame(manifest: Any, step: str) -> pd.DataFrame:
@@ -215,5 +218,4 @@ def sequence_text(store: Any, seq: dict[str, Any]) -> str:
     key = seq.get("steps", {}).get(SOURCE)
     if key is None:
         return ""
-    doc = json.loads((store.path(SOURCE, key) / "zarr.json").read_text())
-    return str(doc.get("attributes", {}).get("result", {}).get("meta", {}).get("text", ""))
+    return str(store.attrs(SOURCE, key).get("meta", {}).get("text", ""))

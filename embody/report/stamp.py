@@ -16,10 +16,11 @@ from embody.report.paths import ReportPaths
 SOURCE_STAMP = ".embody-report-source"
 
 
-def source_digest(manifest_path: Path) -> str:
+def source_digest(manifest_path: Path | None = None, *, text: str | None = None) -> str:
     """What a store-built report depends on: the run manifest (minus its timestamps and writer
-    bookkeeping) and the report code. Equal digests mean rebuilding would write the same report."""
-    data = json.loads(manifest_path.read_text())
+    bookkeeping) and the report code. Equal digests mean rebuilding would write the same report.
+    The manifest is read from `manifest_path`, or given as `text` (an object store's)."""
+    data = json.loads(text if text is not None else Path(manifest_path).read_text())
     for volatile in ("created", "finished", "done_at", "writers"):
         data.pop(volatile, None)
     h = hashlib.sha256(json.dumps(data, sort_keys=True, default=str).encode())
