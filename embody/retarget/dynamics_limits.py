@@ -50,8 +50,8 @@ from embody.retarget.limits import clamp_velocity, velocity_violations
 from embody.robot import Robot
 from embody.robot.contacts import collision_model, self_collision_contacts
 from embody.robot.dynamics import (GRAVITY, center_of_mass, derivatives, dof_adr, effort_limits,
-                                   inverse_dynamics, leg_joints, stance_pose, standing_q,
-                                   support_polygon)
+                                   inverse_dynamics, leg_joints, spline_acceleration_matrix,
+                                   spline_derivatives, stance_pose, standing_q, support_polygon)
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +60,7 @@ log = logging.getLogger(__name__)
 #: where needed.
 WEIGHTS = {"arm": 1.0, "hand": 25.0, "waist": 25.0}
 #: Outer (linearise, solve, accept) iterations at most.
-ITERATIONS = 30
+ITERATIONS = 10
 #: Weight of the hinge rows against the ½‖x − q‖²_W pull (rad²): a near-constraint.
 W_HINGE = 1e5
 #: Weight of the correction's second difference (rad²): a correction spread smoothly over its
@@ -123,6 +123,19 @@ def _second_difference(t: int, dt: float) -> sp.csr_matrix:
     return sp.csr_matrix((vals / dt**2, (rows, cols)), shape=(t, t))
 
 
+#: Samples on each side of the diagonal kept of the spline acceleration's map in the linearised
+#: torque rows (the dropped entries are below 0.268^(BAND+1)·√3 of the diagonal's).
+BAND = 3
+
+
+def _spline_acceleration(t: int, dt: float) -> sp.csr_matrix:
+    """(T,T) the natural cubic spline's knot accelerations from the samples
+    (`dynamics.spline_acceleration_matrix`), truncated to ±BAND samples: a banded Jacobian."""
+    full = spline_acceleration_matrix(t, dt)
+    i, j = np.indices(full.shape)
+    return sp.csr_matrix(np.where(np.abs(i - j) <= BAND, full, 0.0))
+
+
 class _Rows:
     """Triplets of the linearised hinge rows (sparse), their residuals."""
 
@@ -165,7 +178,8 @@ class _Problem:
         self.lower = robot.lower + box_margin
         self.upper = robot.upper - box_margin
         self.vstep = robot.velocity_limits * (1.0 - velocity_margin) * self.dt
-        self.d2 = _second_difference(len(q), self.dt)
+        self.d2 = _second_difference(len(q), self.dt)  # the ZMP's CoM acceleration
+        self.acc = _spline_acceleration(len(q), self.dt)  # the torque's joint acceleration
         # the velocity hinge starts INNER_VELOCITY inside the limit, or at the input's own speed
         # where that is closer (the clamp leaves runs at the limit, and those cost nothing as given)
         self.vstart = np.maximum(INNER_VELOCITY * self.vstep, np.abs(np.diff(self.q0, axis=0)))
@@ -189,13 +203,15 @@ class _Problem:
         """Torques (T,n), ZMP (T,2), the polygon's edge margins (T,E), and the hinge excesses.
         `near`: the evaluation of a trajectory that differs from x on some samples only; the
         torques and CoM of the samples whose own values and differences are the same are kept."""
+        qd, qdd = spline_derivatives(x, self.dt)
         if near is None:
-            tau = inverse_dynamics(self.robot, x, self.dt)
+            tau = inverse_dynamics(self.robot, x, self.dt, qd, qdd)
             com = center_of_mass(self.robot, standing_q(self.robot, x))
         else:
             moved = np.any(x != near["x"], axis=1)
-            redo = _dilate(moved, 2)  # central differences, and the end rows' copies
-            qd, qdd = derivatives(x, self.dt)
+            # the spline couples every sample, its reach decaying 0.27× per sample: the samples
+            # whose derivatives changed past rounding are recomputed, the rest kept
+            redo = moved | (np.abs(qd - near["qd"]).max(1) > 1e-9) | (np.abs(qdd - near["qdd"]).max(1) > 1e-7)
             tau, com = near["tau"].copy(), near["com"].copy()
             if redo.any():
                 tau[redo] = inverse_dynamics(self.robot, x[redo], self.dt, qd[redo], qdd[redo])
@@ -216,7 +232,7 @@ class _Problem:
         over_zmp = (target - edge) / ZMP_SCALE
         step = np.abs(np.diff(x, axis=0))
         over_vel = (step - self.vstart) / self.vstep
-        return {"x": x, "com": com, "lever": lever, "tau": tau, "point": point, "inward": inward, "corner": a, "edge": edge,
+        return {"x": x, "qd": qd, "qdd": qdd, "com": com, "lever": lever, "tau": tau, "point": point, "inward": inward, "corner": a, "edge": edge,
                 "over_tau": over_tau, "over_zmp": over_zmp, "over_vel": over_vel, "target": target}
 
     def violating(self, ev: dict[str, np.ndarray]) -> np.ndarray:
@@ -308,10 +324,11 @@ class _Problem:
             c = (col[s[keep]][:, None] * nm + np.arange(nm)[None]).ravel()
             return c, vals[keep].ravel()
 
+        acc = self.acc
         tt, jj = np.nonzero(ev["over_tau"] > 0)
         for t in np.unique(tt):
-            s = d2.indices[d2.indptr[t]: d2.indptr[t + 1]]
-            w = d2.data[d2.indptr[t]: d2.indptr[t + 1]]
+            s = acc.indices[acc.indptr[t]: acc.indptr[t + 1]]
+            w = acc.data[acc.indptr[t]: acc.indptr[t + 1]]
             if not (col[s] >= 0).any():
                 continue
             mass = self._mass(x[t])
@@ -390,6 +407,72 @@ def enforce_dynamics(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsL
         return _enforce(robot, q, rate, limits, box_margin, velocity_margin, touching)
 
 
+#: Widths (Gaussian σ, samples) of the low-pass the solve starts from, raised in turn around the
+#: samples still past a limit. Why: the torque and ZMP excesses of retargeted sign motion are
+#: high-frequency (a 50 Hz zig-zag, the kinks of a 30 → 50 Hz resample): σ = 2 samples (40 ms)
+#: brings every joint of the default synthetic sequences inside its limit with ≤ 7° change,
+#: while the Gauss-Newton on the active hinge rows alone, starting from the input, fixes the
+#: active rows by pushing their neighbours over (≥ 30 iterations).
+SIGMAS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
+#: Half width (s) of the hat a contact push in the start is spread over.
+PUSH_HAT_S = 0.2
+
+
+def _smooth_start(prob: "_Problem", q: np.ndarray, ev: dict[str, np.ndarray], prior: np.ndarray,
+                  rate: float, box_margin: float, velocity_margin: float
+                  ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The solve's start: q low-passed (movable joints) around the samples past a limit, the
+    width raised region by region (`SIGMAS`) until none is, blended smoothly into q elsewhere
+    (a convex combination of samples: inside the joint box, never faster than q). A sample the
+    low-pass makes touch (MuJoCo; q had it clear) is pushed clear by the contact repair
+    (`control.separate_checked`, smallest trust radii), and the next round low-passes that."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from embody.retarget.control import TRUST_DEG, separate_checked
+    mov = prob.movable
+    level = np.zeros(len(q), dtype=np.int64)
+    cap = np.full(len(q), len(SIGMAS), dtype=np.int64)
+    base = q
+    x = q
+    for _ in range(2 * len(SIGMAS)):
+        bad = prob.violating(ev) & (level < cap)
+        if not bad.any():
+            break
+        for k in range(len(SIGMAS), 0, -1):  # widen each bad sample's level by the next width's reach
+            at = bad & (level == k - 1)
+            if at.any():
+                grow = _dilate(at, int(np.ceil(3.0 * SIGMAS[k - 1])))
+                level[grow] = np.minimum(np.maximum(level[grow], k), cap[grow])
+        moved = base[:, mov].copy()
+        prev = moved
+        for k in range(1, len(SIGMAS) + 1):
+            if not (level >= k).any():
+                break
+            cur = gaussian_filter1d(base[:, mov], SIGMAS[k - 1], axis=0, mode="nearest")
+            share = gaussian_filter1d((level >= k).astype(np.float64), SIGMAS[k - 1], mode="nearest")
+            share = np.clip(2.0 * share, 0.0, 1.0)  # full inside the level's region, ramp outside
+            moved += share[:, None] * (cur - prev)
+            prev = cur
+        trial = base.copy()
+        trial[:, mov] = np.clip(moved, prob.lower[mov], prob.upper[mov])
+        changed = np.flatnonzero(np.abs(trial - base).max(1) > 0)
+        touch = np.zeros(len(q), dtype=bool)
+        touch[changed] = (self_collision_contacts(prob.robot, trial[changed]) > 0) & ~prior[changed]
+        if touch.any():
+            # a wide hat, never a one-sample push: the acceleration of a push is what is limited
+            trial, clear = separate_checked(prob.robot, trial, rate, box_margin=box_margin,
+                                            velocity_margin=velocity_margin, trust_deg=TRUST_DEG[:3],
+                                            touching=touch, enforce_velocity=False, blend_s=PUSH_HAT_S)
+            if not clear:  # no small push clears it: this round's widths stay off those samples
+                near = _dilate(touch, int(np.ceil(3.0 * SIGMAS[-1])))
+                level[near] = np.maximum(level[near] - 1, 0)
+                cap[near] = level[near]
+                continue
+        x = base = trial
+        ev = prob.evaluate(x, ev)
+    return x, ev
+
+
 def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, box_margin: float,
              velocity_margin: float, touching: np.ndarray | None) -> tuple[np.ndarray, bool]:
     """`enforce_dynamics`' solve."""
@@ -400,10 +483,16 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
     if not bad.any():
         return q, True
     reach = max(1, int(round(REACH_S * rate)))
+    prior = np.zeros(len(q), dtype=bool) if touching is None else np.asarray(touching, dtype=bool)
+    x, ev = _smooth_start(prob, q, ev, prior, rate, box_margin, velocity_margin)
+    log.debug("start: %d changed, %d violating", int((np.abs(x - q).max(1) > 0).sum()),
+              int(prob.violating(ev).sum()))
+    bad = prob.violating(ev) | (np.abs(x - q).max(1) > 0)
+    if not prob.violating(ev).any():
+        return x, True
     free = _dilate(bad, reach)
     nm = len(prob.movable)
     cost = prob.cost(x, ev)
-    prior = np.zeros(len(q), dtype=bool) if touching is None else np.asarray(touching, dtype=bool)
     prob.watch_near(x, free)
     start = 1.0
     n = len(q)  # Δ² of the correction over the whole sequence: the held samples' is 0
