@@ -123,6 +123,20 @@ def _second_difference(t: int, dt: float) -> sp.csr_matrix:
     return sp.csr_matrix((vals / dt**2, (rows, cols)), shape=(t, t))
 
 
+def _velocity_lag(robot: Robot) -> np.ndarray:
+    """Per joint (n,) the torque per unit acceleration (N·m·s²/rad) the motor's damping adds
+    while its velocity lags one control period behind an accelerating reference: kd / rate.
+    Why: a command is held for a period, so at the next one the joint's velocity trails the
+    reference's by q̈ / rate, and the PD asks kd · q̈ / rate on top of the feed-forward (a G1
+    wrist at 200 rad/s²: 1.2 N·m of its 5). Zero where the robot has no `actuation`."""
+    try:
+        from embody.physics.actuation import actuation
+        act = actuation(robot)
+    except Exception:  # noqa: BLE001 (a robot without gains: no lag to allow for)
+        return np.zeros(robot.n_joints)
+    return act.kd / act.rate_hz
+
+
 #: Samples on each side of the diagonal kept of the spline acceleration's map in the linearised
 #: torque rows (the dropped entries are below 0.268^(BAND+1)·√3 of the diagonal's).
 BAND = 3
@@ -175,6 +189,9 @@ class _Problem:
         self.dof = dof_adr(robot)
         self.effort = effort_limits(robot)
         self.limited = np.isfinite(self.effort)
+        # the dry friction, whatever its sign at a reversal: |rigid-body torque| + friction is held
+        self.friction = robot.model.dof_frictionloss[self.dof]
+        self.lag = _velocity_lag(robot)
         self.lower = robot.lower + box_margin
         self.upper = robot.upper - box_margin
         self.vstep = robot.velocity_limits * (1.0 - velocity_margin) * self.dt
@@ -205,7 +222,7 @@ class _Problem:
         torques and CoM of the samples whose own values and differences are the same are kept."""
         qd, qdd = spline_derivatives(x, self.dt)
         if near is None:
-            tau = inverse_dynamics(self.robot, x, self.dt, qd, qdd)
+            tau = inverse_dynamics(self.robot, x, self.dt, qd, qdd, friction=False)
             com = center_of_mass(self.robot, standing_q(self.robot, x))
         else:
             moved = np.any(x != near["x"], axis=1)
@@ -214,7 +231,7 @@ class _Problem:
             redo = moved | (np.abs(qd - near["qd"]).max(1) > 1e-9) | (np.abs(qdd - near["qdd"]).max(1) > 1e-7)
             tau, com = near["tau"].copy(), near["com"].copy()
             if redo.any():
-                tau[redo] = inverse_dynamics(self.robot, x[redo], self.dt, qd[redo], qdd[redo])
+                tau[redo] = inverse_dynamics(self.robot, x[redo], self.dt, qd[redo], qdd[redo], friction=False)
             if moved.any():
                 com[moved] = center_of_mass(self.robot, standing_q(self.robot, x[moved]))
         # `dynamics.zmp`'s cart-table ZMP, its support polygon computed once
@@ -227,7 +244,8 @@ class _Problem:
         inward = np.stack([-e[:, 1], e[:, 0]], axis=1) / np.linalg.norm(e, axis=1)[:, None]
         edge = ((point[:, None, :] - a[None]) * inward[None]).sum(-1)  # (T,E)
         bound = self.limits.torque_fraction * self.effort
-        over_tau = np.where(self.limited, (np.abs(tau) - INNER * bound) / self.effort, 0.0)
+        over_tau = np.where(self.limited, (np.abs(tau) + self.friction + self.lag * np.abs(qdd)
+                                            - INNER * bound) / self.effort, 0.0)
         target = self.limits.zmp_margin + ZMP_INNER
         over_zmp = (target - edge) / ZMP_SCALE
         step = np.abs(np.diff(x, axis=0))
@@ -238,7 +256,8 @@ class _Problem:
     def violating(self, ev: dict[str, np.ndarray]) -> np.ndarray:
         """(T,) bool: samples past the limits themselves (not only past the hinges' inner start)."""
         bound = self.limits.torque_fraction * self.effort
-        tau = ((np.abs(ev["tau"]) > bound) & self.limited).any(1)
+        need = np.abs(ev["tau"]) + self.friction + self.lag * np.abs(ev["qdd"])
+        tau = ((need > bound) & self.limited).any(1)
         zmp_ = (ev["edge"] < self.limits.zmp_margin).any(1)
         vel = np.zeros(len(tau), dtype=bool)
         v = (np.abs(np.diff(ev["x"], axis=0)) > self.vstep * (1.0 + 1e-9)).any(1)
@@ -334,7 +353,11 @@ class _Problem:
             mass = self._mass(x[t])
             for j in jj[tt == t]:
                 sign = np.sign(ev["tau"][t, j]) / self.effort[j]
-                c, v = place(s, w[:, None] * mass[j][None] * sign)
+                piece = w[:, None] * mass[j][None] * sign
+                k = np.flatnonzero(self.movable == j)
+                if len(k):  # the damping's lag grows with the joint's own acceleration
+                    piece[:, k[0]] += w * self.lag[j] * np.sign(ev["qdd"][t, j]) / self.effort[j]
+                c, v = place(s, piece)
                 out.add(float(ev["over_tau"][t, j]), c, v)
         tz, ez = np.nonzero(ev["over_zmp"] > 0)
         if len(tz):

@@ -7,7 +7,8 @@ own MJCF. Joint arrays follow `robot.joint_names` (MuJoCo qpos order, free joint
 - Torques are *free-motion, fixed-base*: the root stays at its default pose with zero velocity
   and acceleration, and contacts, joint limits and every other constraint are disabled, so the
   torque is what the motors need to move the links along the trajectory (`mj_inverse`: mass
-  matrix, bias forces, minus passive forces such as joint damping). The velocity and
+  matrix, bias forces, minus passive forces such as joint damping), plus the joints' dry friction
+  (`frictionloss`, which the motors overcome too). The velocity and
   acceleration are those of the curve the robot is commanded along between the samples: the
   natural cubic spline through them (`spline_derivatives`, what `physics.commands` sends).
 - The ZMP is the cart-table ZMP of the robot standing on a flat floor: legs at the stance pose,
@@ -143,10 +144,11 @@ def free_motion_model(robot: Robot) -> mujoco.MjModel:
 
 
 def inverse_dynamics(robot: Robot, q: np.ndarray, dt: float, qd: np.ndarray | None = None,
-                     qdd: np.ndarray | None = None) -> np.ndarray:
+                     qdd: np.ndarray | None = None, friction: bool = True) -> np.ndarray:
     """Joint torques (T,n) that move the fixed-base robot along q (T,n) in free motion.
 
-    `qd`/`qdd` default to `spline_derivatives(q, dt)`: the commanded curve's. With the root's velocity and acceleration zero,
+    `qd`/`qdd` default to `spline_derivatives(q, dt)`: the commanded curve's. Includes the dry
+    friction against the motion (`friction_torque`) unless `friction` is False. With the root's velocity and acceleration zero,
     the joint rows of `mj_inverse` are exactly the torques of the robot with its pelvis welded."""
     q = np.atleast_2d(np.asarray(q, dtype=np.float64))
     if qd is None or qdd is None:
@@ -166,7 +168,21 @@ def inverse_dynamics(robot: Robot, q: np.ndarray, dt: float, qd: np.ndarray | No
         data.qacc[dof] = qdd[t]
         mujoco.mj_inverse(model, data)
         tau[t] = data.qfrc_inverse[dof]
-    return tau
+    return tau + friction_torque(robot, qd) if friction else tau
+
+
+#: Joint speed (rad/s) over which the dry-friction torque ramps up to its full value (a smooth
+#: sign: at rest the friction holds whatever is needed, up to its bound).
+FRICTION_SPEED = 0.05
+
+
+def friction_torque(robot: Robot, qd: np.ndarray) -> np.ndarray:
+    """The joints' dry friction (T,n) against motion at velocities qd: the MJCF's `frictionloss`
+    × tanh(qd / FRICTION_SPEED). Why: MuJoCo applies `frictionloss` as a constraint, which the
+    free-motion model (constraints off) leaves out, yet the motors pay it (the G1's is 0.3 N·m
+    on every joint: a fifth of a Dex3 finger's 1.4 N·m)."""
+    loss = robot.model.dof_frictionloss[dof_adr(robot)]
+    return loss * np.tanh(np.atleast_2d(qd) / FRICTION_SPEED)
 
 
 def torque_ratio(robot: Robot, tau: np.ndarray) -> np.ndarray:
