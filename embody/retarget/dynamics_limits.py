@@ -60,7 +60,7 @@ log = logging.getLogger(__name__)
 #: where needed.
 WEIGHTS = {"arm": 1.0, "hand": 25.0, "waist": 25.0}
 #: Outer (linearise, solve, accept) iterations at most.
-ITERATIONS = 10
+ITERATIONS = 4
 #: Weight of the hinge rows against the ½‖x − q‖²_W pull (rad²): a near-constraint.
 W_HINGE = 1e5
 #: Weight of the correction's second difference (rad²): a correction spread smoothly over its
@@ -439,6 +439,8 @@ def enforce_dynamics(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsL
 SIGMAS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
 #: Half width (s) of the hat a contact push in the start is spread over.
 PUSH_HAT_S = 0.2
+#: Width (Gaussian σ, samples) of the low-pass applied to a contact push.
+PUSH_SIGMA = 2.0
 
 
 def _smooth_start(prob: "_Problem", q: np.ndarray, ev: dict[str, np.ndarray], prior: np.ndarray,
@@ -447,15 +449,16 @@ def _smooth_start(prob: "_Problem", q: np.ndarray, ev: dict[str, np.ndarray], pr
     """The solve's start: q low-passed (movable joints) around the samples past a limit, the
     width raised region by region (`SIGMAS`) until none is, blended smoothly into q elsewhere
     (a convex combination of samples: inside the joint box, never faster than q). A sample the
-    low-pass makes touch (MuJoCo; q had it clear) is pushed clear by the contact repair
-    (`control.separate_checked`, smallest trust radii), and the next round low-passes that."""
+    low-pass makes touch (MuJoCo; q had it clear: `prior` are q's own touching samples) is
+    pushed clear by the contact repair (`control.separate_checked`, on a wide hat); where no
+    push clears it, the width there goes back down and stays capped."""
     from scipy.ndimage import gaussian_filter1d
 
     from embody.retarget.control import TRUST_DEG, separate_checked
     mov = prob.movable
+    passes = [q[:, mov]] + [gaussian_filter1d(q[:, mov], s, axis=0, mode="nearest") for s in SIGMAS]
     level = np.zeros(len(q), dtype=np.int64)
     cap = np.full(len(q), len(SIGMAS), dtype=np.int64)
-    base = q
     x = q
     for _ in range(2 * len(SIGMAS)):
         bad = prob.violating(ev) & (level < cap)
@@ -466,32 +469,43 @@ def _smooth_start(prob: "_Problem", q: np.ndarray, ev: dict[str, np.ndarray], pr
             if at.any():
                 grow = _dilate(at, int(np.ceil(3.0 * SIGMAS[k - 1])))
                 level[grow] = np.minimum(np.maximum(level[grow], k), cap[grow])
-        moved = base[:, mov].copy()
-        prev = moved
+        moved = q[:, mov].copy()
         for k in range(1, len(SIGMAS) + 1):
-            if not (level >= k).any():
-                break
-            cur = gaussian_filter1d(base[:, mov], SIGMAS[k - 1], axis=0, mode="nearest")
             share = gaussian_filter1d((level >= k).astype(np.float64), SIGMAS[k - 1], mode="nearest")
             share = np.clip(2.0 * share, 0.0, 1.0)  # full inside the level's region, ramp outside
-            moved += share[:, None] * (cur - prev)
-            prev = cur
-        trial = base.copy()
+            moved += share[:, None] * (passes[k] - passes[k - 1])
+        trial = q.copy()
         trial[:, mov] = np.clip(moved, prob.lower[mov], prob.upper[mov])
-        changed = np.flatnonzero(np.abs(trial - base).max(1) > 0)
+        changed = np.flatnonzero(np.abs(trial - q).max(1) > 0)
         touch = np.zeros(len(q), dtype=bool)
         touch[changed] = (self_collision_contacts(prob.robot, trial[changed]) > 0) & ~prior[changed]
+        log.debug("start round: %d bad, %d touching, levels %s", int(bad.sum()), int(touch.sum()),
+                  np.bincount(level, minlength=len(SIGMAS) + 1))
         if touch.any():
-            # a wide hat, never a one-sample push: the acceleration of a push is what is limited
-            trial, clear = separate_checked(prob.robot, trial, rate, box_margin=box_margin,
-                                            velocity_margin=velocity_margin, trust_deg=TRUST_DEG[:3],
-                                            touching=touch, enforce_velocity=False, blend_s=PUSH_HAT_S)
-            if not clear:  # no small push clears it: this round's widths stay off those samples
-                near = _dilate(touch, int(np.ceil(3.0 * SIGMAS[-1])))
+            # a wide hat, never a one-sample push: a push's acceleration is what is limited here
+            kw = {"box_margin": box_margin, "velocity_margin": velocity_margin, "touching": touch,
+                  "enforce_velocity": False, "blend_s": PUSH_HAT_S}
+            pushed, clear = trial, False
+            for _push in range(3):  # the push low-passed as the motion is (its hat's kinks are accelerations)
+                step, clear = separate_checked(prob.robot, pushed, rate, trust_deg=TRUST_DEG, **kw)
+                if not clear:
+                    break
+                pushed = pushed + gaussian_filter1d(step - pushed, PUSH_SIGMA, axis=0, mode="nearest")
+                pushed[:, mov] = np.clip(pushed[:, mov], prob.lower[mov], prob.upper[mov])
+                pushed = clamp_velocity(pushed, prob.robot.velocity_limits * (1.0 - velocity_margin), rate)
+                moved_ = np.flatnonzero(np.abs(pushed - trial).max(1) > 0)
+                kw["touching"] = np.zeros(len(q), dtype=bool)
+                kw["touching"][moved_] = (self_collision_contacts(prob.robot, pushed[moved_]) > 0) & ~prior[moved_]
+                clear = not kw["touching"].any()
+                if clear:
+                    break
+            if not clear:  # no push clears it: the widths stay off those samples
+                near = _dilate(touch, int(np.ceil(3.0 * SIGMAS[0])))
                 level[near] = np.maximum(level[near] - 1, 0)
                 cap[near] = level[near]
                 continue
-        x = base = trial
+            trial = pushed
+        x = trial
         ev = prob.evaluate(x, ev)
     return x, ev
 
