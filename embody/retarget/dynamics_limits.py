@@ -4,33 +4,35 @@ A kinematically valid trajectory can still ask a wrist motor for three times its
 accelerate the arms hard enough to push the standing robot's ZMP out of its feet. Both are set
 by the accelerations of the exported samples, which the kinematic chain (resample, bridges,
 contact pushes, velocity clamp) shapes last, so they are enforced on that array, with everything
-the chain guaranteed kept in the same problem:
+the chain guaranteed kept in the same problem.
 
-    min_x  ½ Σ_t (x_t − q_t)ᵀ W (x_t − q_t) + ½ w_s ‖Δ²(x − q)‖²
-           + ½ w_h Σ hinge rows²
+The torque is that of the curve the robot is commanded along: the natural cubic spline through
+the samples, whose slopes and inverse dynamics the export sends as q̇ and feed-forward
+(`physics.commands`, `dynamics.spline_derivatives`), so a limit held here holds in the replay.
+Per joint the motor must give, within `torque_fraction` of its effort limit,
 
-over the movable joints (arms, waist, fingers) of every control sample, whose hinge rows are
-zero inside the limits:
-- torque: (|τ_tj| − f·τmax_j)/τmax_j with τ = M(q)q̈ + h(q, q̇) (`robot.dynamics.inverse_dynamics`,
-  fixed base, free motion, central differences at the control rate), linearised as
-  δτ_t = M(x_t) (D δ)_t with D the same second difference;
-- balance: per edge e of the feet polygon, margin − n_e·(p_t − a_e) with p the cart-table ZMP
-  (`robot.dynamics.zmp`), linearised through the CoM Jacobian (`mj_jacSubtreeCom`):
-  δp_t = J_t δ_t − k_t (D J δ)_t, k_t = c_z / (c̈_z + g);
-- velocity: (|Δx| − v̇max/rate)/(v̇max/rate) past the velocity limit;
-- contacts: clearance − (d_i + a_i δ_t) on the samples with a counted MuJoCo contact closer than
-  twice the clearance (a_i: the contact normal's rate of separation, as in `control._Separator`);
-  the joint box by clipping.
+    |τ_rigid| + friction + kd·|q̈|/rate
 
-Sequential convex (Gauss-Newton on the hinges, banded normal equations): M, h, J and the
-contacts are refreshed at every outer iteration; a step is kept only if the exact cost fell and
-MuJoCo finds no sample it moved newly touching (a backtracking line search), and the loop ends
-as soon as every limit holds. The unknowns are the samples within `REACH_S` of a violation (the
-rest stay exactly as given), so the cost follows the violations, not the sequence. Where the
-motion is already feasible nothing is solved and the array comes back unchanged: sign fidelity
-pays only where the robot could not have executed the motion. A trajectory it cannot make
-feasible comes back improved, never with a new contact, and the validation counts what is left
-(`torque_viol`), which the export refuses.
+the fixed-base free-motion inverse dynamics τ = M(q)q̈ + h(q, q̇) at the spline's q̇, q̈, the
+joint's dry friction (`frictionloss`, either sign) and the damping's share while the joint's
+velocity trails an accelerating reference by one command period (`_velocity_lag`). Balance:
+the cart-table ZMP (`robot.dynamics.zmp`) `zmp_margin` inside the feet's polygon.
+
+The excesses of retargeted sign motion are high-frequency (a 50 Hz zig-zag, the kinks of a
+30 → 50 Hz resample), so the solve starts from the trajectory low-passed around the samples past
+a limit, the width raised region by region until none is (`_smooth_start`), MuJoCo's contacts
+kept clear by low-passed pushes. Where that leaves a limit violated, a sequential convex
+refinement follows:
+
+    min_x  ½ Σ_t (x_t − q_t)ᵀ W (x_t − q_t) + ½ w_s ‖Δ²(x − q)‖² + ½ w_h Σ hinge rows²
+
+over the movable joints (arms, waist, fingers), its hinge rows zero inside the limits (torque
+linearised through M(x_t) and the spline's acceleration map, banded; the ZMP through the CoM
+Jacobian; velocity; contacts on watched samples), a step kept only if the exact cost fell and
+MuJoCo finds no sample it moved newly touching. Where the motion is already feasible nothing is
+solved and the array comes back unchanged: sign fidelity pays only where the robot could not
+have executed the motion. A trajectory it cannot make feasible comes back improved, never with
+a new contact, and the validation counts what is left (`torque_viol`), which the export refuses.
 """
 
 from __future__ import annotations
