@@ -9,8 +9,12 @@ the limits act only on the control-rate array. Each array is measured against th
 pipeline's own targets:
 
 - torque: `embody.robot.dynamics.inverse_dynamics` (MuJoCo `mj_inverse`, fixed base, free
-  motion, central differences at the control rate) against the MJCF effort limits: samples
-  (sample, joint) over the limit, sequences with any, the worst |tau|/limit;
+  motion, along the natural cubic spline through the control-rate samples that the export
+  commands, plus the joints' dry friction) against the MJCF effort limits: samples (sample,
+  joint) over the limit, sequences with any, the worst |tau|/limit;
+- replay: the exported commands (`physics.commands`) played in MuJoCo with the pelvis welded at
+  the robot's gains (`physics.replay_fixed`): sequences with a saturated motor, the share of
+  saturated control steps, palm tracking p95 (mm);
 - balance: `dynamics.zmp` (cart-table ZMP, legs at the `stand` keyframe): the smallest margin
   inside the feet polygon (mm; negative: outside), sequences below `ik.zmp_margin`;
 - validity: MuJoCo self-collision samples, joint-limit and velocity violations (`validation_counts`);
@@ -58,6 +62,7 @@ from fidelity import _setup, agree10, mitigated, sign_f1, target_counts  # noqa:
 
 from embody.metrics.embodiments import human_track, scored_robot_track  # noqa: E402
 from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with, resample_track  # noqa: E402
+from embody.physics import commands, replay_fixed  # noqa: E402
 from embody.retarget import build_targets, solve  # noqa: E402
 from embody.retarget.control import control_trajectory  # noqa: E402
 from embody.retarget.dynamics_limits import DynamicsLimits  # noqa: E402
@@ -73,6 +78,18 @@ def dynamics_figures(robot, q: np.ndarray, rate: float) -> dict[str, float]:
     worst = np.unravel_index(np.argmax(ratio), ratio.shape)
     return {"over": float((ratio > 1.0).sum()), "worst": float(ratio.max()),
             "worst_joint": robot.joint_names[worst[1]], "zmp_min_mm": float(margin.min() * 1000.0)}
+
+
+def replay_figures(robot, q: np.ndarray, rate: float) -> dict[str, float]:
+    """The exported commands replayed with the pelvis welded: saturated steps (%) and palm p95 (mm)."""
+    fixed = replay_fixed(robot, commands(robot, q, rate))
+    r = fixed.rollout
+    sat = (np.abs(r.demand) >= r.limit * (1.0 - 1e-9)).any(1)
+    names = [n for n in robot.spec.landmarks if n.endswith("_palm")]
+    ref, _, _ = robot.landmark_points(q, names)
+    sim, _, _ = robot.landmark_points(fixed.q50, names)
+    err = np.linalg.norm(sim - ref, axis=-1) * 1000.0
+    return {"sat_pct": 100.0 * float(sat.mean()), "palm_p95": float(np.percentile(err, 95))}
 
 
 def fidelity_figures(robot, q: np.ndarray, rate: float, human, motion, cfg) -> dict[str, float]:
@@ -118,11 +135,13 @@ def main() -> None:
         for name, arr in (("before", before), ("after", after)):
             row = dynamics_figures(robot, arr, rate)
             row.update(validation_counts(robot, arr, rate))
+            row.update(replay_figures(robot, arr, rate))
             row.update(fidelity_figures(robot, arr, rate, human, motion, cfg))
             rows[name].append(row)
             line.append(f"{name}: over={row['over']:.0f} worst={row['worst']:.2f}({row['worst_joint']}) "
                         f"zmp={row['zmp_min_mm']:.0f}mm coll={row['self_collision_frames']:.0f} "
-                        f"vel={row['velocity_violations']:.0f} loc={row['location_err']:.3f}")
+                        f"vel={row['velocity_violations']:.0f} sat={row['sat_pct']:.2f}% palm95={row['palm_p95']:.1f}mm "
+                        f"loc={row['location_err']:.3f}")
         contacts_after += rows["after"][-1]["self_collision_frames"]
         change = np.degrees(np.abs(after - before).max()) if after.shape == before.shape else float("nan")
         print("  ".join(line) + f"  max_change={change:.1f}deg t={seconds[-1]:.1f}s", flush=True)
@@ -139,6 +158,11 @@ def main() -> None:
         out[f"{name}_seqs"] = f"{sum(r['over'] > 0 for r in rows[name])}"
         out[f"{name}_worst"] = f"{max(r['worst'] for r in rows[name]):.2f}"
         out[f"{name}_zmp_min_mm"] = f"{min(r['zmp_min_mm'] for r in rows[name]):.1f}"
+    for name in ("before", "after"):
+        out[f"{name}_sat_seqs"] = f"{sum(r['sat_pct'] > 0 for r in rows[name])}"
+        out[f"{name}_sat_pct"] = f"{mean(name, 'sat_pct'):.2f}"
+        out[f"{name}_palm_p95_max"] = f"{max(r['palm_p95'] for r in rows[name]):.1f}"
+    out["after_export_valid"] = f"{sum(r['over'] == 0 and r['self_collision_frames'] == 0 and r['velocity_violations'] == 0 and r['joint_limit_violations'] == 0 for r in rows['after'])}"
     out["after_zmp_short_seqs"] = f"{sum(r['zmp_min_mm'] < 1000 * limits.zmp_margin - 0.5 for r in rows['after'])}"
     out["after_contacts"] = f"{contacts_after:.0f}"
     out["after_velocity"] = f"{total('after', 'velocity_violations'):.0f}"
