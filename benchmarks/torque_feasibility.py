@@ -35,13 +35,26 @@ handshape_before=… handshape_after=… penetration_before=… penetration_afte
 largest |tau|/limit; zmp_short_seqs: sequences whose ZMP comes closer than `ik.zmp_margin` to
 the feet's edge; limits_s_per_seq: the control stage with the limits, per sequence).
 
-Measured 2026-11-29 (shared 2-core machine, 24 sequences): `RESULT sequences=24 before_over=1129
-before_seqs=24 before_worst=6.88 before_zmp_min_mm=-2012.6 after_over=260 after_seqs=7
-after_worst=4.21 after_zmp_min_mm=-1296.8 after_zmp_short_seqs=15 after_contacts=0
-after_velocity=0 after_limits=0 location_err_before=0.097 location_err_after=0.113
-agree10_before=93.333 agree10_after=91.938 contact_f1_before=0.966 contact_f1_after=0.938
-palm_before=4.807 palm_after=5.163 handshape_before=0.094 handshape_after=0.094
-penetration_before=0.000 penetration_after=0.000 limits_s_per_seq=5.80`
+Measured 2026-11-29 on one input set for both codes (`--load`: each sequence's final source-rate
+solve from a stored default run, "before" its kinematic 50 Hz array; machine at load 11-20, so
+the seconds are inflated). Previous solve (central-difference torque, Gauss-Newton from the input;
+its `over` counted with central differences): `RESULT sequences=24 before_over=1609 before_seqs=24
+before_worst=7.83 before_zmp_min_mm=-1317.3 after_over=167 after_seqs=6 after_worst=3.22
+after_zmp_min_mm=-212.6 after_zmp_short_seqs=15 after_contacts=0 after_velocity=0 after_limits=0
+location_err_before=0.096 location_err_after=0.117 agree10_before=94.729 agree10_after=92.558
+contact_f1_before=0.967 contact_f1_after=0.927 palm_before=4.797 palm_after=5.287
+handshape_before=0.097 handshape_after=0.097 penetration_before=0.000 penetration_after=0.000
+limits_s_per_seq=62.55`. This solve (spline torque with friction and lag, low-passed start):
+`RESULT sequences=24 before_over=4307 before_seqs=24 before_worst=13.92 before_zmp_min_mm=-1317.3
+after_over=577 after_seqs=4 after_worst=11.98 after_zmp_min_mm=-685.8 before_sat_seqs=24
+before_sat_pct=17.31 before_palm_p95_max=88.4 after_sat_seqs=4 after_sat_pct=1.98
+after_palm_p95_max=83.1 after_export_valid=20 after_zmp_short_seqs=4 after_contacts=0
+after_velocity=0 after_limits=0 location_err_before=0.096 location_err_after=0.114
+agree10_before=94.729 agree10_after=94.574 contact_f1_before=0.967 contact_f1_after=0.885
+palm_before=4.797 palm_after=4.777 handshape_before=0.097 handshape_after=0.098
+penetration_before=0.000 penetration_after=0.000 limits_s_per_seq=21.82` (20 sequences feasible:
+0 saturated steps, palm p95 0.7-1.1 mm; seqs 0, 6, 15, 17 not: their low-pass makes contacts
+that no push clears).
 """
 
 from __future__ import annotations
