@@ -391,11 +391,11 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
                  shared=True, files=_robot_files)
 # The whole-sequence IK on location-preserving targets; its 50 Hz array clear of contacts and inside
 # the effort limits and ZMP margin (`retarget.control`, `retarget.dynamics_limits`), with its counts.
-RETARGET = Step("retarget", "18", ("body", "robot", "ik"), _retarget, _ik_solution,
+RETARGET = Step("retarget", "19", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # Every critic round's IK solution, action and comparison sheet; the chosen round's control-rate
 # array and wrist positions, which `metrics` reuses.
-REFINE = Step("refine", "20", ("body", "robot", "ik", "render", "critic"), _refine,
+REFINE = Step("refine", "21", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
               files=_robot_files)
 # The comparison sheet and the 15 fps preview of the reference (a MuJoCo skin) and the robot.
@@ -406,9 +406,9 @@ RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _rend
                       files=_robot_files)
 # The exported control-rate array, its validation counts (torque included) and jerk, Table III's
 # sign fidelity on it against the mitigated human, and the report's wrist tracks.
-METRICS = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS = Step("metrics", "11", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "11", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
 
 # The exported array replayed in MuJoCo with the robot's actuation, fixed base and standing.

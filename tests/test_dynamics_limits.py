@@ -63,6 +63,24 @@ def test_wrist_over_its_effort_limit_is_repaired(robot):
     assert np.abs(out - q).max() < np.radians(30)
 
 
+def test_solved_trajectory_replays_without_saturating(robot):
+    """The torque the solve holds is the torque of the curve the robot is commanded along (the
+    spline of `physics.commands`): replayed in MuJoCo at the G1's gains, no motor saturates,
+    where the planted input saturates the wrist."""
+    from embody.physics import commands
+    from embody.physics.replay import replay_fixed
+
+    def saturated(q: np.ndarray) -> int:
+        r = replay_fixed(robot, commands(robot, q, RATE)).rollout
+        return int((np.abs(r.demand) >= r.limit * (1 - 1e-9)).any(1).sum())
+
+    q = _planted(robot)
+    assert saturated(q) > 0
+    out, ok = enforce_dynamics(robot, q, RATE, DynamicsLimits())
+    assert ok
+    assert saturated(out) == 0
+
+
 def test_feasible_motion_is_unchanged(robot):
     t = np.arange(100) / RATE
     q = np.tile(robot.tpose, (len(t), 1))

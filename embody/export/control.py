@@ -1,8 +1,9 @@
 """The low-level command fields an exported npz carries, and the physics check of a file.
 
 Per 50 Hz sample a Unitree `LowCmd` motor command takes q, q̇, a feed-forward torque, kp and kd.
-The npz carries exactly these (`embody.physics.commands`): `q` (T,n), `qd` (T,n, rad/s, central
-differences, one-sided at the ends), `tau_ff` (T,n, N·m, fixed-base free-motion inverse dynamics),
+The npz carries exactly these (`embody.physics.commands`): `q` (T,n), `qd` (T,n, rad/s, the slope of
+the natural cubic spline through q: a (q, q̇) Hermite interpolator plays that spline), `tau_ff` (T,n,
+N·m, fixed-base free-motion inverse dynamics of the spline at the samples),
 `kp` (n, N·m/rad) and `kd` (n, N·m·s/rad) per joint, and `control_rate_hz` (the rate the gains
 were published for). `embody export --check` replays each file in physics under the
 physics-valid rule (`physics_check`).

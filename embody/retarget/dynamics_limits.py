@@ -4,33 +4,35 @@ A kinematically valid trajectory can still ask a wrist motor for three times its
 accelerate the arms hard enough to push the standing robot's ZMP out of its feet. Both are set
 by the accelerations of the exported samples, which the kinematic chain (resample, bridges,
 contact pushes, velocity clamp) shapes last, so they are enforced on that array, with everything
-the chain guaranteed kept in the same problem:
+the chain guaranteed kept in the same problem.
 
-    min_x  ½ Σ_t (x_t − q_t)ᵀ W (x_t − q_t) + ½ w_s ‖Δ²(x − q)‖²
-           + ½ w_h Σ hinge rows²
+The torque is that of the curve the robot is commanded along: the natural cubic spline through
+the samples, whose slopes and inverse dynamics the export sends as q̇ and feed-forward
+(`physics.commands`, `dynamics.spline_derivatives`), so a limit held here holds in the replay.
+Per joint the motor must give, within `torque_fraction` of its effort limit,
 
-over the movable joints (arms, waist, fingers) of every control sample, whose hinge rows are
-zero inside the limits:
-- torque: (|τ_tj| − f·τmax_j)/τmax_j with τ = M(q)q̈ + h(q, q̇) (`robot.dynamics.inverse_dynamics`,
-  fixed base, free motion, central differences at the control rate), linearised as
-  δτ_t = M(x_t) (D δ)_t with D the same second difference;
-- balance: per edge e of the feet polygon, margin − n_e·(p_t − a_e) with p the cart-table ZMP
-  (`robot.dynamics.zmp`), linearised through the CoM Jacobian (`mj_jacSubtreeCom`):
-  δp_t = J_t δ_t − k_t (D J δ)_t, k_t = c_z / (c̈_z + g);
-- velocity: (|Δx| − v̇max/rate)/(v̇max/rate) past the velocity limit;
-- contacts: clearance − (d_i + a_i δ_t) on the samples with a counted MuJoCo contact closer than
-  twice the clearance (a_i: the contact normal's rate of separation, as in `control._Separator`);
-  the joint box by clipping.
+    |τ_rigid| + friction + kd·|q̈|/rate
 
-Sequential convex (Gauss-Newton on the hinges, banded normal equations): M, h, J and the
-contacts are refreshed at every outer iteration; a step is kept only if the exact cost fell and
-MuJoCo finds no sample it moved newly touching (a backtracking line search), and the loop ends
-as soon as every limit holds. The unknowns are the samples within `REACH_S` of a violation (the
-rest stay exactly as given), so the cost follows the violations, not the sequence. Where the
-motion is already feasible nothing is solved and the array comes back unchanged: sign fidelity
-pays only where the robot could not have executed the motion. A trajectory it cannot make
-feasible comes back improved, never with a new contact, and the validation counts what is left
-(`torque_viol`), which the export refuses.
+the fixed-base free-motion inverse dynamics τ = M(q)q̈ + h(q, q̇) at the spline's q̇, q̈, the
+joint's dry friction (`frictionloss`, either sign) and the damping's share while the joint's
+velocity trails an accelerating reference by one command period (`_velocity_lag`). Balance:
+the cart-table ZMP (`robot.dynamics.zmp`) `zmp_margin` inside the feet's polygon.
+
+The excesses of retargeted sign motion are high-frequency (a 50 Hz zig-zag, the kinks of a
+30 → 50 Hz resample), so the solve starts from the trajectory low-passed around the samples past
+a limit, the width raised region by region until none is (`_smooth_start`), MuJoCo's contacts
+kept clear by low-passed pushes. Where that leaves a limit violated, a sequential convex
+refinement follows:
+
+    min_x  ½ Σ_t (x_t − q_t)ᵀ W (x_t − q_t) + ½ w_s ‖Δ²(x − q)‖² + ½ w_h Σ hinge rows²
+
+over the movable joints (arms, waist, fingers), its hinge rows zero inside the limits (torque
+linearised through M(x_t) and the spline's acceleration map, banded; the ZMP through the CoM
+Jacobian; velocity; contacts on watched samples), a step kept only if the exact cost fell and
+MuJoCo finds no sample it moved newly touching. Where the motion is already feasible nothing is
+solved and the array comes back unchanged: sign fidelity pays only where the robot could not
+have executed the motion. A trajectory it cannot make feasible comes back improved, never with
+a new contact, and the validation counts what is left (`torque_viol`), which the export refuses.
 """
 
 from __future__ import annotations
@@ -50,8 +52,8 @@ from embody.retarget.limits import clamp_velocity, velocity_violations
 from embody.robot import Robot
 from embody.robot.contacts import collision_model, self_collision_contacts
 from embody.robot.dynamics import (GRAVITY, center_of_mass, derivatives, dof_adr, effort_limits,
-                                   inverse_dynamics, leg_joints, stance_pose, standing_q,
-                                   support_polygon)
+                                   inverse_dynamics, leg_joints, spline_acceleration_matrix,
+                                   spline_derivatives, stance_pose, standing_q, support_polygon)
 
 log = logging.getLogger(__name__)
 
@@ -60,7 +62,7 @@ log = logging.getLogger(__name__)
 #: where needed.
 WEIGHTS = {"arm": 1.0, "hand": 25.0, "waist": 25.0}
 #: Outer (linearise, solve, accept) iterations at most.
-ITERATIONS = 30
+ITERATIONS = 4
 #: Weight of the hinge rows against the ½‖x − q‖²_W pull (rad²): a near-constraint.
 W_HINGE = 1e5
 #: Weight of the correction's second difference (rad²): a correction spread smoothly over its
@@ -123,6 +125,33 @@ def _second_difference(t: int, dt: float) -> sp.csr_matrix:
     return sp.csr_matrix((vals / dt**2, (rows, cols)), shape=(t, t))
 
 
+def _velocity_lag(robot: Robot) -> np.ndarray:
+    """Per joint (n,) the torque per unit acceleration (N·m·s²/rad) the motor's damping adds
+    while its velocity lags one control period behind an accelerating reference: kd / rate.
+    Why: a command is held for a period, so at the next one the joint's velocity trails the
+    reference's by q̈ / rate, and the PD asks kd · q̈ / rate on top of the feed-forward (a G1
+    wrist at 200 rad/s²: 1.2 N·m of its 5). Zero where the robot has no `actuation`."""
+    try:
+        from embody.physics.actuation import actuation
+        act = actuation(robot)
+    except Exception:  # noqa: BLE001 (a robot without gains: no lag to allow for)
+        return np.zeros(robot.n_joints)
+    return act.kd / act.rate_hz
+
+
+#: Samples on each side of the diagonal kept of the spline acceleration's map in the linearised
+#: torque rows (the dropped entries are below 0.268^(BAND+1)·√3 of the diagonal's).
+BAND = 3
+
+
+def _spline_acceleration(t: int, dt: float) -> sp.csr_matrix:
+    """(T,T) the natural cubic spline's knot accelerations from the samples
+    (`dynamics.spline_acceleration_matrix`), truncated to ±BAND samples: a banded Jacobian."""
+    full = spline_acceleration_matrix(t, dt)
+    i, j = np.indices(full.shape)
+    return sp.csr_matrix(np.where(np.abs(i - j) <= BAND, full, 0.0))
+
+
 class _Rows:
     """Triplets of the linearised hinge rows (sparse), their residuals."""
 
@@ -162,10 +191,14 @@ class _Problem:
         self.dof = dof_adr(robot)
         self.effort = effort_limits(robot)
         self.limited = np.isfinite(self.effort)
+        # the dry friction, whatever its sign at a reversal: |rigid-body torque| + friction is held
+        self.friction = robot.model.dof_frictionloss[self.dof]
+        self.lag = _velocity_lag(robot)
         self.lower = robot.lower + box_margin
         self.upper = robot.upper - box_margin
         self.vstep = robot.velocity_limits * (1.0 - velocity_margin) * self.dt
-        self.d2 = _second_difference(len(q), self.dt)
+        self.d2 = _second_difference(len(q), self.dt)  # the ZMP's CoM acceleration
+        self.acc = _spline_acceleration(len(q), self.dt)  # the torque's joint acceleration
         # the velocity hinge starts INNER_VELOCITY inside the limit, or at the input's own speed
         # where that is closer (the clamp leaves runs at the limit, and those cost nothing as given)
         self.vstart = np.maximum(INNER_VELOCITY * self.vstep, np.abs(np.diff(self.q0, axis=0)))
@@ -189,16 +222,18 @@ class _Problem:
         """Torques (T,n), ZMP (T,2), the polygon's edge margins (T,E), and the hinge excesses.
         `near`: the evaluation of a trajectory that differs from x on some samples only; the
         torques and CoM of the samples whose own values and differences are the same are kept."""
+        qd, qdd = spline_derivatives(x, self.dt)
         if near is None:
-            tau = inverse_dynamics(self.robot, x, self.dt)
+            tau = inverse_dynamics(self.robot, x, self.dt, qd, qdd, friction=False)
             com = center_of_mass(self.robot, standing_q(self.robot, x))
         else:
             moved = np.any(x != near["x"], axis=1)
-            redo = _dilate(moved, 2)  # central differences, and the end rows' copies
-            qd, qdd = derivatives(x, self.dt)
+            # the spline couples every sample, its reach decaying 0.27× per sample: the samples
+            # whose derivatives changed past rounding are recomputed, the rest kept
+            redo = moved | (np.abs(qd - near["qd"]).max(1) > 1e-9) | (np.abs(qdd - near["qdd"]).max(1) > 1e-7)
             tau, com = near["tau"].copy(), near["com"].copy()
             if redo.any():
-                tau[redo] = inverse_dynamics(self.robot, x[redo], self.dt, qd[redo], qdd[redo])
+                tau[redo] = inverse_dynamics(self.robot, x[redo], self.dt, qd[redo], qdd[redo], friction=False)
             if moved.any():
                 com[moved] = center_of_mass(self.robot, standing_q(self.robot, x[moved]))
         # `dynamics.zmp`'s cart-table ZMP, its support polygon computed once
@@ -211,18 +246,20 @@ class _Problem:
         inward = np.stack([-e[:, 1], e[:, 0]], axis=1) / np.linalg.norm(e, axis=1)[:, None]
         edge = ((point[:, None, :] - a[None]) * inward[None]).sum(-1)  # (T,E)
         bound = self.limits.torque_fraction * self.effort
-        over_tau = np.where(self.limited, (np.abs(tau) - INNER * bound) / self.effort, 0.0)
+        over_tau = np.where(self.limited, (np.abs(tau) + self.friction + self.lag * np.abs(qdd)
+                                            - INNER * bound) / self.effort, 0.0)
         target = self.limits.zmp_margin + ZMP_INNER
         over_zmp = (target - edge) / ZMP_SCALE
         step = np.abs(np.diff(x, axis=0))
         over_vel = (step - self.vstart) / self.vstep
-        return {"x": x, "com": com, "lever": lever, "tau": tau, "point": point, "inward": inward, "corner": a, "edge": edge,
+        return {"x": x, "qd": qd, "qdd": qdd, "com": com, "lever": lever, "tau": tau, "point": point, "inward": inward, "corner": a, "edge": edge,
                 "over_tau": over_tau, "over_zmp": over_zmp, "over_vel": over_vel, "target": target}
 
     def violating(self, ev: dict[str, np.ndarray]) -> np.ndarray:
         """(T,) bool: samples past the limits themselves (not only past the hinges' inner start)."""
         bound = self.limits.torque_fraction * self.effort
-        tau = ((np.abs(ev["tau"]) > bound) & self.limited).any(1)
+        need = np.abs(ev["tau"]) + self.friction + self.lag * np.abs(ev["qdd"])
+        tau = ((need > bound) & self.limited).any(1)
         zmp_ = (ev["edge"] < self.limits.zmp_margin).any(1)
         vel = np.zeros(len(tau), dtype=bool)
         v = (np.abs(np.diff(ev["x"], axis=0)) > self.vstep * (1.0 + 1e-9)).any(1)
@@ -308,16 +345,21 @@ class _Problem:
             c = (col[s[keep]][:, None] * nm + np.arange(nm)[None]).ravel()
             return c, vals[keep].ravel()
 
+        acc = self.acc
         tt, jj = np.nonzero(ev["over_tau"] > 0)
         for t in np.unique(tt):
-            s = d2.indices[d2.indptr[t]: d2.indptr[t + 1]]
-            w = d2.data[d2.indptr[t]: d2.indptr[t + 1]]
+            s = acc.indices[acc.indptr[t]: acc.indptr[t + 1]]
+            w = acc.data[acc.indptr[t]: acc.indptr[t + 1]]
             if not (col[s] >= 0).any():
                 continue
             mass = self._mass(x[t])
             for j in jj[tt == t]:
                 sign = np.sign(ev["tau"][t, j]) / self.effort[j]
-                c, v = place(s, w[:, None] * mass[j][None] * sign)
+                piece = w[:, None] * mass[j][None] * sign
+                k = np.flatnonzero(self.movable == j)
+                if len(k):  # the damping's lag grows with the joint's own acceleration
+                    piece[:, k[0]] += w * self.lag[j] * np.sign(ev["qdd"][t, j]) / self.effort[j]
+                c, v = place(s, piece)
                 out.add(float(ev["over_tau"][t, j]), c, v)
         tz, ez = np.nonzero(ev["over_zmp"] > 0)
         if len(tz):
@@ -390,6 +432,86 @@ def enforce_dynamics(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsL
         return _enforce(robot, q, rate, limits, box_margin, velocity_margin, touching)
 
 
+#: Widths (Gaussian σ, samples) of the low-pass the solve starts from, raised in turn around the
+#: samples still past a limit. Why: the torque and ZMP excesses of retargeted sign motion are
+#: high-frequency (a 50 Hz zig-zag, the kinks of a 30 → 50 Hz resample): σ = 2 samples (40 ms)
+#: brings every joint of the default synthetic sequences inside its limit with ≤ 7° change,
+#: while the Gauss-Newton on the active hinge rows alone, starting from the input, fixes the
+#: active rows by pushing their neighbours over (≥ 30 iterations).
+SIGMAS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
+#: Half width (s) of the hat a contact push in the start is spread over.
+PUSH_HAT_S = 0.2
+#: Width (Gaussian σ, samples) of the low-pass applied to a contact push.
+PUSH_SIGMA = 2.0
+
+
+def _smooth_start(prob: "_Problem", q: np.ndarray, ev: dict[str, np.ndarray], prior: np.ndarray,
+                  rate: float, box_margin: float, velocity_margin: float
+                  ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The solve's start: q low-passed (movable joints) around the samples past a limit, the
+    width raised region by region (`SIGMAS`) until none is, blended smoothly into q elsewhere
+    (a convex combination of samples: inside the joint box, never faster than q). A sample the
+    low-pass makes touch (MuJoCo; q had it clear: `prior` are q's own touching samples) is
+    pushed clear by the contact repair (`control.separate_checked`, on a wide hat); where no
+    push clears it, the width there goes back down and stays capped."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from embody.retarget.control import TRUST_DEG, separate_checked
+    mov = prob.movable
+    passes = [q[:, mov]] + [gaussian_filter1d(q[:, mov], s, axis=0, mode="nearest") for s in SIGMAS]
+    level = np.zeros(len(q), dtype=np.int64)
+    cap = np.full(len(q), len(SIGMAS), dtype=np.int64)
+    x = q
+    for _ in range(2 * len(SIGMAS)):
+        bad = prob.violating(ev) & (level < cap)
+        if not bad.any():
+            break
+        for k in range(len(SIGMAS), 0, -1):  # widen each bad sample's level by the next width's reach
+            at = bad & (level == k - 1)
+            if at.any():
+                grow = _dilate(at, int(np.ceil(3.0 * SIGMAS[k - 1])))
+                level[grow] = np.minimum(np.maximum(level[grow], k), cap[grow])
+        moved = q[:, mov].copy()
+        for k in range(1, len(SIGMAS) + 1):
+            share = gaussian_filter1d((level >= k).astype(np.float64), SIGMAS[k - 1], mode="nearest")
+            share = np.clip(2.0 * share, 0.0, 1.0)  # full inside the level's region, ramp outside
+            moved += share[:, None] * (passes[k] - passes[k - 1])
+        trial = q.copy()
+        trial[:, mov] = np.clip(moved, prob.lower[mov], prob.upper[mov])
+        changed = np.flatnonzero(np.abs(trial - q).max(1) > 0)
+        touch = np.zeros(len(q), dtype=bool)
+        touch[changed] = (self_collision_contacts(prob.robot, trial[changed]) > 0) & ~prior[changed]
+        log.debug("start round: %d bad, %d touching, levels %s", int(bad.sum()), int(touch.sum()),
+                  np.bincount(level, minlength=len(SIGMAS) + 1))
+        if touch.any():
+            # a wide hat, never a one-sample push: a push's acceleration is what is limited here
+            kw = {"box_margin": box_margin, "velocity_margin": velocity_margin, "touching": touch,
+                  "enforce_velocity": False, "blend_s": PUSH_HAT_S}
+            pushed, clear = trial, False
+            for _push in range(3):  # the push low-passed as the motion is (its hat's kinks are accelerations)
+                step, clear = separate_checked(prob.robot, pushed, rate, trust_deg=TRUST_DEG, **kw)
+                if not clear:
+                    break
+                pushed = pushed + gaussian_filter1d(step - pushed, PUSH_SIGMA, axis=0, mode="nearest")
+                pushed[:, mov] = np.clip(pushed[:, mov], prob.lower[mov], prob.upper[mov])
+                pushed = clamp_velocity(pushed, prob.robot.velocity_limits * (1.0 - velocity_margin), rate)
+                moved_ = np.flatnonzero(np.abs(pushed - trial).max(1) > 0)
+                kw["touching"] = np.zeros(len(q), dtype=bool)
+                kw["touching"][moved_] = (self_collision_contacts(prob.robot, pushed[moved_]) > 0) & ~prior[moved_]
+                clear = not kw["touching"].any()
+                if clear:
+                    break
+            if not clear:  # no push clears it: the widths stay off those samples
+                near = _dilate(touch, int(np.ceil(3.0 * SIGMAS[0])))
+                level[near] = np.maximum(level[near] - 1, 0)
+                cap[near] = level[near]
+                continue
+            trial = pushed
+        x = trial
+        ev = prob.evaluate(x, ev)
+    return x, ev
+
+
 def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, box_margin: float,
              velocity_margin: float, touching: np.ndarray | None) -> tuple[np.ndarray, bool]:
     """`enforce_dynamics`' solve."""
@@ -400,10 +522,16 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
     if not bad.any():
         return q, True
     reach = max(1, int(round(REACH_S * rate)))
+    prior = np.zeros(len(q), dtype=bool) if touching is None else np.asarray(touching, dtype=bool)
+    x, ev = _smooth_start(prob, q, ev, prior, rate, box_margin, velocity_margin)
+    log.debug("start: %d changed, %d violating", int((np.abs(x - q).max(1) > 0).sum()),
+              int(prob.violating(ev).sum()))
+    bad = prob.violating(ev) | (np.abs(x - q).max(1) > 0)
+    if not prob.violating(ev).any():
+        return x, True
     free = _dilate(bad, reach)
     nm = len(prob.movable)
     cost = prob.cost(x, ev)
-    prior = np.zeros(len(q), dtype=bool) if touching is None else np.asarray(touching, dtype=bool)
     prob.watch_near(x, free)
     start = 1.0
     n = len(q)  # Δ² of the correction over the whole sequence: the held samples' is 0

@@ -2,8 +2,8 @@
 
 What a robot may execute: no joint-limit violations, no velocity-limit violations at the
 trajectory's rate, no penetrating self-contacts in MuJoCo, and no inverse-dynamics torque over a
-motor's effort limit (`torque_viol`: fixed base, free motion, central differences at the
-trajectory's rate; `robot.dynamics`), at every sample of q exactly as
+motor's effort limit (`torque_viol`: fixed base, free motion, along the natural cubic spline
+through the samples that the export commands, dry friction included; `robot.dynamics`), at every sample of q exactly as
 given (float64; a float32 file is validated after its cast). The pipeline's metrics step stores
 them for the exported control-rate array, and the report and the library export read them; the
 export also recomputes them on each file it writes.
