@@ -66,7 +66,7 @@ def resolve_dataset(dataset: str | Path | None, cfg: Config) -> Path:
     """The dataset path; the default synthetic set is generated into `<store>/data` once."""
     if dataset is None:
         from embody.synth import default_dataset
-        return Path(default_dataset(Path(cfg.run.store) / "data", n=cfg.run.synth_n,
+        return Path(default_dataset(ArtifactStore(cfg.run.store).work_dir / "data", n=cfg.run.synth_n,
                                     seed=cfg.run.seed))
     return Path(dataset)
 
@@ -90,14 +90,14 @@ def run_name(cfg: Config, dataset: str | Path, split: str | None) -> str:
 def check_run_reuse(store_root: str | Path, run: str, dataset: str | Path, split: str | None,
                     robot: str, overwrite: bool = False) -> None:
     """Refuse (ConfigError, exit 2) to reuse a run name of another robot or dataset, unless told."""
-    path = Path(store_root).expanduser().resolve() / "runs" / run / "manifest.json"
-    if overwrite or not path.is_file():
-        return
     import json
     try:
-        old = json.loads(path.read_text())
+        text = None if overwrite else ArtifactStore(store_root).read_manifest_text(run)
+        old = json.loads(text) if text is not None else None
     except (OSError, ValueError):
         return  # unreadable: nothing to protect
+    if not isinstance(old, dict):
+        return
     old_robot = ((old.get("config") or {}).get("robot") or {}).get("name")
     old_data = old.get("dataset")
     what = []
@@ -335,14 +335,8 @@ def write_tables(store: ArtifactStore, run: str, manifest: Manifest | None = Non
             row.update({f"{step}.{k}": v for k, v in metrics.items()
                         if isinstance(v, (int, float, str, bool)) or v is None})
         rows.append(row)
-    path = manifest.path.parent / "sequences.csv"
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        csv_safe(pd.DataFrame(rows)).to_csv(tmp, index=False, float_format="%.10g")  # no float noise
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-    return path
+    text = csv_safe(pd.DataFrame(rows)).to_csv(index=False, float_format="%.10g")  # no float noise
+    return store.write_run_file(run, "sequences.csv", text.encode("utf-8"))
 
 
 def build_report(store: ArtifactStore, run: str) -> tuple[str | None, str | None]:

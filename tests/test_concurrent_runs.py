@@ -112,7 +112,7 @@ def _write(folder: Path, n: int, frames: int = 4) -> Path:
     return folder
 
 
-@pytest.mark.parametrize("store_root", ["local"], indirect=True)
+@pytest.mark.parametrize("store_root", ["local", "s3"], indirect=True)
 def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp_path,
                                                            store_root):
     data = _write(tmp_path / "data", 8)
