@@ -205,8 +205,9 @@ class IKConfig(Section):
     dynamics_limits: bool = True
     #: Share (dimensionless, of N·m) of each joint's effort limit (the MJCF's `actuatorfrcrange`,
     #: fingers included) the inverse-dynamics torque of every exported sample may use: fixed base,
-    #: free motion, velocities and accelerations from central differences at `control_rate_hz`
-    #: (`robot.dynamics.inverse_dynamics`). The rest is left to the tracking controller's feedback.
+    #: free motion, velocities and accelerations of the natural cubic spline through the samples
+    #: at `control_rate_hz` (the curve the exported q/qd commands play), plus the joints' dry
+    #: friction (`robot.dynamics.inverse_dynamics`). The rest is left to the tracking controller.
     torque_limit_fraction: float = Field(0.9, gt=0.0, le=1.0)
     #: Distance (m) the cart-table ZMP of the robot standing on both feet (legs at the stance pose,
     #: `robot.dynamics.zmp`) keeps inside the feet's support polygon at every exported sample.
