@@ -391,7 +391,7 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
                  shared=True, files=_robot_files)
 # The whole-sequence IK on location-preserving targets; its 50 Hz array clear of contacts and inside
 # the effort limits and ZMP margin (`retarget.control`, `retarget.dynamics_limits`), with its counts.
-RETARGET = Step("retarget", "19", ("body", "robot", "ik"), _retarget, _ik_solution,
+RETARGET = Step("retarget", "20", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # Every critic round's IK solution, action and comparison sheet; the chosen round's control-rate
 # array and wrist positions, which `metrics` reuses.
