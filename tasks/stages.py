@@ -247,11 +247,14 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     `final_control`, the array stored and exported), against the human track resampled to the same
     times (`resample_track`): the robot a user receives, not the source-rate solve. Only the final
     row's array went through the torque and ZMP solve: with the critic, the `preserving` row is the
-    retarget step's kinematic array (`RETARGET_BEFORE_CRITIC`), as the `ik` baseline's is."""
+    retarget step's kinematic array (`RETARGET_BEFORE_CRITIC`), as the `ik` baseline's is, and
+    `refined_kinematic` the chosen round's kinematic array (the same chain without the solve), so
+    the critic's effect (`preserving` → `refined_kinematic`) and the solve's (→ `refined`) are
+    each measured apart."""
     from embody.metrics.embodiments import scored_robot_track
     from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with
     from embody.retarget import solve
-    from embody.retarget.ik import same_problem
+    from embody.retarget.ik import exported_control, same_problem, without_dynamics_limits
     from embody.retarget.validation import validation_counts
     motion, ik, cfg = inputs["collide"].motion, inputs["retarget"], ctx.cfg
     human = _human_track(ctx, motion, ik.control_rate_hz)
@@ -271,6 +274,11 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
             ctx.robot, base.q, ik.fps, base.frame_metrics.get("self_contacts")).items()})
         out["fidelity.ik.mean_jerk"] = base.metrics["jerk"]
     rows["preserving" if cfg.ik.location_preserving else "ik"] = np.asarray(ik.q_control)
+    if "refine" in inputs and cfg.ik.dynamics_limits:
+        # the chosen round's kinematic array: against `preserving` (kinematic too) the critic's
+        # own effect; against `refined` what the torque and ZMP solve cost the sign
+        kinematic = without_dynamics_limits(cfg.ik)
+        rows["refined_kinematic"] = exported_control(ctx.robot, inputs["refine"].final.q, ik.fps, kinematic)[0]
     # the final row is the array stored and exported
     rows["refined" if "refine" in inputs else list(rows)[-1]] = final_control
     frames: dict[str, np.ndarray] = {}
@@ -430,7 +438,7 @@ RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _rend
 # sign fidelity on it against the mitigated human, and the report's wrist tracks.
 METRICS = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "10", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "11", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC, REFINE),
                        files=_robot_files)
 

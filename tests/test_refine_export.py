@@ -123,3 +123,40 @@ def test_exported_array_read_at_the_source_frames():
     np.testing.assert_allclose(view, np.stack([frames, 2.0 * frames + 1.0], axis=1), atol=1e-12)
     same = np.random.default_rng(0).normal(size=(t, 3))
     np.testing.assert_allclose(_at_frames(same, fps, t, fps), same, atol=1e-12)
+
+
+def test_pipeline_limits_the_exported_array_once(tmp_path):
+    """The critic pipeline's steps: the retarget step's array is kinematic, the metrics step
+    stores the refine step's exported array with counts equal to a fresh count, and scores the
+    chosen round's kinematic array apart from the exported one."""
+    from embody.collision import CollisionResult
+    from embody.config import Config
+    from embody.retarget import shape_fit
+    from embody.tasks.pipeline import Context
+    from embody.tasks.stages import (METRICS_REFINED, REFINE, RETARGET, RETARGET_BEFORE_CRITIC,
+                                     default_pipeline)
+
+    assert RETARGET_BEFORE_CRITIC in default_pipeline(critic=True).steps
+    assert RETARGET in default_pipeline(critic=False).steps
+    cfg = Config.model_validate({"ik": {"iterations": 20, "shape_iterations": 10},
+                                 "critic": {"rounds": 1}})
+    assert RETARGET_BEFORE_CRITIC.key(cfg, {"collide": "a", "shape_fit": "b"}) != \
+        RETARGET.key(cfg, {"collide": "a", "shape_fit": "b"})
+    ctx = Context(cfg=cfg, store_root=str(tmp_path), run="t")
+    motion = _motion(8)
+    inputs = {"collide": CollisionResult(motion, {}, np.zeros(8), np.zeros(8)),
+              "shape_fit": shape_fit(ctx.robot, ctx.body, cfg.ik)}
+    ik = inputs["retarget"] = RETARGET_BEFORE_CRITIC.compute(ctx, inputs)
+    kinematic = control_trajectory(ctx.robot, ik.q, ik.fps, ik.control_rate_hz, True, limits=None)
+    np.testing.assert_allclose(ik.q_control, kinematic, atol=1e-12)
+    refined = inputs["refine"] = REFINE.compute(ctx, inputs)
+    final = refined.final
+    np.testing.assert_allclose(final.q_control, control_trajectory(
+        ctx.robot, final.q, ik.fps, ik.control_rate_hz, True), atol=1e-12)
+    out = METRICS_REFINED.compute(ctx, inputs)
+    np.testing.assert_array_equal(out.arrays["q_control"], final.q_control)
+    fresh = validation_counts(ctx.robot, out.arrays["q_control"], ik.control_rate_hz)
+    assert {k: out.metrics[k] for k in fresh} == fresh
+    assert out.metrics["fidelity.final"] == "refined"
+    for row in ("ik", "preserving", "refined_kinematic", "refined"):
+        assert np.isfinite(out.metrics[f"fidelity.{row}.location_err"])
