@@ -277,8 +277,9 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     if "refine" in inputs and cfg.ik.dynamics_limits:
         # the chosen round's kinematic array: against `preserving` (kinematic too) the critic's
         # own effect; against `refined` what the torque and ZMP solve cost the sign
-        kinematic = without_dynamics_limits(cfg.ik)
-        rows["refined_kinematic"] = exported_control(ctx.robot, inputs["refine"].final.q, ik.fps, kinematic)[0]
+        final = inputs["refine"].final
+        rows["refined_kinematic"] = (np.asarray(final.q_kinematic) if final.q_kinematic is not None else
+                                     exported_control(ctx.robot, final.q, ik.fps, without_dynamics_limits(cfg.ik))[0])
     # the final row is the array stored and exported
     rows["refined" if "refine" in inputs else list(rows)[-1]] = final_control
     frames: dict[str, np.ndarray] = {}

@@ -49,6 +49,10 @@ def test_chosen_rounds_export_is_limited_and_counted(robot):  # noqa: F811
     assert final.index > 0
     expected = control_trajectory(robot, final.q, FPS, IK.control_rate_hz, IK.contact_repair)
     np.testing.assert_allclose(final.q_control, expected, atol=1e-12)
+    kinematic = control_trajectory(robot, final.q, FPS, IK.control_rate_hz, IK.contact_repair, limits=None)
+    np.testing.assert_allclose(final.q_kinematic, kinematic, atol=1e-12)
+    back = RefineResult.from_arrays(result.to_arrays(), json.loads(json.dumps(result.to_attrs())))
+    np.testing.assert_array_equal(back.final.q_kinematic, final.q_kinematic)
     counts = validation_counts(robot, final.q_control, IK.control_rate_hz)
     assert {k: final.metrics[f"control_{k}"] for k in counts} == counts
     assert all(r.q_control is None for r in result.rounds if r is not final)

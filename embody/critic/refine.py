@@ -89,6 +89,10 @@ class RoundRecord:
     #: The control-rate array of `q`: the re-solve's kinematic one during the loop; for the
     #: chosen round, the exported one (torque and ZMP limits included), the only one stored.
     q_control: np.ndarray | None = None
+    #: The chosen round's control-rate array as its solve made it (the re-solves' and the
+    #: pipeline's retarget step's: kinematic, before the torque and ZMP solve made `q_control`;
+    #: round 0's is the given IK solution's), kept so the metrics step scores the solve apart.
+    q_kinematic: np.ndarray | None = None
     #: The robot's wrist positions (T,2,3, torso frame) of `q`, as the critic measured them
     #: (stored, so the metrics step's report tracks need no second FK pass).
     wrist_pos: np.ndarray | None = None
@@ -141,6 +145,8 @@ class RefineResult:
                   "keyframes": np.asarray(self.keyframes, dtype=np.int64)}
         if self.final.q_control is not None:
             arrays["final_q_control"] = np.asarray(self.final.q_control, dtype=np.float64)
+        if self.final.q_kinematic is not None:
+            arrays["final_q_kinematic"] = np.asarray(self.final.q_kinematic, dtype=np.float64)
         if all(r.wrist_pos is not None for r in self.rounds):
             arrays["wrist_pos"] = np.stack([np.asarray(r.wrist_pos, dtype=np.float64) for r in self.rounds])
         return arrays
@@ -165,6 +171,8 @@ class RefineResult:
                      attrs["critic"], int(attrs.get("chosen", -1)), dict(attrs.get("export") or {}))
         if "final_q_control" in arrays:
             result.final.q_control = np.asarray(arrays["final_q_control"])
+        if "final_q_kinematic" in arrays:
+            result.final.q_kinematic = np.asarray(arrays["final_q_kinematic"])
         if "wrist_pos" in arrays:
             for r, pos in zip(rounds, np.asarray(arrays["wrist_pos"])):
                 r.wrist_pos = pos
@@ -300,6 +308,7 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
             if i != chosen % len(rounds):
                 r.q_control = None
         final = rounds[chosen]
+        final.q_kinematic = final.q_control
         # the exported array: the chosen round's, with the torque and ZMP solve (once)
         final.q_control, clear = exported_control(robot, final.q, targets.fps, cfg_ik)
         final.metrics.update(control_counts(robot, final.q_control, cfg_ik.control_rate_hz, clear))
