@@ -1,7 +1,7 @@
 """Whole-pipeline benchmark: the default run, cold, with per-step seconds per sequence.
 
 Runs the default flow (every step `embody run` runs: collide, shape fit, retarget, refine with the
-geometric critic, render, metrics) over the default synthetic set in a fresh store, then reads the
+geometric critic, render, metrics, physics) over the default synthetic set in a fresh store, then reads the
 store's computation log for each step's compute time. `seconds_per_seq` is the flow's wall time
 (report build excluded, printed separately) divided by the number of sequences; the per-step
 figures are the summed compute seconds of that step divided by the same number, so with N workers
@@ -28,7 +28,7 @@ import time
 from collections import defaultdict
 from pathlib import Path
 
-STEPS = ("collide", "retarget", "refine", "render", "metrics")
+STEPS = ("collide", "retarget", "refine", "render", "metrics", "physics")
 
 
 def _cpu() -> float:

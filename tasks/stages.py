@@ -19,7 +19,7 @@ from embody.motion import Motion
 from embody.tasks.pipeline import Context, Pipeline, Step
 
 __all__ = ["Metrics", "default_pipeline", "warm", "SOURCE", "COLLIDE", "SHAPE_FIT", "RETARGET",
-           "REFINE", "RENDER", "METRICS", "PHYSICS"]
+           "RETARGET_BEFORE_CRITIC", "REFINE", "RENDER", "METRICS", "PHYSICS"]
 
 
 @dataclass
@@ -169,6 +169,16 @@ def _retarget(ctx: Context, inputs: dict[str, Any]) -> Any:
     return solve_windowed(ctx.robot, targets, ctx.cfg.ik)
 
 
+def _retarget_before_critic(ctx: Context, inputs: dict[str, Any]) -> Any:
+    """The retarget step when the critic follows: the same solve, its control-rate array without
+    the torque and ZMP solve (`ik.without_dynamics_limits`), which the refine step runs once, on
+    the round it chooses, the array exported (~2 s a call, on every round before)."""
+    from embody.retarget.ik import without_dynamics_limits
+    from embody.retarget.windows import solve_windowed
+    targets = _targets(ctx, inputs["collide"].motion, inputs["shape_fit"], ctx.cfg.ik)
+    return solve_windowed(ctx.robot, targets, without_dynamics_limits(ctx.cfg.ik))
+
+
 def _ik_solution(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
     from embody.retarget import IKSolution
     return IKSolution.from_arrays(arrays, attrs)
@@ -186,8 +196,16 @@ def _refine(ctx: Context, inputs: dict[str, Any]) -> Any:
 
 
 def _refine_metrics(result: Any) -> dict[str, Any]:
-    return {**result.final.metrics, "accepted": bool(result.accepted),
-            "rounds": len(result.rounds) - 1, "chosen_round": int(result.final.index)}
+    """The chosen round's metrics (its `control_*` counts: its exported array's), the critic's
+    verdict on the result (`accepted`: on the exported array too, when judged again) and, when
+    it judged the export, that judgement's figures (`export.*`)."""
+    out = {**result.final.metrics, "accepted": bool(result.accepted),
+           "rounds": len(result.rounds) - 1, "chosen_round": int(result.final.index)}
+    if result.export_accepted is not None:
+        out["export_accepted"] = bool(result.export_accepted)
+        out.update({f"export.{k}": v for k, v in result.export.get("metrics", {}).items()
+                    if isinstance(v, (int, float, bool))})
+    return out
 
 
 def _refine_result(arrays: dict[str, Any], attrs: dict[str, Any]) -> Any:
@@ -225,13 +243,18 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     Table III: `ik` (shape-fit targets only; solved here as the baseline when the run used
     location-preserving targets), `preserving` (the retarget step then) and `refined`.
 
-    Each row is measured on its exported array (the control-rate `q_control`; the final row's is
+    Each row is measured on its control-rate array (`q_control`; the final row's is
     `final_control`, the array stored and exported), against the human track resampled to the same
-    times (`resample_track`): the robot a user receives, not the source-rate solve."""
+    times (`resample_track`): the robot a user receives, not the source-rate solve. Only the final
+    row's array went through the torque and ZMP solve: with the critic, the `preserving` row is the
+    retarget step's kinematic array (`RETARGET_BEFORE_CRITIC`), as the `ik` baseline's is, and
+    `refined_kinematic` the chosen round's kinematic array (the same chain without the solve), so
+    the critic's effect (`preserving` → `refined_kinematic`) and the solve's (→ `refined`) are
+    each measured apart."""
     from embody.metrics.embodiments import scored_robot_track
     from embody.metrics.fidelity import LOCATION_LANDMARKS, compare_with
     from embody.retarget import solve
-    from embody.retarget.ik import same_problem
+    from embody.retarget.ik import exported_control, same_problem, without_dynamics_limits
     from embody.retarget.validation import validation_counts
     motion, ik, cfg = inputs["collide"].motion, inputs["retarget"], ctx.cfg
     human = _human_track(ctx, motion, ik.control_rate_hz)
@@ -251,6 +274,12 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
             ctx.robot, base.q, ik.fps, base.frame_metrics.get("self_contacts")).items()})
         out["fidelity.ik.mean_jerk"] = base.metrics["jerk"]
     rows["preserving" if cfg.ik.location_preserving else "ik"] = np.asarray(ik.q_control)
+    if "refine" in inputs and cfg.ik.dynamics_limits:
+        # the chosen round's kinematic array: against `preserving` (kinematic too) the critic's
+        # own effect; against `refined` what the torque and ZMP solve cost the sign
+        final = inputs["refine"].final
+        rows["refined_kinematic"] = (np.asarray(final.q_kinematic) if final.q_kinematic is not None else
+                                     exported_control(ctx.robot, final.q, ik.fps, without_dynamics_limits(cfg.ik))[0])
     # the final row is the array stored and exported
     rows["refined" if "refine" in inputs else list(rows)[-1]] = final_control
     frames: dict[str, np.ndarray] = {}
@@ -295,10 +324,10 @@ def _report_tracks(ctx: Context, inputs: dict[str, Any]) -> tuple[dict[str, Any]
 
 
 def _control_counts(ik: Any, q_control: np.ndarray) -> dict[str, float] | None:
-    """`validation_counts` of the IK's own control-rate array as its solve verified them
-    (`control_*` metrics), when `q_control` is that array; else None."""
+    """`validation_counts` of the control-rate array the IK's solve (or the refine step's chosen
+    round) made and verified (its `control_*` metrics), when `q_control` is that array; else None."""
     from embody.verdicts import VALIDATION_KEYS as names
-    if not all(f"control_{k}" in ik.metrics for k in names):
+    if ik.q_control is None or not all(f"control_{k}" in ik.metrics for k in names):
         return None
     if np.shape(q_control) != np.shape(ik.q_control) or not np.array_equal(q_control, ik.q_control):
         return None
@@ -322,28 +351,24 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
 def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     """`_trajectory_metrics`' work."""
     from embody.metrics import mean_jerk
-    from embody.retarget.control import control_trajectory
-    from embody.retarget.dynamics_limits import DynamicsLimits
+    from embody.retarget.ik import exported_control
     from embody.retarget.validation import validation_counts
     ik = inputs["retarget"]
+    owner = ik  # what made the exported array, and counted it
     if "refine" in inputs:
-        final = inputs["refine"].final
+        final = owner = inputs["refine"].final
         q = np.asarray(final.q, dtype=np.float64)
-        if final.q_control is not None:  # the refine step's solve already made it
+        if final.q_control is not None:  # the refine step's export, dynamics solve included
             q_control = np.asarray(final.q_control, dtype=np.float64)
-        elif np.array_equal(q, ik.q):  # the critic kept the IK solution
-            q_control = np.asarray(ik.q_control, dtype=np.float64)
         else:
-            q_control = control_trajectory(ctx.robot, q, ik.fps, ik.control_rate_hz,
-                                           ctx.cfg.ik.contact_repair,
-                                           DynamicsLimits.from_config(ctx.cfg.ik))
+            q_control = exported_control(ctx.robot, q, ik.fps, ctx.cfg.ik)[0]
     else:
         q, q_control = np.asarray(ik.q, dtype=np.float64), np.asarray(ik.q_control, np.float64)
     # the IK's solve already counted MuJoCo contacts of its own arrays: not counted twice
     ik_contacts = ik.frame_metrics.get("self_contacts")
     source = validation_counts(ctx.robot, q, ik.fps, ik_contacts
                                if ik_contacts is not None and np.array_equal(q, ik.q) else None)
-    control = _control_counts(ik, q_control)
+    control = _control_counts(owner, q_control)
     if control is None:
         control = validation_counts(ctx.robot, q_control, ik.control_rate_hz)
     fidelity, frames, names = _fidelity(ctx, inputs, q_control)
@@ -393,23 +418,30 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 # the effort limits and ZMP margin (`retarget.control`, `retarget.dynamics_limits`), with its counts.
 RETARGET = Step("retarget", "20", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
-# Every critic round's IK solution, action and comparison sheet; the chosen round's control-rate
-# array and wrist positions, which `metrics` reuses.
-REFINE = Step("refine", "21", ("body", "robot", "ik", "render", "critic"), _refine,
-              _refine_result, (COLLIDE, SHAPE_FIT, RETARGET), metrics=_refine_metrics,
+# The same solve when the critic follows: its 50 Hz array kinematic only (contacts, joint box,
+# velocities; counted as such), the torque and ZMP solve left to the round the critic chooses.
+RETARGET_BEFORE_CRITIC = Step("retarget", "20+critic", ("body", "robot", "ik"), _retarget_before_critic,
+                              _ik_solution, (COLLIDE, SHAPE_FIT), files=_robot_files)
+# Every critic round's IK solution, action and comparison sheet (the re-solves' 50 Hz arrays
+# kinematic only); the chosen round's exported control-rate array (torque and ZMP solve
+# included, once) with its validation counts, the critic's verdict on that array, and the
+# rounds' wrist positions, which `metrics` reuses.
+REFINE = Step("refine", "22", ("body", "robot", "ik", "render", "critic"), _refine,
+              _refine_result, (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC), metrics=_refine_metrics,
               files=_robot_files)
 # The comparison sheet and the 15 fps preview of the reference (a MuJoCo skin) and the robot.
 RENDER = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
               (COLLIDE, SHAPE_FIT, RETARGET), metrics=_render_metrics, files=_robot_files)
 RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
-                      (COLLIDE, SHAPE_FIT, RETARGET, REFINE), metrics=_render_metrics,
+                      (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC, REFINE), metrics=_render_metrics,
                       files=_robot_files)
 # The exported control-rate array, its validation counts (torque included) and jerk, Table III's
 # sign fidelity on it against the mitigated human, and the report's wrist tracks.
 METRICS = Step("metrics", "11", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "11", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
-                       Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET, REFINE), files=_robot_files)
+METRICS_REFINED = Step("metrics", "12", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+                       Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC, REFINE),
+                       files=_robot_files)
 
 # The exported array replayed in MuJoCo with the robot's actuation, fixed base and standing.
 PHYSICS = Step("physics", "2", ("body", "robot", "fidelity"), _physics, _physics_result,
@@ -421,7 +453,7 @@ PHYSICS_REFINED = Step("physics", "2", ("body", "robot", "fidelity"), _physics, 
 def default_pipeline(critic: bool = False, render: bool = False) -> Pipeline:
     """The full chain; `critic` adds the refinement step after IK, `render` the comparison
     sheet (and preview) of the final trajectory."""
-    steps: list[Step] = [COLLIDE, SHAPE_FIT, RETARGET]
+    steps: list[Step] = [COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC if critic else RETARGET]
     if critic:
         steps.append(REFINE)
     if render:

@@ -36,6 +36,7 @@ def command(in_path: str, out: str, critic: str | None, fps: float | None, up_ax
     from embody.body import load_body_model
     from embody.critic import make_critic, refine, refine_table
     from embody.retarget import build_targets, shape_fit, solve
+    from embody.retarget.ik import without_dynamics_limits
     from embody.robot import load_robot
 
     motion = load_input(in_path, cfg)
@@ -44,7 +45,7 @@ def command(in_path: str, out: str, critic: str | None, fps: float | None, up_ax
     body = load_body_model(cfg.body)
     fit = shape_fit(robot, body, cfg.ik)
     targets = build_targets(motion, body, fit, robot, cfg.ik)
-    solution = solve(robot, targets, cfg.ik)
+    solution = solve(robot, targets, without_dynamics_limits(cfg.ik))  # refine limits the export
     out_dir = Path(out)
     result = refine(motion, body, fit, robot, targets, solution, cfg.critic, cfg.ik, cfg.render,
                     out_dir=out_dir, critic=critic_impl)

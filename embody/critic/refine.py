@@ -3,6 +3,14 @@
 The critic always compares the robot against the *reference* (the human's targets), while the
 primitives offset the *working* IK targets; offsets accumulate there across rounds. So a robot
 that misses a target by 10 cm gets its target moved 10 cm further, not its reference.
+
+Each round's re-solve makes its control-rate array without the torque and ZMP solve
+(`retarget.dynamics_limits`, seconds per call): the critic judges a round's source-rate solve,
+which that solve never changes. It runs once, after the choice, on the chosen round: the array
+the pipeline exports (`RoundRecord.q_control`). When the critic had accepted the chosen round, it
+judges that exported array again (read at the source frames, `_at_frames`), and the result is
+accepted only if the critic accepts it too (`RefineResult.export`): the verdict describes the
+trajectory a user receives, not an array before its limits.
 """
 
 from __future__ import annotations
@@ -78,9 +86,13 @@ class RoundRecord:
     renders: dict[str, dict[str, str | None]] = field(default_factory=dict)
     #: The critic's request/response record (VLM), images by hash.
     exchange: dict[str, Any] = field(default_factory=dict)
-    #: The solve's exported control-rate array of `q` (kept so the metrics step need not
-    #: resample and repair it again; stored for the chosen round only).
+    #: The control-rate array of `q`: the re-solve's kinematic one during the loop; for the
+    #: chosen round, the exported one (torque and ZMP limits included), the only one stored.
     q_control: np.ndarray | None = None
+    #: The chosen round's control-rate array as its solve made it (the re-solves' and the
+    #: pipeline's retarget step's: kinematic, before the torque and ZMP solve made `q_control`;
+    #: round 0's is the given IK solution's), kept so the metrics step scores the solve apart.
+    q_kinematic: np.ndarray | None = None
     #: The robot's wrist positions (T,2,3, torso frame) of `q`, as the critic measured them
     #: (stored, so the metrics step's report tracks need no second FK pass).
     wrist_pos: np.ndarray | None = None
@@ -98,6 +110,9 @@ class RefineResult:
     critic: str
     #: Index of the round that is the result (`critic.keep`); -1 = the last.
     chosen: int = -1
+    #: The critic's judgement of the chosen round's exported array (read at the source frames),
+    #: when it had accepted the round: {"metrics": ..., "action": ..., "exchange": ...}; else {}.
+    export: dict[str, Any] = field(default_factory=dict)
 
     @property
     def ik_only(self) -> RoundRecord:
@@ -112,8 +127,16 @@ class RefineResult:
         return self.final.q
 
     @property
+    def export_accepted(self) -> bool | None:
+        """The critic's verdict on the exported array (None when it was not judged again)."""
+        action = self.export.get("action")
+        return None if action is None else bool(action["valid"] and action["verdict"] == "accept")
+
+    @property
     def accepted(self) -> bool:
-        return any(r.accepted for r in self.rounds)
+        """The critic accepted the result: its chosen round and, judged again, that round's
+        exported array (`critic.keep` picks an accepted round when there is one)."""
+        return bool(self.final.accepted) and self.export_accepted is not False
 
     def to_arrays(self) -> dict[str, np.ndarray]:
         arrays = {"q": np.stack([r.q for r in self.rounds]),
@@ -122,6 +145,8 @@ class RefineResult:
                   "keyframes": np.asarray(self.keyframes, dtype=np.int64)}
         if self.final.q_control is not None:
             arrays["final_q_control"] = np.asarray(self.final.q_control, dtype=np.float64)
+        if self.final.q_kinematic is not None:
+            arrays["final_q_kinematic"] = np.asarray(self.final.q_kinematic, dtype=np.float64)
         if all(r.wrist_pos is not None for r in self.rounds):
             arrays["wrist_pos"] = np.stack([np.asarray(r.wrist_pos, dtype=np.float64) for r in self.rounds])
         return arrays
@@ -132,7 +157,7 @@ class RefineResult:
                   for r in self.rounds]
         return json.loads(json.dumps({"joint_names": list(self.joint_names), "critic": self.critic,
                                       "accepted": self.accepted, "rounds": rounds,
-                                      "chosen": self.chosen}))
+                                      "chosen": self.chosen, "export": self.export}))
 
     @classmethod
     def from_arrays(cls, arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> "RefineResult":
@@ -143,9 +168,11 @@ class RefineResult:
                               renders=dict(a["renders"]), exchange=dict(a["exchange"]))
                   for i, a in enumerate(attrs["rounds"])]
         result = cls(rounds, list(attrs["joint_names"]), np.asarray(arrays["keyframes"]),
-                     attrs["critic"], int(attrs.get("chosen", -1)))
+                     attrs["critic"], int(attrs.get("chosen", -1)), dict(attrs.get("export") or {}))
         if "final_q_control" in arrays:
             result.final.q_control = np.asarray(arrays["final_q_control"])
+        if "final_q_kinematic" in arrays:
+            result.final.q_kinematic = np.asarray(arrays["final_q_kinematic"])
         if "wrist_pos" in arrays:
             for r, pos in zip(rounds, np.asarray(arrays["wrist_pos"])):
                 r.wrist_pos = pos
@@ -204,9 +231,12 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
     `targets`; differs when resuming, or in tests that plant an offset). `critic` lets a run share
     one critic (and so one VLM request budget) across sequences. Renders are made only when the critic looks at images, plus the final round's sheet and
     preview when `out_dir` is given (paths in the record are relative to `out_dir`).
+    The re-solves make no torque and ZMP solve; the chosen round's exported array does
+    (`cfg_ik.dynamics_limits`), once, and an accepted round's export is judged again.
     """
     from embody.render.keyframes import select_keyframes
     from embody.retarget import solve
+    from embody.retarget.ik import control_counts, exported_control, without_dynamics_limits
 
     out = Path(out_dir) if out_dir is not None else None
     critic = critic or make_critic(cfg_critic)
@@ -220,7 +250,29 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
     keyframes = select_keyframes(ref_pos, cfg_render.keyframes)
     renders = _Renders(motion, body, fit, robot, cfg_render, keyframes)
     working, solution = ik_targets if ik_targets is not None else targets, ik_solution
+    cfg_rounds = without_dynamics_limits(cfg_ik)  # the export's solve runs on the chosen round only
     rounds: list[RoundRecord] = []
+
+    def critique(index: int, q: np.ndarray, pos: np.ndarray, rot: np.ndarray, location_offset: Any,
+                 fidelity: dict[str, float], renders_seen: dict[str, Any],
+                 label: str) -> tuple[Action, CritiqueContext]:
+        """The critic's action on trajectory q (source frames) of round `index`, and what it was
+        shown; the renders it looked at go into `renders_seen`, named after `label`."""
+        context = CritiqueContext(index, targets.fps, targets.arm_length, ref_pos, ref_rot,
+                                  pos, rot, limits, keyframes=keyframes.tolist(),
+                                  text=str(motion.meta.get("text", "")), location_offset=location_offset,
+                                  fidelity=fidelity, body_scale=robot.body_scale if judge else 0.0,
+                                  hand_fidelity=judge.hands if judge is not None else {},
+                                  reach_blocked=judge.blocked if judge is not None else None)
+        if critic.needs_images:
+            comp = renders.comparison(q)
+            context.sheet_png = comp.sheet_png(f"{label} {index}")
+            context.keyframe_pngs = comp.keyframe_pngs()
+            renders_seen["sheet"] = _store_png(context.sheet_png, out, f"sheet_{label}{index}.png")
+            for k, png in zip(keyframes, context.keyframe_pngs):
+                renders_seen[f"keyframe_{k}"] = _store_png(png, out, f"{label}{index}_f{k}.png")
+        return critic.critique(context), context
+
     try:
         for index in range(cfg_critic.rounds + 1):
             q = np.asarray(solution.q, dtype=np.float64)
@@ -234,20 +286,7 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
             last = index == cfg_critic.rounds
             if last and critic.needs_images:  # a VLM verdict nobody acts on is not worth a request
                 break
-            context = CritiqueContext(index, targets.fps, targets.arm_length, ref_pos, ref_rot,
-                                      pos, rot, limits, keyframes=keyframes.tolist(),
-                                      text=str(motion.meta.get("text", "")), location_offset=location_offset,
-                                      fidelity=fidelity, body_scale=robot.body_scale if judge else 0.0,
-                                      hand_fidelity=judge.hands if judge is not None else {},
-                                      reach_blocked=judge.blocked if judge is not None else None)
-            if critic.needs_images:
-                comp = renders.comparison(q)
-                context.sheet_png = comp.sheet_png(f"round {index}")
-                context.keyframe_pngs = comp.keyframe_pngs()
-                record.renders["sheet"] = _store_png(context.sheet_png, out, f"sheet_round{index}.png")
-                for k, png in zip(keyframes, context.keyframe_pngs):
-                    record.renders[f"keyframe_{k}"] = _store_png(png, out, f"round{index}_f{k}.png")
-            action: Action = critic.critique(context)
+            action, context = critique(index, q, pos, rot, location_offset, fidelity, record.renders, "round")
             if action.valid and not action.accepted and not action.primitives and not last:
                 action = _with_reason_primitives(action, context, cfg_critic)
             record.action = action.to_json()
@@ -263,13 +302,30 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
             new_pos, new_rot = apply_primitives(working.wrist_pos, working.wrist_rot,
                                                 action.primitives, blend)
             working = working.with_wrists(new_pos, new_rot)  # hand-point targets move along
-            solution = solve(robot, working, cfg_ik, init=solution)
+            solution = solve(robot, working, cfg_rounds, init=solution)
         chosen = _chosen_round(rounds, cfg_critic)
         for i, r in enumerate(rounds):  # only the result's control-rate array is kept
             if i != chosen % len(rounds):
                 r.q_control = None
+        final = rounds[chosen]
+        final.q_kinematic = final.q_control
+        # the exported array: the chosen round's, with the torque and ZMP solve (once)
+        final.q_control, clear = exported_control(robot, final.q, targets.fps, cfg_ik)
+        final.metrics.update(control_counts(robot, final.q_control, cfg_ik.control_rate_hz, clear))
+        export: dict[str, Any] = {}
+        if final.accepted:  # the critic's acceptance must hold for the array a user receives
+            q = _at_frames(final.q_control, cfg_ik.control_rate_hz, targets.num_frames, targets.fps)
+            pos, rot = robot_wrists(robot, q)
+            metrics = wrist_metrics(ref_pos, ref_rot, pos, rot, targets.arm_length)
+            location_offset, fidelity = judge(q) if judge is not None else (None, {})
+            metrics.update(fidelity)
+            export = {"metrics": metrics, "renders": {}}
+            action, context = critique(final.index, q, pos, rot, location_offset, fidelity,
+                                       export["renders"], "export")
+            export.update(action=action.to_json(), exchange=context.record)
+            log.info("export of round %d: %s %s", final.index, action.verdict if action.valid else "invalid",
+                     action.reason or action.error)
         if out is not None:
-            final = rounds[chosen]
             comp = renders.comparison(final.q)
             final.renders["final_sheet"] = _store_png(comp.sheet_png("final"), out, "sheet.png")
             from embody.render.compare import render_preview
@@ -283,7 +339,20 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
                                             "path": preview.name}
     finally:
         renders.close()
-    return RefineResult(rounds, list(robot.joint_names), keyframes, cfg_critic.kind, chosen)
+    return RefineResult(rounds, list(robot.joint_names), keyframes, cfg_critic.kind, chosen, export)
+
+
+def _at_frames(q_control: np.ndarray, rate: float, num_frames: int, fps: float) -> np.ndarray:
+    """The control-rate array (S,n) at `rate` Hz read at `num_frames` source frames' times
+    (i / fps): linear between its samples, the last sample held past its end (the control grid
+    stops at or before the last frame). What the critic judges of an exported array."""
+    q_control = np.asarray(q_control, dtype=np.float64)
+    s = np.clip(np.arange(num_frames) / fps * rate, 0.0, len(q_control) - 1)
+    i = np.minimum(np.floor(s).astype(np.int64), max(len(q_control) - 2, 0))
+    a = (s - i)[:, None]
+    if len(q_control) < 2:
+        return np.repeat(q_control[:1], num_frames, axis=0)
+    return (1.0 - a) * q_control[i] + a * q_control[i + 1]
 
 
 def _with_reason_primitives(action: Action, context: CritiqueContext, cfg: CriticConfig) -> Action:

@@ -583,9 +583,31 @@ def finish_solution(robot: Robot, q: np.ndarray, targets: Targets, cfg: IKConfig
                                     touching=touching)
     frames, metrics = evaluate(robot, q, targets, np.zeros(len(q), np.int64) if clear else None)
     metrics.update(extra or {})
-    q_control, clear = control_trajectory_checked(robot, q, targets.fps, cfg.control_rate_hz,
-                                                  cfg.contact_repair, DynamicsLimits.from_config(cfg))
-    metrics.update({f"control_{k}": v for k, v in validation_counts(
-        robot, q_control, cfg.control_rate_hz, np.zeros(len(q_control), np.int64) if clear else None).items()})
+    q_control, clear = exported_control(robot, q, targets.fps, cfg)
+    metrics.update(control_counts(robot, q_control, cfg.control_rate_hz, clear))
     return IKSolution(q=q, joint_names=list(robot.joint_names), fps=targets.fps, q_control=q_control,
                       control_rate_hz=cfg.control_rate_hz, frame_metrics=frames, metrics=metrics)
+
+
+def without_dynamics_limits(cfg: IKConfig) -> IKConfig:
+    """`cfg` for a solve whose control-rate array is not the one exported (a critic round before
+    the choice, a comparison baseline): its array is the kinematic chain's alone (resample,
+    joint box, velocity limits, MuJoCo contacts), without the torque and ZMP solve
+    (`retarget.dynamics_limits`), which runs once, on the array that is exported
+    (`exported_control`). The source-rate solve `q` is the same either way."""
+    return cfg.model_copy(update={"dynamics_limits": False}) if cfg.dynamics_limits else cfg
+
+
+def exported_control(robot: Robot, q: np.ndarray, fps: float, cfg: IKConfig) -> tuple[np.ndarray, bool]:
+    """The control-rate array `cfg` exports for the source-rate trajectory q (T,n) at `fps`
+    (`control.control_trajectory_checked`: resample, contact repair, and the torque and ZMP solve
+    when `cfg.dynamics_limits`), and whether MuJoCo found every sample of it clear."""
+    return control_trajectory_checked(robot, q, fps, cfg.control_rate_hz, cfg.contact_repair,
+                                      DynamicsLimits.from_config(cfg))
+
+
+def control_counts(robot: Robot, q_control: np.ndarray, rate: float, clear: bool) -> dict[str, float]:
+    """`control_*` metrics: `validation_counts` of a control-rate array (`clear`: MuJoCo already
+    found every sample clear, so its contacts are not counted again)."""
+    return {f"control_{k}": v for k, v in validation_counts(
+        robot, q_control, rate, np.zeros(len(q_control), np.int64) if clear else None).items()}
