@@ -113,6 +113,10 @@ def check_run_reuse(store_root: str | Path, run: str, dataset: str | Path, split
                           "to replace it")
 
 
+#: The task-run budget of a flow run with no `run.max_task_runs` bound.
+_UNBOUNDED = 1 << 30
+
+
 class _Driver:
     """The event loop of one flow run: advances each batch step by step.
 
@@ -143,7 +147,7 @@ class _Driver:
         self.save_error: str | None = None
         #: Task runs this flow run may still be given (`run.max_task_runs`, `flows.chunks`)
         #: and the most the batches of this `run` call can need: tail splits stay within it.
-        self.budget = self.planned = 0
+        self.budget, self.planned = _UNBOUNDED, 0
 
     def run(self, batches: list[list[dict[str, Any]]], budget: int | None = None) -> None:
         """Drive `batches` to the end (one chunk of a run: `flows.chunks`)."""
@@ -151,7 +155,7 @@ class _Driver:
         self.step_of, self.next_batch, self.inflight = {}, 0, 0
         unsubmitted = sum(s.name not in self.shared for s in self.pipeline.shared)
         self.planned = len(batches) * len(self.steps) + unsubmitted
-        self.budget = budget if budget is not None else 1 << 30
+        self.budget = budget if budget is not None else _UNBOUNDED
         self._submit_shared()
         self._fill()
         while self.ready or self.outstanding:

@@ -60,3 +60,12 @@ def test_one_sequence_or_one_worker_is_never_split():
     assert _driver([single])._split(0, 1, single) is None
     batch = _records(["a", "b", "c"])
     assert _driver([batch], workers=1)._split(0, 1, batch) is None
+
+
+def test_no_split_past_the_flow_runs_task_run_bound():
+    batch = _records(["a", "b", "c", "d"])
+    driver = _driver([batch])
+    driver.planned = driver.budget = len(driver.steps)  # every task run left is spoken for
+    assert driver._split(0, 1, batch) is None and len(driver.batches) == 1
+    driver.budget += len(driver.steps) - 1  # room for the second half's remaining steps
+    assert driver._split(0, 1, batch) is not None and len(driver.batches) == 2
