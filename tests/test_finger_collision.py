@@ -96,30 +96,3 @@ def test_a_pair_in_contact_at_every_pose_is_accepted(tmp_path):
     cfg = _write_robot(tmp_path, "base", {"bodies": ["left_wrist_yaw_link", "left_hand_thumb_0_link"],
                                           "kind": "always", "reason": "thumb base in the palm hull"})
     assert load_robot(cfg).name == "base"
-
-
-def _shoulder_in_torso(robot) -> np.ndarray:
-    """Left arm raised forward (pitch −1.5) and rolled 0.25 rad inward: the shoulder-roll
-    housing (its collision cylinder) inside the torso shell, and nothing else touching."""
-    q = robot.rest.copy()
-    q[robot.joint_index("left_shoulder_pitch_joint")] = -1.5
-    q[robot.joint_index("left_shoulder_roll_joint")] = -0.25
-    return q
-
-
-def test_a_structural_pair_not_always_in_contact_is_refused(tmp_path):
-    # the shoulder-roll housing meets the torso in ~38 % of its poses, on the real meshes too
-    cfg = _write_robot(tmp_path, "shoulder", {"bodies": ["torso_link", "left_shoulder_roll_link"],
-                                              "kind": "structural", "reason": "housing grazes the torso"})
-    with pytest.raises(ConfigError, match=r"collision\.ignore_pairs\.\d+'?: torso_link–left_shoulder_roll_link "
-                                          r"is not in contact at every pose: clear at \d+ of 300") as exc:
-        load_robot(cfg)
-    assert "\n" not in str(exc.value)
-
-
-def test_the_shoulder_housing_in_the_torso_is_caught_and_repaired(robot):
-    q = _shoulder_in_torso(robot)[None]
-    assert set(contact_pairs(robot, q)) == {("left_shoulder_roll_link", "torso_link")}
-    assert validation_counts(robot, q, 30.0)["self_collision_frames"] == 1.0
-    fixed = separate(robot, np.repeat(q, 6, axis=0), 30.0)
-    assert (self_collision_contacts(robot, fixed) == 0).all()

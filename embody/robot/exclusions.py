@@ -9,10 +9,8 @@ pair must be one that touches by construction:
     are sampled over their ranges (`SAMPLES` seeded uniform poses) and the pair must penetrate
     at each one; a single clear pose means the exclusion hides real collisions (a thumb
     stalling against the index finger) and the robot is refused;
-  * `structural`: a housing on its mount, never two bodies of one hand; checked like `always`
-    (in contact at every sampled pose): a housing that clears its mount anywhere in the range
-    hits it for real there (G1's shoulder-roll housing meets the torso shell on the real meshes
-    wherever its hulls do), so it is a checked pair, not an exclusion.
+  * `structural`: a housing grazing its mount (G1's shoulder-roll housing on the torso shell),
+    never two bodies of one hand: inside a hand only `joint` and `always` are accepted.
 Why: a blanket exclusion (every contact inside a wrist's subtree) once hid fingers up to 26 mm
 through each other from every counter.
 """
@@ -106,9 +104,10 @@ def check_ignored_pairs(model: mujoco.MjModel, spec: RobotSpec, where: str) -> N
         if pair.kind == "joint":
             if model.body_parentid[a] != b and model.body_parentid[b] != a:
                 raise ConfigError(key, f"{label} is not a joint's two links (neither is the other's parent)")
-        elif pair.kind == "structural" and any(a in s and b in s for s in subtree.values()):
-            raise ConfigError(key, f"{label}: inside one hand only a joint's two links or a pair in "
-                                   "contact at every pose may be excluded (kind joint or always)")
+        elif pair.kind == "structural":
+            if any(a in s and b in s for s in subtree.values()):
+                raise ConfigError(key, f"{label}: inside one hand only a joint's two links or a pair in "
+                                       "contact at every pose may be excluded (kind joint or always)")
         else:
             depth = pair_depths(model, a, b, spec.collision.geom_groups)
             clear = int((depth >= 0).sum())
