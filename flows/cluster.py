@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 from typing import IO
 
+from embody.flows.service import LocalService
+
 __all__ = ["DaskProcesses"]
 
 
@@ -29,7 +31,7 @@ def _dask() -> str:
     return str(local) if local.is_file() else (shutil.which("dask") or "dask")
 
 
-class DaskProcesses:
+class DaskProcesses(LocalService):
     """`with DaskProcesses(folder, workers=2) as address:` scheduler and workers until the block
     ends. `folder/scheduler`, `folder/worker-<i>/{cwd,tmp,dask}` hold each process's files."""
 
@@ -144,13 +146,3 @@ class DaskProcesses:
         for log in self._logs:
             log.close()
         self._logs = []
-
-    def __enter__(self) -> str:
-        try:
-            return self.start()
-        except BaseException:
-            self.stop()
-            raise
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()

@@ -18,6 +18,7 @@ import time
 from pathlib import Path
 
 from embody.flows.server import free_port
+from embody.flows.service import LocalService
 
 __all__ = ["LocalPostgres", "postgres_bin"]
 
@@ -38,7 +39,7 @@ def postgres_bin() -> Path | None:
     return Path(found).parent if found else None
 
 
-class LocalPostgres:
+class LocalPostgres(LocalService):
     """`with LocalPostgres() as url:` a fresh cluster and database until the block ends.
 
     `url` is SQLAlchemy's `postgresql+asyncpg://embody@127.0.0.1:PORT/prefect` (what
@@ -107,13 +108,3 @@ class LocalPostgres:
             self.started = False
         if self._own_folder:
             shutil.rmtree(self.folder, ignore_errors=True)
-
-    def __enter__(self) -> str:
-        try:
-            return self.start()
-        except BaseException:
-            self.stop()
-            raise
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
