@@ -61,26 +61,12 @@ def long_motion(frames: int, seed: int = 0):
                   betas=np.asarray(betas), fps=30.0)
 
 
-def idle_motion(frames: int = 600, fps: float = 120.0):
-    """Arms held out to the sides, a slow sway: no body part near another."""
-    import numpy as np
-
-    from embody.motion import JOINT_NAMES, Motion
-    j = JOINT_NAMES.index
-    s = np.sin(np.linspace(0, 2 * np.pi, frames))
-    pose = np.zeros((frames, 55, 3))
-    pose[:, j("left_shoulder"), 2] = -0.3 + 0.05 * s
-    pose[:, j("right_shoulder"), 2] = 0.3 - 0.05 * s
-    pose[:, j("left_elbow"), 1] = -0.2
-    pose[:, j("right_elbow"), 1] = 0.2
-    return Motion(pose=pose, transl=np.zeros((frames, 3)), betas=np.zeros(10), fps=fps)
-
-
 def child(step: str, frames: int) -> dict:
     """One case in this process: CPU seconds of the step and the process's peak RSS (MB)."""
     from embody.body import load_body_model
     from embody.collision.windows import mitigate_windowed
     from embody.config import load_config
+    from embody.synth.idle import idle_motion
 
     cfg = load_config(sets=[f"io.max_frames={max(frames, 2)}"])
     body = load_body_model(cfg.body)

@@ -14,6 +14,7 @@ from embody.collision.optimize import (blend_weights, mitigate, nearest_index, p
 from embody.collision.windows import mitigate_windowed
 from embody.config.collision import CollisionConfig
 from embody.motion import JOINT_NAMES, Motion
+from embody.synth.idle import idle_motion
 
 J = JOINT_NAMES.index
 
@@ -21,17 +22,6 @@ J = JOINT_NAMES.index
 @pytest.fixture(scope="module")
 def body() -> MannequinBody:
     return MannequinBody()
-
-
-def idle(frames: int, fps: float) -> Motion:
-    """Arms held away from the body, swaying slowly: no part near another."""
-    s = np.sin(np.linspace(0, 2 * np.pi, frames))
-    pose = np.zeros((frames, 55, 3))
-    pose[:, J("left_shoulder"), 2] = -0.3 + 0.05 * s
-    pose[:, J("right_shoulder"), 2] = 0.3 - 0.05 * s
-    pose[:, J("left_elbow"), 1] = -0.2
-    pose[:, J("right_elbow"), 1] = 0.2
-    return Motion(pose=pose, transl=np.zeros((frames, 3)), betas=np.zeros(10), fps=fps)
 
 
 def planted(frames: int, hits: list[slice]) -> Motion:
@@ -44,13 +34,13 @@ def planted(frames: int, hits: list[slice]) -> Motion:
 
 
 def test_a_clip_without_collision_runs_no_optimiser_step(body):
-    motion = idle(300, 120.0)
+    motion = idle_motion(300, 120.0)
     r = mitigate_windowed(motion, body, CollisionConfig(window_frames=128))
     assert r.metrics["windows"] == 3
     assert r.metrics["steps"] == 0 and r.metrics["polish_steps"] == 0
     assert r.frame_energy_before.max() == 0.0 and r.metrics["max_depth_mm_before"] == 0.0
     assert r.motion.pose.tobytes() == motion.pose.astype(r.motion.pose.dtype).tobytes()
-    one = mitigate(idle(60, 120.0), body, CollisionConfig())
+    one = mitigate(idle_motion(60, 120.0), body, CollisionConfig())
     assert one.metrics["steps"] == 0 and one.metrics["polish_steps"] == 0
 
 
