@@ -13,6 +13,19 @@ NUM_JOINTS = 55
 NUM_BETAS = 10
 HandConvention = Literal["relative", "absolute"]
 
+#: The frame rate at which per-frame smoothness weights are stated (the synthetic data's and
+#: SOKE's): the IK's `w_smooth`/`w_jerk`, the collision step's `lambda_smooth`.
+WEIGHT_FPS = 30.0
+
+
+def smoothness_scale(fps: float, order: int) -> float:
+    """Factor on a per-frame Δ^k x penalty so that the same motion costs the same against the
+    per-frame data terms (tracking, closeness) at any frame rate: Δ^k x shrinks as dt^k, so
+    Σ(Δ^k x)² over 1/dt frames falls as dt^(2k-1) while a per-frame data term grows as 1/dt.
+    Unscaled, a 120 fps clip gets 1/256 of the 30 fps clip's smoothing (Δ²): the IK's wrists
+    chatter and the collision step's correction is rough from frame to frame."""
+    return (fps / WEIGHT_FPS) ** (2 * order)
+
 #: SMPL-X kinematic tree (55 joints): body 0-21, jaw 22, eyes 23-24, left hand 25-39, right 40-54.
 PARENTS = np.array(
     [-1, 0, 0, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 9, 9, 12, 13, 14, 16, 17, 18, 19, 15, 15, 15,

@@ -410,7 +410,7 @@ def _physics_result(arrays: dict[str, np.ndarray], attrs: dict[str, Any]) -> Any
 SOURCE = Step("source", "3", ("io",), _load_source, Motion.from_arrays, metrics=_source_metrics)
 # The collision-mitigated motion: masked Adam on the volumetric energy, depth-guided polish and a
 # mesh-judged pull-back; metrics include the mesh penetration depth before and after.
-COLLIDE = Step("collide", "13", ("body", "collision"), _collide, _collision_result, (SOURCE,))
+COLLIDE = Step("collide", "14", ("body", "collision"), _collide, _collision_result, (SOURCE,))
 # Betas and scale fitted to the robot's proportions, once per robot and body (shared).
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)

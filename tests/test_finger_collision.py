@@ -96,3 +96,22 @@ def test_a_pair_in_contact_at_every_pose_is_accepted(tmp_path):
     cfg = _write_robot(tmp_path, "base", {"bodies": ["left_wrist_yaw_link", "left_hand_thumb_0_link"],
                                           "kind": "always", "reason": "thumb base in the palm hull"})
     assert load_robot(cfg).name == "base"
+
+
+def test_an_mjcf_exclude_must_be_listed(tmp_path):
+    # H1's MJCF <exclude>s torso/shoulder-roll: unlisted in the YAML it would hide contacts
+    # unchecked, so the robot is refused; listed (configs), it loads and its depths are measured
+    # with the MJCF exclusion lifted (it meets in ~10 % of shoulder poses, up to ~12 mm)
+    from embody.robot.exclusions import mjcf_excludes, pair_depths
+    spec = yaml.safe_load((robots_dir(RobotConfig()) / "unitree_h1.yaml").read_text())
+    spec["collision"]["ignore_pairs"] = []
+    (tmp_path / "h1_bare.yaml").write_text(yaml.safe_dump(spec))
+    with pytest.raises(ConfigError, match=r"collision\.ignore_pairs'?: the MJCF excludes torso_link–"
+                                          r"(left|right)_shoulder_roll_link") as exc:
+        load_robot(RobotConfig(name="h1_bare", robots_dir=str(tmp_path)))
+    assert "\n" not in str(exc.value)
+    h1 = load_robot(RobotConfig(name="unitree_h1"))
+    pairs = mjcf_excludes(h1.model)
+    assert len(pairs) == 2
+    depth = pair_depths(h1.model, *pairs[0], h1.spec.collision.geom_groups)
+    assert 0.02 < (depth < 0).mean() < 0.3 and -0.02 < depth.min() < -0.005

@@ -50,7 +50,7 @@ from embody.collision.refresh import Refresh
 from embody.collision.solve import solve
 from embody.config.collision import CollisionConfig
 from embody.device import torch_device, torch_threads
-from embody.motion import Motion
+from embody.motion import Motion, smoothness_scale
 
 
 @dataclass
@@ -518,12 +518,14 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
     opt: _FrameAdam | torch.optim.Adam = (_FrameAdam(u, cfg.lr) if cfg.adam_norm == "frame"
                                           else torch.optim.Adam([u], lr=cfg.lr))
     lam = torch.full((t,), float(cfg.lambda_col), device=dev)
+    # `lambda_smooth` is stated at 30 fps: the same correction costs the same at any rate
+    lambda_smooth = cfg.lambda_smooth * smoothness_scale(motion.fps, 2)
     caps = arm_capsules(body, motion.betas, cfg.allow_pairs) if cfg.capsule_weight > 0 else None
     margin = cfg.refresh_margin + cfg.clearance
     fk = body.compiled_fk_inputs(x0, betas) if dev.type == "cpu" else None
     manual = None if fk is None else Objective(
         fk, model, x0, w, jidx, live.to(x0.dtype), caps, cfg.capsule_weight, cfg.lambda_close,
-        cfg.lambda_smooth)
+        lambda_smooth)
     refresh = Refresh(model, margin, max(0.0, cfg.clearance - cfg.tolerance), live_frames,
                       None if manual is None else manual.sub)  # only the subtree moves
     best_key = (float("inf"), float("inf"))
@@ -566,7 +568,7 @@ def _optimise(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.nd
                                                               compiled=True) * live
             close = (delta ** 2).sum() / t
             smooth = (_second_diff(x) ** 2).sum() / t
-            obj = (lam * e).sum() / t + cfg.lambda_close * close + cfg.lambda_smooth * smooth
+            obj = (lam * e).sum() / t + cfg.lambda_close * close + lambda_smooth * smooth
             obj_v = float(obj.detach()) if check else 0.0
         if check:
             key = (e_sum, obj_v)

@@ -61,7 +61,7 @@ from embody.collision.energy import (_PAD_PLANE, CollisionModel, PointRows, _aff
                                      rows_in_part)
 from embody.collision.volumes import part_volumes
 from embody.config.collision import CollisionConfig
-from embody.motion import JOINT_NAMES, Motion
+from embody.motion import JOINT_NAMES, Motion, smoothness_scale
 
 #: Print one line per LM iteration (set EMBODY_SOLVE_DEBUG=1).
 _DEBUG = bool(os.environ.get("EMBODY_SOLVE_DEBUG"))
@@ -315,7 +315,8 @@ def _solve(body: BodyModel, model: CollisionModel, motion: Motion, idx: np.ndarr
     live = wn > 0
     tol_opt = cfg.tolerance - cfg.clearance
     lam = np.full(t, float(cfg.solver_lambda_col))
-    lc, ls, cw = cfg.lambda_close / t, cfg.lambda_smooth / t, cfg.capsule_weight
+    # `lambda_smooth` is stated at 30 fps: the same correction costs the same at any rate
+    lc, ls, cw = cfg.lambda_close / t, cfg.lambda_smooth * smoothness_scale(motion.fps, 2) / t, cfg.capsule_weight
     d2w, smooth_n = _smooth_ops(wn)
     x0m = pb.x0[:, mask_pose].double().numpy().reshape(t, -1)        # (t, 3K)
     # finger joints stay out of the solve when the mask also holds the arm chain: the arm

@@ -32,6 +32,7 @@ import numpy as np
 
 from embody.config.ik import IKConfig
 from embody.metrics.trajectory import mean_jerk, position_error, rotation_error_deg
+from embody.motion import WEIGHT_FPS, smoothness_scale
 from embody.retarget.banded import block_banded_solve
 from embody.retarget.costs import WRIST_ELBOW, Residuals
 from embody.retarget.control import bridge_contacts_checked, control_trajectory_checked, separate_checked
@@ -104,18 +105,6 @@ def _dilate(mask: np.ndarray, pad: int) -> np.ndarray:
     np.add.at(cover, idx, 1)
     np.subtract.at(cover, idx + 2 * pad + 1, 1)
     return np.cumsum(cover)[pad: pad + len(mask)] > 0
-
-
-#: The frame rate at which `w_smooth` and `w_jerk` are stated (the synthetic data's and SOKE's).
-WEIGHT_FPS = 30.0
-
-
-def smoothness_scale(fps: float, order: int) -> float:
-    """Factor on a per-frame Δ^k q penalty so that the same motion costs the same against the
-    per-frame tracking terms at any frame rate: Δ^k q shrinks as dt^k, so Σ(Δ^k q)² over
-    1/dt frames falls as dt^(2k-1) while tracking grows as 1/dt. Unscaled, a 120 fps clip
-    gets 1/256 of the 30 fps clip's smoothing (Δ²) and its wrists chatter."""
-    return (fps / WEIGHT_FPS) ** (2 * order)
 
 
 def coarse_stride(stride: int, fps: float) -> int:

@@ -13,6 +13,10 @@ pair must be one that touches by construction:
     never two bodies of one hand: inside a hand only `joint` and `always` are accepted.
 Why: a blanket exclusion (every contact inside a wrist's subtree) once hid fingers up to 26 mm
 through each other from every counter.
+
+The MJCF's own `<exclude>` pairs hide contacts from MuJoCo (so from every counter) as well: each
+must be listed in `collision.ignore_pairs` too, with its kind, reason and measured depth, and is
+checked like any listed pair (its depths are measured with the MJCF exclusions lifted).
 """
 
 from __future__ import annotations
@@ -55,6 +59,11 @@ def hand_roots(model: mujoco.MjModel, spec: RobotSpec) -> list[int]:
     return roots
 
 
+def mjcf_excludes(model: mujoco.MjModel) -> list[tuple[int, int]]:
+    """Body id pairs the MJCF itself `<exclude>`s."""
+    return [(int(s) >> 16, int(s) & 0xFFFF) for s in model.exclude_signature]
+
+
 def pair_depths(model: mujoco.MjModel, a: int, b: int, groups: list[int], samples: int = SAMPLES,
                 seed: int = 0) -> np.ndarray:
     """Deepest signed distance (m; ≥ 0: clear) between the collision geoms of bodies a and b at
@@ -67,6 +76,7 @@ def pair_depths(model: mujoco.MjModel, a: int, b: int, groups: list[int], sample
     m.geom_conaffinity[geoms] = 1
     m.geom_margin[geoms] = 0.0
     m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
+    m.exclude_signature[:] = 0  # the MJCF's own exclusions lifted (world-world: no geoms)
     d = mujoco.MjData(m)
     joints = path_joints(m, a, b)
     lo, hi = m.jnt_range[joints, 0], m.jnt_range[joints, 1]
@@ -89,6 +99,13 @@ def pair_depths(model: mujoco.MjModel, a: int, b: int, groups: list[int], sample
 def check_ignored_pairs(model: mujoco.MjModel, spec: RobotSpec, where: str) -> None:
     """ConfigError (one line naming `<where>:collision.ignore_pairs.<i>`) for an excluded pair
     that does not touch by construction (module docstring)."""
+    listed = {frozenset(p.bodies) for p in spec.collision.ignore_pairs}
+    for a, b in mjcf_excludes(model):
+        names = frozenset((model.body(a).name, model.body(b).name))
+        if names not in listed:
+            raise ConfigError(f"{where}:collision.ignore_pairs",
+                              f"the MJCF excludes {model.body(a).name}–{model.body(b).name} from collision: "
+                              "list it with its kind, reason and depth (or it hides contacts unchecked)")
     roots = hand_roots(model, spec)
     subtree = {r: {b for b in range(model.nbody) if r in ancestors(model, b)} for r in roots}
     for i, pair in enumerate(spec.collision.ignore_pairs):
