@@ -66,6 +66,10 @@ def test_same_motion_at_any_rate(solved):
         assert sol.fps == pytest.approx(30.0 * k)
         jerk = mean_jerk(sol.q[:, robot.ik_mask], sol.fps)
         assert jerk <= 1.5 * jerk30, (k, jerk, jerk30)
+        # the same measure on the same frames (the clip's 30 fps ones): no jerkier than at 30 fps
+        # (this clip's jittered stretch, frames 11-42, comes out smoother at 60 fps: 0.54x)
+        at30 = mean_jerk(sol.q[::k, robot.ik_mask], 30.0)
+        assert at30 <= 1.2 * jerk30, (k, at30, jerk30)
         # what the robot receives: the 50 Hz export
         export = mean_jerk(sol.q_control[:, robot.ik_mask], sol.control_rate_hz)
         assert export <= 1.5 * export30, (k, export, export30)
