@@ -94,6 +94,17 @@ class Objects:
             return None
         return bytes(result.bytes()), result.meta.get("e_tag")
 
+    def get_head(self, key: str, length: int) -> tuple[bytes, int] | None:
+        """The first `length` bytes (all of a shorter object) and the object's size, in one
+        request; None when the key does not exist."""
+        import obstore
+
+        try:
+            result = obstore.get(self.store, key, options={"range": (0, length)})
+        except FileNotFoundError:
+            return None
+        return bytes(result.bytes()), int(result.meta["size"])
+
     def head(self, key: str) -> dict[str, Any] | None:
         import obstore
 
@@ -104,8 +115,9 @@ class Objects:
 
     def put(self, key: str, data: bytes, *, create: bool = False,
             etag: str | None = None) -> str | None:
-        """Write `data`; with `create` only if the key is absent, with `etag` only if the key is
-        still that version; Conflict otherwise. Returns the new ETag."""
+        """Write `data` in one request (an object appears whole or not at all: never a multipart
+        upload); with `create` only if the key is absent, with `etag` only if the key is still
+        that version; Conflict otherwise. Returns the new ETag."""
         import obstore
         from obstore.exceptions import AlreadyExistsError, PreconditionError
 
@@ -115,7 +127,8 @@ class Objects:
         elif etag is not None:
             mode = {"e_tag": etag}
         try:
-            return obstore.put(self.store, key, data, mode=mode).get("e_tag")
+            return obstore.put(self.store, key, data, mode=mode,
+                               use_multipart=False).get("e_tag")
         except (AlreadyExistsError, PreconditionError) as exc:
             raise Conflict(key) from exc
 
@@ -128,7 +141,7 @@ class Objects:
         store = self.store
         if _loop_running():
             for k, v in items.items():
-                obstore.put(store, k, v)
+                obstore.put(store, k, v, use_multipart=False)
             return
 
         async def send() -> None:
@@ -136,7 +149,7 @@ class Objects:
 
             async def one(k: str, v: bytes) -> None:
                 async with gate:
-                    await obstore.put_async(store, k, v)
+                    await obstore.put_async(store, k, v, use_multipart=False)
             await asyncio.gather(*(one(k, v) for k, v in items.items()))
         asyncio.run(send())
 
