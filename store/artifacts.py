@@ -255,7 +255,7 @@ class ArtifactStore:
                    "written": written}
             if len(head) == size:
                 if len(self._fetched) >= _FETCHED:
-                    self._fetched.pop(next(iter(self._fetched)))
+                    self._fetched.clear()
                 self._fetched[(step, key)] = head
             self._remember(step, key, ref)
         return ref

@@ -4,8 +4,7 @@ An object store has no rename and no `flock`; what it has are conditional writes
 store's promises rest on those: `put(..., create=True)` (S3 `If-None-Match: *`) succeeds for
 exactly one writer of a key, and `put(..., etag=E)` (S3 `If-Match: E`) only while the object is
 still the version that writer read, a compare-and-swap. obstore exposes both for S3, GCS and
-Azure alike (`PutMode.Create` / `PutMode.Update`), and zarr 3.1 reads through it
-(`zarr.storage.ObjectStore`), so one client serves every provider. fsspec's s3fs exposes only
+Azure alike (`PutMode.Create` / `PutMode.Update`), so one client serves every provider. fsspec's s3fs exposes only
 the create half, and its aiobotocore pins a botocore older than the one moto's server needs.
 
 URLs are `s3://bucket/prefix`, `gs://bucket/prefix` and `az://container/prefix`; credentials
@@ -58,7 +57,7 @@ def _client_options() -> dict[str, Any]:
 
 
 class Objects:
-    """Keys under one URL prefix: get/put (conditional)/delete/list, and a zarr view."""
+    """Keys under one URL prefix: get/put (conditional)/delete/list."""
 
     def __init__(self, url: str) -> None:
         self.url = url.rstrip("/")
@@ -200,12 +199,6 @@ class Objects:
         out = obstore.list_with_delimiter(self.store, prefix=_folder(prefix))
         names = [p.rstrip("/").rsplit("/", 1)[-1] for p in out["common_prefixes"]]
         return sorted(names + [o["path"].rsplit("/", 1)[-1] for o in out["objects"]])
-
-    def zarr_store(self) -> Any:
-        """zarr's own view of these objects (read-only): what artifacts are read through."""
-        import zarr.storage
-
-        return zarr.storage.ObjectStore(self.store, read_only=True)
 
 
 def _folder(prefix: str) -> str | None:
