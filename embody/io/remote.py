@@ -46,7 +46,7 @@ def fetch_dataset(url: str) -> Path:
     brought up to date; InputError (naming `url`) when there is nothing there or it cannot be
     read."""
     url = url.rstrip("/")
-    scheme, _, rest = url.partition("://")
+    rest = url.partition("://")[2]
     if "/" not in rest.strip("/"):
         raise InputError(url, None, "a dataset URL names a prefix or object below the bucket")
     local = mirror_dir(url)
