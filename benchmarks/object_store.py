@@ -7,10 +7,16 @@ over HTTP, with the client a user's bucket gets (obstore, `AWS_ENDPOINT_URL`). m
 Python server sharing the machine's cores with the client, so its figure is a pessimistic one
 for a real S3-compatible server; the object requests per artifact are counted too.
 
-    python benchmarks/object_store.py [--n 40] [--frames 150]
+With `--run-sequences N` (default 2) it then runs `embody run` on N synthetic sequences
+(cheap settings: no render, critic or collision, 1 IK iteration) with the store on the S3
+server, twice (cold, then warm), and counts the requests each run sends per sequence, the
+run's own (manifest, claim lease, shared steps) included.
 
-Prints `RESULT local_ms=... s3_ms=... overhead_ratio=... requests_per_artifact=...`
-(`overhead_ratio` = S3 ms / local ms per artifact; target ≤ 2).
+    python benchmarks/object_store.py [--n 40] [--frames 150] [--rounds 5] [--run-sequences 2]
+
+Prints `RESULT local_ms=... s3_ms=... overhead_ratio=... requests_per_artifact=...
+requests_per_sequence=... warm_requests_per_sequence=...` (`overhead_ratio` = S3 ms / local
+ms per artifact, best round of each; target ≤ 2).
 """
 
 from __future__ import annotations
@@ -67,10 +73,30 @@ def _moto(port: int, log: Path) -> subprocess.Popen:
             time.sleep(0.2)
 
 
+def _run_requests(sequences: int, work: Path, served) -> float:
+    """Requests per sequence of one `embody run` over the synthetic set on the S3 store."""
+    before = served()
+    done = subprocess.run(
+        [sys.executable, "-m", "embody.cli", "run", "--store", "s3://bench/run", "--limit",
+         str(sequences), "--json", "--no-progress", "--critic", "none", "--no-render",
+         "--workers", "1", "--set", "collision.enabled=false", "--set", "ik.iterations=1",
+         "--set", "ik.shape_iterations=10", "--set", "run.report=false",
+         "--set", f"run.synth_n={sequences}"],
+        env={**os.environ, "EMBODY_WORK_DIR": str(work / "work")}, capture_output=True,
+        text=True, cwd=Path(__file__).resolve().parents[1])
+    if done.returncode != 0:
+        raise SystemExit(f"embody run failed ({done.returncode}): {done.stderr[-800:]}")
+    time.sleep(0.5)
+    return (served() - before) / sequences
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--n", type=int, default=40, help="artifacts per store")
     ap.add_argument("--frames", type=int, default=150, help="frames per artifact")
+    ap.add_argument("--rounds", type=int, default=5, help="alternating rounds per store")
+    ap.add_argument("--run-sequences", type=int, default=2,
+                    help="sequences of the `embody run` whose requests are counted (0: none)")
     args = ap.parse_args()
 
     with socket.socket() as s:
@@ -91,7 +117,7 @@ def main() -> None:
         rng = np.random.default_rng(0)
         arrays = [_artifact(rng, args.frames) for _ in range(args.n)]
         rounds = {"local": [], "s3": []}
-        for r in range(3):  # alternate, best of three: the machine is shared
+        for r in range(args.rounds):  # alternate, best round of each: the machine is shared
             with tempfile.TemporaryDirectory() as tmp:
                 keys = [uuid.uuid4().hex * 2 for _ in range(args.n)]
                 rounds["local"].append(_cycle(ArtifactStore(tmp), keys, arrays))
@@ -104,8 +130,14 @@ def main() -> None:
         local, s3 = min(rounds["local"]), min(rounds["s3"])
         print(f"local {local:.2f} ms/artifact, s3 (moto, localhost) {s3:.2f} ms/artifact, "
               f"{requests:.1f} requests/artifact")
+        per_seq = ""
+        if args.run_sequences:
+            cold, warm = (_run_requests(args.run_sequences, work, served) for _ in range(2))
+            print(f"embody run of {args.run_sequences} sequences: {cold:.0f} requests/sequence "
+                  f"cold, {warm:.0f} warm")
+            per_seq = f" requests_per_sequence={cold:.0f} warm_requests_per_sequence={warm:.0f}"
         print(f"RESULT local_ms={local:.2f} s3_ms={s3:.2f} overhead_ratio={s3 / local:.2f} "
-              f"requests_per_artifact={requests:.1f} n={args.n} frames={args.frames}")
+              f"requests_per_artifact={requests:.1f}{per_seq} n={args.n} frames={args.frames}")
     finally:
         proc.terminate()
         proc.wait()

@@ -24,6 +24,7 @@ from embody.config import Config
 from embody.errors import ConfigError, EmbodyError
 from embody.flows.progress import Progress
 from embody.flows.verdicts import verdict_summary
+from embody.io.remote import fetch_dataset, is_url
 from embody.verdicts import sequence_verdicts
 from embody.flows.runners import make_task_runner
 from embody.store import ArtifactStore, Manifest, check_run_name
@@ -68,6 +69,8 @@ def resolve_dataset(dataset: str | Path | None, cfg: Config) -> Path:
         from embody.synth import default_dataset
         return Path(default_dataset(ArtifactStore(cfg.run.store).work_dir / "data", n=cfg.run.synth_n,
                                     seed=cfg.run.seed))
+    if is_url(str(dataset)):  # workers read the local mirror, never the object store
+        return fetch_dataset(str(dataset))
     return Path(dataset)
 
 

@@ -12,16 +12,17 @@ Directory renames are atomic on one filesystem and fail when the target exists, 
 makes concurrent writers (threads, processes, Dask workers) safe: the loser discards its temp.
 
 On an object store (`s3://bucket/prefix`, `gs://`, `az://`: `store.objects`) there is no
-rename, so a writer uploads the group under a folder of its own and then publishes it by
-creating one small object, `artifacts/<step>/<kk>/<key>/ref.json` (the folder's name and the
-group's attributes), with a create-only conditional write (S3 `If-None-Match: *`)::
+rename, and every request is a round trip, so the group's files go into one object, a zip
+(`store.packed`, what zarr's `ZipStore` reads), published by one create-only PUT (S3
+`If-None-Match: *`)::
 
-    artifacts/<step>/<kk>/<key>/ref.json          the publish: exactly one writer creates it
-    artifacts/<step>/<kk>/<key>/<writer>/...      zarr group of the writer that won
-    counters/<step>/<time>-<writer>.json          one object per computation (no append)
+    artifacts/<step>/<kk>/<key>/zarr.zip      the artifact: exactly one writer creates it
+    counters/<step>/<time>-<writer>.json      one object per computation (no append)
 
-A reader that finds no `ref.json` sees no artifact; a killed writer leaves only its folder,
-which `gc` removes like a local temp; a losing writer deletes its folder.
+An object store applies a PUT whole or not at all, so a reader sees the whole artifact or none,
+a killed writer leaves nothing, and a losing writer has nothing to clean up. A cache-hit check
+reads the zip's head (the group's `zarr.json`, its first member) in one ranged GET; a read is
+one GET.
 """
 
 from __future__ import annotations
@@ -42,6 +43,7 @@ import numpy as np
 import zarr
 
 from embody.errors import ConfigError, EmbodyError
+from embody.store import packed
 from embody.store.keys import arrays_checksum
 from embody.store.objects import Conflict, Objects, is_url, mtime
 
@@ -67,8 +69,13 @@ def array_digest(a: np.ndarray) -> str:
     return h.hexdigest()
 
 _TMP = ".tmp-"
-#: The object that publishes an artifact on an object store (see the module docstring).
-REF = "ref.json"
+#: The object that is an artifact on an object store (see the module docstring).
+PACKED = "zarr.zip"
+#: Bytes of a packed artifact a hit check reads: its attributes, and all of a small artifact
+#: (which a `read` straight after the check then takes without another request).
+_HEAD_BYTES = 64 * 1024
+#: Whole small artifacts a hit check fetched, kept for the `read` that usually follows it.
+_FETCHED = 8
 
 
 def writer_tag() -> str:
@@ -171,6 +178,7 @@ class ArtifactStore:
         if isinstance(where, str):
             self.objects = Objects(where)
             self._refs: dict[tuple[str, str], dict[str, Any]] = {}
+            self._fetched: dict[tuple[str, str], bytes] = {}
             self.root: Any = where
             self.artifacts_dir = self.counters_dir = self.runs_dir = None  # type: ignore[assignment]
             return
@@ -208,7 +216,7 @@ class ArtifactStore:
         if self.objects is not None:
             self._refs.pop((step, key), None)
             try:
-                self._ref(step, key)  # a GET, not a HEAD: `intact`/`read` reuse what it read
+                self._ref(step, key)  # a ranged GET, not a HEAD: `intact`/`info`/`read` reuse it
             except (OSError, ValueError):
                 return False
             return True
@@ -220,26 +228,41 @@ class ArtifactStore:
         self._refs[(step, key)] = ref
 
     def _ref(self, step: str, key: str) -> dict[str, Any]:
-        """The published `ref.json` of an artifact on an object store; FileNotFoundError.
-        A published ref never changes (only `remove` deletes it), so this process keeps the
-        last one it read or wrote; a ref another process removed since is read as a corrupt
-        artifact and recomputed, as a local group removed under a reader is."""
+        """An object-store artifact's group attributes, read from its packed object's head
+        (FileNotFoundError when there is none, ValueError when it is no packed group).
+        A published object never changes (only `remove` deletes it), so this process keeps the
+        last attributes it read or wrote; an artifact another process removed since is read as
+        a corrupt one and recomputed, as a local group removed under a reader is."""
         assert self.objects is not None
         ref = self._refs.get((step, key))
         if ref is None:
-            got = self.objects.get(f"{self._base(step, key)}/{REF}")
+            name = f"{self._base(step, key)}/{PACKED}"
+            got = self.objects.get_head(name, _HEAD_BYTES)
             if got is None:
                 raise FileNotFoundError(self.path(step, key))
-            ref = json.loads(got[0])
+            head, size = got
+            first = packed.first_member(head)
+            if isinstance(first, int):  # attributes longer than the head read
+                got = self.objects.get_head(name, first)
+                if got is None:
+                    raise FileNotFoundError(self.path(step, key))
+                head, size = got
+                first = packed.first_member(head)
+                if isinstance(first, int):
+                    raise ValueError(f"{name}: shorter than its first member")
+            member, written = first
+            ref = {"attributes": json.loads(member).get("attributes", {}), "size": size,
+                   "written": written}
+            if len(head) == size:
+                if len(self._fetched) >= _FETCHED:
+                    self._fetched.clear()
+                self._fetched[(step, key)] = head
             self._remember(step, key, ref)
         return ref
 
     def _encode(self, step: str, key: str, arrays: Mapping[str, np.ndarray],
-                attrs: Mapping[str, Any], info: Mapping[str, Any],
-                consolidate: bool = False) -> dict[str, bytes]:
-        """The zarr group's files (relative path → bytes), encoded in memory by zarr; with
-        `consolidate`, the group's zarr.json also holds its arrays' metadata, so a reader over
-        the network opens the group with one request instead of one per array."""
+                attrs: Mapping[str, Any], info: Mapping[str, Any]) -> dict[str, bytes]:
+        """The zarr group's files (relative path → bytes), encoded in memory by zarr."""
         arrays = {name: np.ascontiguousarray(a) for name, a in arrays.items()}
         blobs: dict[str, Any] = {}
         group = zarr.open_group(store=zarr.storage.MemoryStore(blobs), mode="w", zarr_format=3)
@@ -259,12 +282,6 @@ class ArtifactStore:
                        "host": socket.gethostname(), "created": time.time()},
             "result": dict(attrs),
         }))
-        if consolidate:
-            import warnings
-
-            with warnings.catch_warnings():  # v3 consolidation is zarr-python's extension
-                warnings.simplefilter("ignore", UserWarning)
-                zarr.consolidate_metadata(group.store)
         return {rel: blobs[rel].to_bytes() for rel in sorted(blobs)}
 
     def publish(self, step: str, key: str, arrays: Mapping[str, np.ndarray],
@@ -298,30 +315,18 @@ class ArtifactStore:
 
     def _publish_object(self, step: str, key: str, arrays: Mapping[str, np.ndarray],
                         attrs: Mapping[str, Any], info: Mapping[str, Any]) -> bool:
-        """Upload the group under a folder of this writer's, then create `ref.json` (create-only):
-        the one writer whose create succeeds has published; the others delete their folder."""
+        """Create the packed group with one create-only PUT: the one writer whose create
+        succeeds has published; the others' PUTs are refused and leave nothing."""
         assert self.objects is not None
-        base = self._base(step, key)
-        folder = writer_tag()  # no `has` first: the create below settles a race either way
-        blobs = self._encode(step, key, arrays, attrs, info, consolidate=True)
-        keys = [f"{base}/{folder}/{rel}" for rel in blobs]
-        published = False
+        blobs = self._encode(step, key, arrays, attrs, info)
+        data = packed.pack(blobs)  # no `has` first: the create settles a race either way
         try:
-            self.objects.put_many(dict(zip(keys, blobs.values())))
-            attributes = json.loads(blobs["zarr.json"])["attributes"]
-            ref = json.dumps({"data": folder, "attributes": attributes}, sort_keys=True)
-            self.objects.put(f"{base}/{REF}", ref.encode("utf-8"), create=True)
-            self._remember(step, key, json.loads(ref))
-            published = True
-            return True
+            self.objects.put(f"{self._base(step, key)}/{PACKED}", data, create=True)
         except Conflict:
             return False
-        finally:
-            if not published:
-                try:
-                    self.objects.delete(keys)
-                except Exception:  # a leftover folder is what `gc` removes
-                    pass
+        self._remember(step, key, {"attributes": json.loads(blobs[packed.FIRST])["attributes"],
+                                   "size": len(data), "written": len(data)})
+        return True
 
     def info(self, step: str, key: str) -> dict[str, Any]:
         """The bookkeeping attrs of an artifact, read without opening its arrays."""
@@ -339,23 +344,24 @@ class ArtifactStore:
         return doc.get("attributes", {})
 
     def intact(self, step: str, key: str) -> bool:
-        """Cheap check (stat only) that every chunk file written is still there, same size.
+        """Cheap check (stat only) that every chunk file written is still there, same size
+        (on an object store: that the packed object has the length it was written with, from
+        the ranged GET `has` made).
 
         What a cache hit checks; `read` then checks each array's digest as it loads it.
         """
+        if self.objects is not None:  # one object: its length is the one it was written with
+            try:
+                ref = self._ref(step, key)
+            except (OSError, ValueError):
+                return False
+            return ref["size"] == ref["written"]
         try:
             files = self.info(step, key).get("files")
         except (OSError, ValueError):
             return False
         if files is None:  # written before files were recorded
             return True
-        if self.objects is not None:
-            try:
-                folder = f"{self._base(step, key)}/{self._ref(step, key)['data']}"
-                sizes = {o["path"][len(folder) + 1:]: o["size"] for o in self.objects.list(folder)}
-            except (OSError, ValueError, KeyError):
-                return False
-            return all(sizes.get(rel) == size for rel, size in files.items())
         root = self.path(step, key)
         try:
             return all((root / rel).stat().st_size == size for rel, size in files.items())
@@ -372,9 +378,8 @@ class ArtifactStore:
                 attrs = dict(group.attrs)
                 break
             except Exception as exc:  # unreadable metadata or chunk
-                if attempt == 0 and self.objects is not None and (step, key) in self._refs:
-                    self._refs.pop((step, key))  # the ref remembered may be a removed one
-                    continue
+                if attempt == 0 and self.objects is not None:
+                    continue  # another process may have removed and republished it: once more
                 if not check:
                     raise
                 raise CorruptArtifact(step, key,
@@ -393,40 +398,34 @@ class ArtifactStore:
         return Artifact(step, key, arrays, attrs.get("result", {}), info)
 
     def _group(self, step: str, key: str) -> Any:
-        """The artifact's zarr group, opened read-only (through zarr's ObjectStore remotely)."""
+        """The artifact's zarr group, opened read-only (an object store's in memory, from the
+        one GET of its packed object, or from the hit check that fetched it whole just now)."""
         if self.objects is None:
             return zarr.open_group(str(self.path(step, key)), mode="r")
-        import warnings
+        data = self._fetched.pop((step, key), None)
+        if data is None:
+            got = self.objects.get(f"{self._base(step, key)}/{PACKED}")
+            if got is None:
+                self._refs.pop((step, key), None)
+                raise FileNotFoundError(self.path(step, key))
+            data = got[0]
+        from zarr.core.buffer import default_buffer_prototype
 
-        folder = self._ref(step, key)["data"]
-        with warnings.catch_warnings():  # its consolidated metadata (zarr-python's extension)
-            warnings.simplefilter("ignore", UserWarning)
-            return zarr.open_group(store=self.objects.zarr_store(),
-                                   path=f"{self._base(step, key)}/{folder}", mode="r",
-                                   zarr_format=3)
-
-    def _artifact_objects(self) -> dict[tuple[str, str], dict[str, Any]]:
-        """Object store: (step, key) → {"ref": bool, "folders": {name: (bytes, newest mtime)}}."""
-        assert self.objects is not None
-        out: dict[tuple[str, str], dict[str, Any]] = {}
-        for meta in self.objects.list("artifacts"):
-            parts = meta["path"].split("/")
-            if len(parts) < 5 or parts[2] != parts[3][:2]:
-                continue
-            entry = out.setdefault((parts[1], parts[3]), {"ref": False, "folders": {}})
-            if len(parts) == 5 and parts[4] == REF:
-                entry["ref"] = True
-            elif len(parts) > 5:
-                size, newest = entry["folders"].get(parts[4], (0, 0.0))
-                entry["folders"][parts[4]] = (size + int(meta["size"]), max(newest, mtime(meta)))
-        return out
+        wrap = default_buffer_prototype().buffer.from_bytes
+        files = {rel: wrap(blob) for rel, blob in packed.unpack(data).items()}
+        return zarr.open_group(store=zarr.storage.MemoryStore(files, read_only=True), mode="r",
+                               zarr_format=3)
 
     def entries(self) -> Iterator[tuple[str, str, Any]]:
         """Every published artifact as (step, key, location); temps are skipped."""
         if self.objects is not None:
-            for (step, key), entry in sorted(self._artifact_objects().items()):
-                if entry["ref"]:
-                    yield step, key, self.path(step, key)
+            found = set()
+            for meta in self.objects.list("artifacts"):
+                parts = meta["path"].split("/")
+                if len(parts) == 5 and parts[4] == PACKED and parts[2] == parts[3][:2]:
+                    found.add((parts[1], parts[3]))
+            for step, key in sorted(found):
+                yield step, key, self.path(step, key)
             return
         if not _real_dir(self.artifacts_dir):
             return
@@ -450,17 +449,10 @@ class ArtifactStore:
         return None
 
     def remove(self, step: str, key: str) -> None:
-        if self.objects is not None:  # the ref first: from then on it is a miss
-            base = self._base(step, key)
-            self._refs.pop((step, key), None)  # the ref as stored now, not as remembered
-            try:
-                folder = self._ref(step, key).get("data")
-            except (OSError, ValueError):
-                folder = None
+        if self.objects is not None:
             self._refs.pop((step, key), None)
-            self.objects.delete([f"{base}/{REF}"])
-            if folder:
-                self.objects.delete(o["path"] for o in self.objects.list(f"{base}/{folder}"))
+            self._fetched.pop((step, key), None)
+            self.objects.delete([f"{self._base(step, key)}/{PACKED}"])
             return
         self.remove_path(self.path(step, key))
 
@@ -486,8 +478,9 @@ class ArtifactStore:
             parts = self._relative(path).split("/")
             if len(parts) == 4 and parts[0] == "artifacts":
                 self.remove(parts[1], parts[3])
-            else:
-                self.objects.delete(o["path"] for o in self.objects.list("/".join(parts)))
+            else:  # the object of that name and any below it as a folder
+                rel = "/".join(parts)
+                self.objects.delete([rel, *(o["path"] for o in self.objects.list(rel))])
             return
         if not self.contains(path):
             raise ValueError(f"refusing to delete {path}: not inside the store {self.root}")
@@ -520,7 +513,7 @@ class ArtifactStore:
         artifact groups and manifest temps (`runs/<run>/.manifest.json.<pid>.tmp`)."""
         host, now, out = socket.gethostname(), time.time(), []
         if self.objects is not None:
-            return self._stale_folders(max_age_s)
+            return self._strays(max_age_s)
         if _real_dir(self.runs_dir):
             for path in self.runs_dir.glob("*/.*.tmp"):
                 pid = path.name.rsplit(".", 2)[-2]
@@ -538,27 +531,22 @@ class ArtifactStore:
                 out.append(path)
         return out
 
-    def _stale_folders(self, max_age_s: float) -> list[str]:
-        """Object store: writers' folders no `ref.json` names, of dead writers (same host, PID
-        gone) or older than `max_age_s` (a live writer's upload is never taken)."""
-        host, now, out = socket.gethostname(), time.time(), []
-        for (step, key), entry in sorted(self._artifact_objects().items()):
-            folders = entry["folders"]
-            if not folders or (entry["ref"] and len(folders) == 1):
+    def _strays(self, max_age_s: float) -> list[str]:
+        """Object store: what lies in an artifact's folder besides its packed object (no writer
+        of this store leaves anything: a PUT lands whole or not at all; this is another tool's
+        or layout's upload), by the first name below the key, once its newest object is
+        `max_age_s` old."""
+        assert self.objects is not None
+        newest: dict[str, float] = {}
+        for meta in self.objects.list("artifacts"):
+            parts = meta["path"].split("/")
+            if len(parts) < 5 or (len(parts) == 5 and parts[4] == PACKED):
                 continue
-            current = None
-            if entry["ref"]:
-                try:
-                    current = self._ref(step, key).get("data")
-                except (OSError, ValueError):
-                    continue
-            for name, (_size, newest) in sorted(folders.items()):
-                if name == current:
-                    continue
-                t_host, pid = _tag_writer(name)
-                if (t_host == host and not pid_alive(pid)) or now - newest > max_age_s:
-                    out.append(f"{self.path(step, key)}/{name}")
-        return out
+            where = "/".join(parts[:5])
+            newest[where] = max(newest.get(where, 0.0), mtime(meta))
+        now = time.time()
+        return [f"{self.root}/{where}" for where, t in sorted(newest.items())
+                if now - t >= max_age_s]
 
     # -- runs ------------------------------------------------------------------------------
     def manifest_path(self, run: str) -> Any:

@@ -4,8 +4,7 @@ An object store has no rename and no `flock`; what it has are conditional writes
 store's promises rest on those: `put(..., create=True)` (S3 `If-None-Match: *`) succeeds for
 exactly one writer of a key, and `put(..., etag=E)` (S3 `If-Match: E`) only while the object is
 still the version that writer read, a compare-and-swap. obstore exposes both for S3, GCS and
-Azure alike (`PutMode.Create` / `PutMode.Update`), and zarr 3.1 reads through it
-(`zarr.storage.ObjectStore`), so one client serves every provider. fsspec's s3fs exposes only
+Azure alike (`PutMode.Create` / `PutMode.Update`), so one client serves every provider. fsspec's s3fs exposes only
 the create half, and its aiobotocore pins a botocore older than the one moto's server needs.
 
 URLs are `s3://bucket/prefix`, `gs://bucket/prefix` and `az://container/prefix`; credentials
@@ -58,7 +57,7 @@ def _client_options() -> dict[str, Any]:
 
 
 class Objects:
-    """Keys under one URL prefix: get/put (conditional)/delete/list, and a zarr view."""
+    """Keys under one URL prefix: get/put (conditional)/delete/list."""
 
     def __init__(self, url: str) -> None:
         self.url = url.rstrip("/")
@@ -94,6 +93,17 @@ class Objects:
             return None
         return bytes(result.bytes()), result.meta.get("e_tag")
 
+    def get_head(self, key: str, length: int) -> tuple[bytes, int] | None:
+        """The first `length` bytes (all of a shorter object) and the object's size, in one
+        request; None when the key does not exist."""
+        import obstore
+
+        try:
+            result = obstore.get(self.store, key, options={"range": (0, length)})
+        except FileNotFoundError:
+            return None
+        return bytes(result.bytes()), int(result.meta["size"])
+
     def head(self, key: str) -> dict[str, Any] | None:
         import obstore
 
@@ -104,8 +114,9 @@ class Objects:
 
     def put(self, key: str, data: bytes, *, create: bool = False,
             etag: str | None = None) -> str | None:
-        """Write `data`; with `create` only if the key is absent, with `etag` only if the key is
-        still that version; Conflict otherwise. Returns the new ETag."""
+        """Write `data` in one request (an object appears whole or not at all: never a multipart
+        upload); with `create` only if the key is absent, with `etag` only if the key is still
+        that version; Conflict otherwise. Returns the new ETag."""
         import obstore
         from obstore.exceptions import AlreadyExistsError, PreconditionError
 
@@ -115,7 +126,8 @@ class Objects:
         elif etag is not None:
             mode = {"e_tag": etag}
         try:
-            return obstore.put(self.store, key, data, mode=mode).get("e_tag")
+            return obstore.put(self.store, key, data, mode=mode,
+                               use_multipart=False).get("e_tag")
         except (AlreadyExistsError, PreconditionError) as exc:
             raise Conflict(key) from exc
 
@@ -128,7 +140,7 @@ class Objects:
         store = self.store
         if _loop_running():
             for k, v in items.items():
-                obstore.put(store, k, v)
+                obstore.put(store, k, v, use_multipart=False)
             return
 
         async def send() -> None:
@@ -136,7 +148,7 @@ class Objects:
 
             async def one(k: str, v: bytes) -> None:
                 async with gate:
-                    await obstore.put_async(store, k, v)
+                    await obstore.put_async(store, k, v, use_multipart=False)
             await asyncio.gather(*(one(k, v) for k, v in items.items()))
         asyncio.run(send())
 
@@ -187,12 +199,6 @@ class Objects:
         out = obstore.list_with_delimiter(self.store, prefix=_folder(prefix))
         names = [p.rstrip("/").rsplit("/", 1)[-1] for p in out["common_prefixes"]]
         return sorted(names + [o["path"].rsplit("/", 1)[-1] for o in out["objects"]])
-
-    def zarr_store(self) -> Any:
-        """zarr's own view of these objects (read-only): what artifacts are read through."""
-        import zarr.storage
-
-        return zarr.storage.ObjectStore(self.store, read_only=True)
 
 
 def _folder(prefix: str) -> str | None:

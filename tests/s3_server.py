@@ -11,10 +11,12 @@ import os
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 import uuid
 from collections.abc import Iterator
+from urllib.parse import urlparse
 
 import pytest
 
@@ -96,3 +98,55 @@ def store_root(request: pytest.FixtureRequest, tmp_path) -> str:
     if getattr(request, "param", "local") == "local":
         return str(tmp_path / "store")
     return request.getfixturevalue("s3_url")
+
+
+class StallingProxy:
+    """A TCP relay in front of the S3 server that forwards a client's first `stall_after`
+    bytes, then stops (`stalled` is set): a writer caught half way through its upload, to be
+    killed there. Closing the relay cuts the server's side of the connection too."""
+
+    def __init__(self, endpoint: str, stall_after: int) -> None:
+        target = urlparse(endpoint)
+        self._target = (target.hostname, target.port)
+        self._left = stall_after
+        self.stalled = threading.Event()
+        self._listener = socket.create_server(("127.0.0.1", 0))
+        self.url = f"http://127.0.0.1:{self._listener.getsockname()[1]}"
+        self._sockets: list[socket.socket] = [self._listener]
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self._listener.accept()
+            except OSError:
+                return
+            upstream = socket.create_connection(self._target)
+            self._sockets += [client, upstream]
+            threading.Thread(target=self._pump, args=(client, upstream, True), daemon=True).start()
+            threading.Thread(target=self._pump, args=(upstream, client, False), daemon=True).start()
+
+    def _pump(self, src: socket.socket, dst: socket.socket, counted: bool) -> None:
+        try:
+            while data := src.recv(65536):
+                if counted:
+                    data = data[:max(self._left, 0)]
+                    self._left -= len(data)
+                    if self._left <= 0:
+                        dst.sendall(data)
+                        self.stalled.set()
+                        return
+                dst.sendall(data)
+        except OSError:
+            pass
+
+    def __enter__(self) -> "StallingProxy":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        for s in self._sockets:
+            try:
+                s.shutdown(socket.SHUT_RDWR)
+            except OSError:
+                pass
+            s.close()

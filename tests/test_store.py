@@ -17,7 +17,7 @@ from embody.cli import main
 from embody.config import Config
 from embody.store import ArtifactStore, Manifest, arrays_checksum, content_key, files_key
 from embody.tasks.stages import COLLIDE, RETARGET, SHAPE_FIT
-from s3_server import s3_endpoint, s3_url, store_root  # noqa: F401 (fixtures)
+from s3_server import StallingProxy, s3_endpoint, s3_url, store_root  # noqa: F401 (fixtures)
 
 K1, K2 = "a" * 64, "b" * 64
 
@@ -162,33 +162,43 @@ print("finished")
 
 
 def _writing(store: ArtifactStore, step: str, key: str) -> bool:
-    """A writer has begun to put the artifact's files (its temp, or its object-store folder)."""
-    if store.is_local:
-        parent = store.path(step, key).parent
-        return parent.is_dir() and any(parent.iterdir())
-    return store.size(store.path(step, key)) > 0
+    """A writer has begun to put the artifact's files (its temp folder)."""
+    parent = store.path(step, key).parent
+    return parent.is_dir() and any(parent.iterdir())
 
 
 def test_killed_writer_leaves_no_hit_and_rerun_completes(store_root):
+    """Killed half way through writing (a local temp folder, or an object store's one PUT
+    stalled half sent by a relay), a writer leaves no hit; a rerun publishes; gc tidies."""
     store = ArtifactStore(store_root)
-    side = "256" if store.is_local else "8"  # 150 objects' uploads take the S3 writer long enough
+    side, env, relay = "256", None, None
+    if not store.is_local:
+        side = "8"
+        relay = StallingProxy(os.environ["AWS_ENDPOINT_URL"], stall_after=1 << 20)
+        env = {**os.environ, "AWS_ENDPOINT_URL": relay.url}
     proc = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, store_root, K1, side],
-                            stdout=subprocess.PIPE)
+                            stdout=subprocess.PIPE, env=env)
     deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and not _writing(store, "render", K1):
+    while time.monotonic() < deadline and not (
+            relay.stalled.is_set() if relay else _writing(store, "render", K1)):
         time.sleep(0.005)
     time.sleep(0.05)
     assert proc.poll() is None, "writer finished before it could be killed"
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
+    if relay:
+        relay.__exit__()  # the server's side of the upload is cut too
     assert not store.has("render", K1)
     assert list(store.entries()) == []
-    temps = store.stale_temps()
-    assert len(temps) == 1 and str(temps[0]).startswith(str(store.path("render", K1)))
+    temps = store.stale_temps(max_age_s=0 if relay else 24 * 3600)
+    if store.is_local:
+        assert len(temps) == 1 and str(temps[0]).startswith(str(store.path("render", K1)))
+    else:  # an object store applies a PUT whole or not at all
+        assert temps == [] and store.size(store.path("render", K1)) == 0
     # a rerun publishes normally; gc clears the dead writer's temp
     assert store.publish("render", K1, _arrays(), {}, {})
     assert main(["store", "gc", "--store", store_root, "--json"]) == 0
-    assert store.size(temps[0]) == 0 and store.stale_temps(max_age_s=0) == []
+    assert all(store.size(t) == 0 for t in temps) and store.stale_temps(max_age_s=0) == []
 
 
 # -- verify and gc -----------------------------------------------------------------------------

@@ -45,9 +45,24 @@ def test_roundtrip_through_the_s3_api(s3_url):
     assert [r["sequence"] for r in store.computations("ik")] == ["s1"]
 
 
-def test_a_partial_artifact_is_invisible(s3_url):
-    """A writer's uploaded folder without its ref (killed before publishing) is no hit, no
-    entry, unreadable, not verified; gc takes it once its writer is gone."""
+def test_an_artifact_is_one_object_zarr_reads(s3_url, tmp_path):
+    """The packed object opens with zarr's own ZipStore (no embody needed to read a result)."""
+    import zarr
+
+    store = ArtifactStore(s3_url)
+    assert store.publish("ik", K1, _arrays(), {"fps": 30.0}, {})
+    assert [o["path"].rsplit("/", 1)[-1] for o in store.objects.list("artifacts")] == [
+        "zarr.zip"]
+    (tmp_path / "a.zip").write_bytes(store.objects.get(f"artifacts/ik/aa/{K1}/zarr.zip")[0])
+    group = zarr.open_group(zarr.storage.ZipStore(tmp_path / "a.zip", mode="r"), mode="r")
+    np.testing.assert_array_equal(group["q"][...], _arrays()["q"])
+    assert group.attrs["result"] == {"fps": 30.0}
+
+
+def test_stray_or_truncated_objects_are_no_hit(s3_url):
+    """Objects in an artifact's folder that are not its packed object (an upload by another
+    tool or layout) are no hit, no entry, unreadable; gc takes them once a day old. A packed
+    object cut short (no writer of ours leaves one: a PUT lands whole) fails the hit check."""
     store = ArtifactStore(s3_url)
     blobs = store._encode("ik", K1, _arrays(), {}, {})
     folder = f"artifacts/ik/aa/{K1}/deadhost-999999-0000abcd"
@@ -56,11 +71,20 @@ def test_a_partial_artifact_is_invisible(s3_url):
     assert not store.has("ik", K1) and list(store.entries()) == []
     with pytest.raises(CorruptArtifact):
         store.read("ik", K1)
-    assert store.stale_temps() == []  # another host's writer: kept until it is a day old
+    assert store.stale_temps() == []  # kept until it is a day old
     assert store.stale_temps(max_age_s=0) == [f"{s3_url}/{folder}"]
     assert main(["store", "verify", "--store", s3_url]) == 0
     assert store.publish("ik", K1, _arrays(), {}, {})  # a rerun publishes beside it
     assert store.read("ik", K1).arrays["n"].tolist() == [0, 1, 2, 3, 4]
+    for stray in store.stale_temps(max_age_s=0):  # what gc does with a day-old one
+        store.remove_path(stray)
+    assert store.stale_temps(max_age_s=0) == [] and store.intact("ik", K1)
+    whole = store.objects.get(f"artifacts/ik/aa/{K1}/zarr.zip")[0]
+    store.objects.put(f"artifacts/ik/aa/{K1}/zarr.zip", whole[:-100])
+    fresh = ArtifactStore(s3_url)
+    assert fresh.has("ik", K1) and not fresh.intact("ik", K1)
+    with pytest.raises(CorruptArtifact):
+        fresh.read("ik", K1)
 
 
 def test_verify_gc_and_ls_on_s3(s3_url, capsys):
@@ -73,12 +97,11 @@ def test_verify_gc_and_ls_on_s3(s3_url, capsys):
     m.update({"id": "s1", "keys": {"source": K1, "collide": K1, "ik": K3}, "status": "ok"})
     m.finish_sequence("s1")
     m.save(finished=True)
-    # corrupt one chunk object in place
-    ref = json.loads(store.objects.get(f"artifacts/ik/cc/{K3}/ref.json")[0])
-    chunk = f"artifacts/ik/cc/{K3}/{ref['data']}/q/c/0/0"
-    data = bytearray(store.objects.get(chunk)[0])
-    data[len(data) // 2] ^= 0xFF
-    store.objects.put(chunk, bytes(data))
+    # corrupt one byte of a chunk in place (the object keeps its length)
+    packed = f"artifacts/ik/cc/{K3}/zarr.zip"
+    data = bytearray(store.objects.get(packed)[0])
+    data[data.index(b"q/c/0/0") + 40] ^= 0xFF
+    store.objects.put(packed, bytes(data))
     capsys.readouterr()
     assert main(["store", "verify", "--store", s3_url, "--json"]) == 1
     report = json.loads(capsys.readouterr().out)
@@ -91,7 +114,7 @@ def test_verify_gc_and_ls_on_s3(s3_url, capsys):
     capsys.readouterr()
     assert sorted((s, k) for s, k, _ in store.entries()) == [
         ("collide", K1), ("ik", K3), ("source", K1)]
-    assert store.size(store.path("collide", K2)) == 0  # its folder went with its ref
+    assert store.size(store.path("collide", K2)) == 0
     assert main(["store", "ls", "--store", s3_url, "--json"]) == 0
     listing = json.loads(capsys.readouterr().out)
     assert listing["steps"]["collide"]["artifacts"] == 1 and listing["steps"]["ik"]["bytes"] > 0
@@ -230,3 +253,44 @@ def test_a_reader_follows_an_artifact_republished_by_another_process(s3_url):
     art = reader.read("ik", K1)
     assert art.attrs == {"v": 1}
     np.testing.assert_array_equal(art.arrays["q"], _arrays(1)["q"])
+
+
+def _npz_bytes(frames: int) -> bytes:
+    import io
+
+    out = io.BytesIO()
+    np.savez(out, poses=np.zeros((frames, 165)), mocap_frame_rate=np.array(30.0))
+    return out.getvalue()
+
+
+def test_datasets_are_read_from_urls(s3_url, tmp_path, monkeypatch, capsys):
+    """`embody run s3://…` lists and loads a dataset (a prefix, or a CSV manifest object) from
+    a local mirror it keeps up to date by ETag; what is missing or bad is one line naming the
+    object's URL, exit 2, before anything is written."""
+    from embody.cli.run import prepare
+    from embody.config import Config
+    from embody.config.run import RunConfig
+    from embody.io import load_dataset
+    from embody.store.objects import Objects
+
+    monkeypatch.setenv("EMBODY_WORK_DIR", str(tmp_path / "work"))
+    data = Objects(f"{s3_url}/signs")
+    data.put_many({"a.npz": _npz_bytes(4), "sub/b.npz": _npz_bytes(6),
+                   "list.csv": b"path,text\nsub/b.npz,HELLO\n"})
+    local = prepare(f"{s3_url}/signs", None, Config(run=RunConfig(store=str(tmp_path / "s"))))
+    assert local.is_dir() and local.name == "signs"
+    ds = load_dataset(f"{s3_url}/signs")
+    assert ds.ids == ["a", "sub/b"] and ds.get("sub/b").load().num_frames == 6
+    manifest = load_dataset(f"{s3_url}/signs/list.csv")
+    assert manifest.ids == ["sub/b"] and manifest[0].load().meta["text"] == "HELLO"
+    data.put("a.npz", _npz_bytes(9))  # changed upstream: fetched again
+    assert load_dataset(f"{s3_url}/signs").get("a").load().num_frames == 9
+    data.put("bad.csv", b"file,text\na.npz,x\n")
+    capsys.readouterr()
+    store = str(tmp_path / "store")
+    for url, said in [(f"{s3_url}/signs/bad.csv", f"{s3_url}/signs/bad.csv: field 'path'"),
+                      (f"{s3_url}/nothing", f"{s3_url}/nothing: no such object or prefix"),
+                      (f"{s3_url}/signs/a.npz", f"{s3_url}/signs/a.npz: a dataset is a prefix")]:
+        assert main(["run", url, "--store", store]) == 2
+        assert said in capsys.readouterr().err
+    assert not (tmp_path / "store").exists()

@@ -102,6 +102,7 @@ def prepare(dataset: str | None, split: str | None, cfg: Config, overwrite: bool
     configures it once the dataset is accepted); a reused run name of another robot or dataset
     is refused."""
     from embody.io import load_dataset
+    from embody.io.remote import is_url
 
     check_up_front(cfg, dataset)
     from embody.flows.dataset import check_run_reuse, resolve_dataset, run_name
@@ -113,7 +114,7 @@ def prepare(dataset: str | None, split: str | None, cfg: Config, overwrite: bool
         dataset = str(default_dataset(store.work_dir / "data", n=cfg.run.synth_n,
                                       seed=cfg.run.seed))
     path = resolve_dataset(dataset, cfg)
-    load_dataset(path, split, cfg.io)
+    load_dataset(dataset if dataset and is_url(dataset) else path, split, cfg.io)  # errors name URLs
     check_run_reuse(cfg.run.store, run_name(cfg, path, split), path, split, cfg.robot.name,
                     overwrite)
     return path

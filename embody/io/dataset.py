@@ -14,6 +14,7 @@ from embody.config.io import IOConfig
 from embody.errors import InputError
 from embody.io import soke
 from embody.io.loader import MOTION_SUFFIXES, load
+from embody.io.remote import fetch_dataset, is_url, url_of
 from embody.motion import Motion
 
 
@@ -149,12 +150,19 @@ def _manifest(path: Path, limits: IOConfig) -> Dataset:
 
 def load_dataset(path: str | Path, split: str | None = None,
                  limits: IOConfig | None = None) -> Dataset:
-    """A lazy dataset from a folder, a SOKE root (+ `split`), or a `path,text` CSV manifest.
+    """A lazy dataset from a folder, a SOKE root (+ `split`), or a `path,text` CSV manifest;
+    any of them at an object-store URL too (`embody.io.remote`).
 
     `limits` (the `io` config) decides whether split names and manifest paths may point
     outside the dataset's folder; loads use it through `SequenceRef.load(limits)`.
     """
     limits = limits or IOConfig()
+    if is_url(str(path)):  # s3://, gs://, az://: read from its local mirror
+        local = fetch_dataset(str(path))
+        try:
+            return load_dataset(local, split, limits)
+        except InputError as exc:
+            raise url_of(exc, local, str(path)) from None
     path = Path(path)
     if not path.exists():
         raise InputError(path, None, "no such file or directory")
