@@ -10,11 +10,14 @@ torque interpolated linearly. The motor applies
 evaluated by MuJoCo every physics step (an affine position actuator whose control folds the
 feed-forward in: ctrl = q_ref + (τ_ff + kd q̇_ref) / kp, force range = the effort limit), with
 the physics timestep = 1 / control rate and the implicit-in-velocity integrator. The whole
-rollout runs inside MuJoCo (`mujoco.rollout`): no Python per step.
+rollout runs inside MuJoCo (`mujoco.rollout`): no Python per step. Both setups run at the same
+control rate and play the same held reference (`reference`, computed once per sequence; the
+standing replay overrides the legs).
 
 Two setups, each a reduced model built once per robot:
-- fixed base: free joint and leg joints removed (pelvis welded, legs at 0, which is the stance
-  of both robots here); contacts off: self-contacts are counted on the simulated motion.
+- fixed base: free joint and leg joints removed (pelvis welded, legs at 0: with the pelvis
+  welded the legs' pose does not enter the other joints' dynamics); contacts off:
+  self-contacts are counted on the simulated motion.
 - standing: free base on a floor plane, finger joints removed (welded open), contacts only
   between the feet and the floor (elliptic friction, `FOOT_IMPRATIO`, a 2-step contact time
   constant); the legs under the stance controller: stiff PD toward the stance plus the
