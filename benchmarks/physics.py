@@ -11,8 +11,14 @@ once per process, as the run's `warm` builds them). Without --run: every run in 
 
     python benchmarks/physics.py --store DIR [--run RUN ...] [--limit N]
 
+Also, untimed, per sequence: how close the exported samples bring counted geom pairs (the
+kinematic check's pairs, `contacts.collision_model`) and how much the fixed-base replay closes
+those gaps (exported distance minus simulated distance, of the pairs within 10 mm in the export): a
+simulated self-contact needs a pair whose exported clearance is smaller than the closure.
+
 RESULT physics_valid_pct=… palm_p95_mm=… torque_over_samples=… saturated_step_pct=… sim_contacts=…
 zmp_margin_min_mm=… fidelity_loss_pct=… standing_ok_pct=… seconds_per_seq=…
+export_clearance_min_mm=… replay_closure_p99_mm=… replay_closure_max_mm=…
 """
 
 from __future__ import annotations
@@ -22,6 +28,32 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+#: Pairs within this distance (m) are measured for the clearance figures.
+WITHIN = 0.01
+
+
+def pair_distances(robot, q: np.ndarray) -> list[dict[tuple[int, int], float]]:
+    """Per sample of q (T,n): {(geom1, geom2): distance (m)} of the counted pairs within WITHIN
+    (MuJoCo's contact distance, negative inside)."""
+    import mujoco
+
+    from embody.robot.contacts import collision_model
+    model, counted = collision_model(robot, margin=WITHIN)
+    data = mujoco.MjData(model)
+    data.qpos[:] = model.qpos0
+    out = []
+    for qt in q:
+        data.qpos[robot.qpos_adr] = qt
+        mujoco.mj_kinematics(model, data)
+        mujoco.mj_collision(model, data)
+        found: dict[tuple[int, int], float] = {}
+        for g, d in zip(data.contact.geom[: data.ncon].tolist(), data.contact.dist[: data.ncon].tolist()):
+            key = (min(g), max(g))
+            if counted[key] and d < WITHIN:
+                found[key] = min(found.get(key, WITHIN), d)
+        out.append(found)
+    return out
 
 
 def main() -> None:
@@ -44,7 +76,7 @@ def main() -> None:
     from embody.verdicts import physics_valid
 
     runs = args.run or sorted(p.parent.name for p in (Path(args.store) / "runs").glob("*/manifest.json"))
-    rows, palm, cpu = [], [], []
+    rows, palm, cpu, closures = [], [], [], []
     pairs: Counter = Counter()
     steps = saturated = 0
     for run in runs:
@@ -72,6 +104,11 @@ def main() -> None:
             rows.append({"run": run, "id": sid, "valid": physics_valid(m), "kin_loc_mm": kin,
                          "sim_loc_mm": float(m.get("fidelity.location_err_mm", np.nan)), **m})
             palm.append(res.arrays["palm_err_mm"])
+            kin_d, sim_d = pair_distances(robot, q), pair_distances(robot, res.arrays["q_sim"])
+            clear_min = min((d for f in kin_d for d in f.values()), default=WITHIN) * 1000.0
+            closure = [(k[g] - s.get(g, WITHIN)) * 1000.0 for k, s in zip(kin_d, sim_d) for g in k]
+            closures += closure
+            rows[-1]["clear_min_mm"] = clear_min
             pairs.update({(robot.name, *k): v for k, v in sim_contacts(robot, res.arrays["q_sim"])[1].items()})
             steps += m["control_steps"]
             saturated += m["saturated_steps"]
@@ -82,7 +119,8 @@ def main() -> None:
                   f"floor yaw {m['floor_yaw_moment_max_nm']:.0f} N·m) standing={m['standing_holds']} "
                   f"(tilt {m['standing_pelvis_tilt_max_deg']:.1f}°, CoM off {m['standing_com_offset_max_mm']:.0f} mm, "
                   f"foot slip {m['standing_foot_slip_max_mm']:.0f} mm, lift {m['standing_foot_lift_max_mm']:.1f} mm) "
-                  f"loc {rows[-1]['kin_loc_mm']:.1f}->{rows[-1]['sim_loc_mm']:.1f} mm cpu={cpu[-1]:.2f}s",
+                  f"loc {rows[-1]['kin_loc_mm']:.1f}->{rows[-1]['sim_loc_mm']:.1f} mm "
+                  f"clearance min {clear_min:.2f} mm, closure max {max(closure, default=0.0):.2f} mm cpu={cpu[-1]:.2f}s",
                   flush=True)
     if not rows:
         raise SystemExit("no finished sequences")
@@ -101,7 +139,10 @@ def main() -> None:
           f"zmp_margin_min_mm={min(r['zmp_margin_min_mm'] for r in rows):.0f} "
           f"fidelity_loss_pct={100.0 * (sim - kin) / kin:.1f} "
           f"standing_ok_pct={100.0 * np.mean([r['standing_holds'] for r in rows]):.1f} "
-          f"seconds_per_seq={np.mean(cpu):.2f}")
+          f"seconds_per_seq={np.mean(cpu):.2f} "
+          f"export_clearance_min_mm={min(r['clear_min_mm'] for r in rows):.2f} "
+          f"replay_closure_p99_mm={np.percentile(closures, 99) if closures else 0.0:.2f} "
+          f"replay_closure_max_mm={max(closures, default=0.0):.2f}")
 
 
 if __name__ == "__main__":

@@ -148,3 +148,32 @@ def test_standing_holds_still_and_tips_under_a_violent_swing(tmp_path):
     assert fast["zmp_margin_min_mm"] < 0.0
     # and the simulated robot agrees: a foot lifts and the body slides
     assert not fast["standing_holds"] and fast["standing_foot_lift_max_mm"] > 5.0
+
+
+def test_the_reference_holds_each_groups_command_at_its_rate(tmp_path):
+    from embody.physics.replay import reference
+    robot = _arm(tmp_path, limit=100.0, kp=300.0, kd=6.0, rate=500.0)
+    groups = {"shoulder": {"joints": ["shoulder"], "kp": 300.0, "kd": 6.0, "rate_hz": 500.0, "source": "x"},
+              "elbow": {"joints": ["elbow"], "kp": 300.0, "kd": 6.0, "rate_hz": 100.0, "source": "x"}}
+    spec = robot.spec.model_copy(update={"actuation": robot.spec.actuation.model_copy(
+        update={"groups": {k: robot.spec.actuation.groups["arm"].model_copy(update=v) for k, v in groups.items()}})})
+    robot = build_robot("arm2", spec, robot.mjcf_path, str(robot.mjcf_path))
+    q = _slow(seconds=1.0)
+    cmd = commands(robot, q, 50.0)
+    ref = reference(robot, cmd)
+    assert ref.dt == pytest.approx(1 / 500.0) and len(ref.q) == 501  # 1 s at the fastest rate, both ends
+    # the 100 Hz elbow changes every 5th step only, the 500 Hz shoulder every step
+    assert (np.diff(ref.q[:, 1]) != 0).sum() == 100
+    assert (np.diff(ref.q[:, 0]) != 0).sum() == 500
+    # at the 50 Hz samples both are the commands themselves
+    k = np.arange(0, 501, 10)
+    np.testing.assert_allclose(ref.q[k], cmd.q, atol=1e-12)
+    np.testing.assert_allclose(ref.qd[k], cmd.qd, atol=1e-9)
+    np.testing.assert_allclose(ref.tau[k], cmd.tau_ff, atol=1e-9)
+    # between samples: the Hermite spline (shoulder at 3 ms) and the linear feed-forward
+    t = 3 * ref.dt
+    from scipy.interpolate import CubicHermiteSpline
+    spline = CubicHermiteSpline(cmd.times, cmd.q, cmd.qd, axis=0)
+    assert ref.q[3, 0] == pytest.approx(spline(t)[0], abs=1e-12)
+    assert ref.q[3, 1] == pytest.approx(cmd.q[0, 1], abs=1e-12)  # the elbow's 0 ms command, held
+    assert ref.tau[3, 0] == pytest.approx(0.7 * cmd.tau_ff[0, 0] + 0.3 * cmd.tau_ff[1, 0], abs=1e-9)

@@ -143,3 +143,16 @@ def test_sim_contacts_follow_the_kinematic_check_on_planted_poses(g1):
     fixed = replay_fixed(g1, commands(g1, q, FPS))
     figures, pairs = sim_contacts(g1, fixed.q50)
     assert figures["sim_contact_samples"] == 0 and not pairs
+
+
+def test_the_standing_model_collides_only_feet_and_floor(g1):
+    from embody.physics.replay import standing_model
+    rm, _, feet = standing_model(g1)
+    m = rm.model
+    floor = m.geom("physics_floor").id
+    colliding = np.flatnonzero(m.geom_contype | m.geom_conaffinity)
+    assert sorted(colliding.tolist()) == sorted([*feet.tolist(), floor])
+    # the broad phase's per-body masks agree: only the feet's bodies and the world (the floor)
+    bodies = np.flatnonzero(m.body_contype | m.body_conaffinity)
+    assert sorted(bodies.tolist()) == sorted({0, *m.geom_bodyid[feet].tolist()})
+    assert len(bodies) == 3  # world and two feet

@@ -74,3 +74,19 @@ def test_a_broken_mjcf_still_raises_mujocos_error(robot_dir, tmp_path):
     with pytest.raises(ValueError):
         compiled_model(robot_dir / "robot.xml")
     assert not list((tmp_path / "cache").rglob("*.mjb"))
+
+
+def test_models_come_without_the_viewers_bvh_marks_and_simulate_the_same(robot_dir):
+    mjcf = robot_dir / "robot.xml"
+    for model in (compiled_model(mjcf), compiled_model(mjcf)):  # built, then from the MJB
+        assert model.vis.global_.bvactive == 0
+    reference = mujoco.MjModel.from_xml_path(str(mjcf))
+    assert reference.vis.global_.bvactive == 1  # MuJoCo's default, which clears nbvh bytes a step
+    ours, theirs = mujoco.MjData(model), mujoco.MjData(reference)
+    for d in (ours, theirs):
+        d.qvel[0] = 2.0
+    for _ in range(200):
+        mujoco.mj_step(model, ours)
+        mujoco.mj_step(reference, theirs)
+    assert abs(ours.qpos[0]) > 0.1  # it moved
+    np.testing.assert_allclose(ours.qpos, theirs.qpos, atol=1e-12)

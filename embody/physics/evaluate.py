@@ -19,7 +19,7 @@ import numpy as np
 
 from embody.physics.actuation import actuation
 from embody.physics.commands import Commands, commands
-from embody.physics.replay import StandingReplay, replay_fixed, replay_standing, standing_model
+from embody.physics.replay import StandingReplay, reference, replay_fixed, replay_standing, standing_model
 from embody.robot.contacts import contact_pairs, self_collision_contacts
 from embody.robot.dynamics import center_of_mass, polygon_margin, stance_pose, support_polygon, zmp
 from embody.robot.exclusions import ancestors, hand_roots
@@ -189,8 +189,9 @@ def evaluate(robot: Robot, q: np.ndarray, fps: float, human: Any = None, fidelit
                            "torque_over_samples": int(over.any(1).sum()),
                            "torque_over_joint_samples": int(over.sum()),
                            "torque_ratio_max": float(ratio.max(initial=0.0))}
-    # fixed-base replay
-    fixed = replay_fixed(robot, cmd)
+    # fixed-base replay (the reference at the control rate serves both replays)
+    ref = reference(robot, cmd)
+    fixed = replay_fixed(robot, cmd, ref)
     r = fixed.rollout
     sat = np.abs(r.demand) >= r.limit * (1.0 - 1e-9)
     out["control_steps"] = int(len(r.q))
@@ -226,7 +227,7 @@ def evaluate(robot: Robot, q: np.ndarray, fps: float, human: Any = None, fidelit
     out["zmp_margin_min_mm"] = float(margin.min() * 1000.0)
     out["zmp_outside_samples"] = int((margin < 0).sum())
     out["zmp_short_samples"] = int((margin < ZMP_MARGIN).sum())
-    out.update(standing_metrics(robot, replay_standing(robot, cmd)))
+    out.update(standing_metrics(robot, replay_standing(robot, cmd, ref)))
     if human is not None and fidelity_cfg is not None:
         from embody.metrics.embodiments import scored_robot_track
         from embody.metrics.fidelity import compare_with

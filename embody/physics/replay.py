@@ -10,11 +10,14 @@ torque interpolated linearly. The motor applies
 evaluated by MuJoCo every physics step (an affine position actuator whose control folds the
 feed-forward in: ctrl = q_ref + (τ_ff + kd q̇_ref) / kp, force range = the effort limit), with
 the physics timestep = 1 / control rate and the implicit-in-velocity integrator. The whole
-rollout runs inside MuJoCo (`mujoco.rollout`): no Python per step.
+rollout runs inside MuJoCo (`mujoco.rollout`): no Python per step. Both setups run at the same
+control rate and play the same held reference (`reference`, computed once per sequence; the
+standing replay overrides the legs).
 
 Two setups, each a reduced model built once per robot:
-- fixed base: free joint and leg joints removed (pelvis welded, legs at 0, which is the stance
-  of both robots here); contacts off: self-contacts are counted on the simulated motion.
+- fixed base: free joint and leg joints removed (pelvis welded, legs at 0: with the pelvis
+  welded the legs' pose does not enter the other joints' dynamics); contacts off:
+  self-contacts are counted on the simulated motion.
 - standing: free base on a floor plane, finger joints removed (welded open), contacts only
   between the feet and the floor (elliptic friction, `FOOT_IMPRATIO`, a 2-step contact time
   constant); the legs under the stance controller: stiff PD toward the stance plus the
@@ -204,6 +207,10 @@ def standing_model(robot: Robot) -> tuple[ReplayModel, np.ndarray, np.ndarray]:
     contype[floor_geom] = 1
     model.geom_contype[:] = contype
     model.geom_conaffinity[:] = contype
+    # the bodies' collision masks (the OR of their geoms', read by the broad phase) to match
+    body = np.zeros(model.nbody, dtype=np.int32)
+    np.bitwise_or.at(body, model.geom_bodyid, contype)
+    model.body_contype[:] = model.body_conaffinity[:] = body
     model.opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     model.opt.impratio = FOOT_IMPRATIO
     model.geom_solref[feet, 0] = model.geom_solref[floor_geom, 0] = FOOT_TIMECONST_STEPS * model.opt.timestep
@@ -216,23 +223,57 @@ def reference_at(cmd: Commands, times: np.ndarray, rate_hz: np.ndarray
     """q_ref, q̇_ref, τ_ff (K,n) at control-step `times`, each joint's time quantised to its
     group's command rate (a command is held until the next one)."""
     t50 = cmd.times
-    tq = np.floor(times[:, None] * rate_hz[None, :] + 1e-9) / rate_hz[None, :]
-    tq = np.clip(tq, t50[0], t50[-1])
+    n = cmd.q.shape[1]
     if len(t50) < 2:
-        n = len(times)
-        return np.repeat(cmd.q, n, 0), np.repeat(cmd.qd, n, 0), np.repeat(cmd.tau_ff, n, 0)
+        k = len(times)
+        return np.repeat(cmd.q, k, 0), np.repeat(cmd.qd, k, 0), np.repeat(cmd.tau_ff, k, 0)
     spline = CubicHermiteSpline(t50, cmd.q, cmd.qd, axis=0)
     dspline = spline.derivative()
-    if np.all(tq == tq[:, :1]):  # one rate for every joint: evaluate once per time
-        t = tq[:, 0]
-        q, qd = spline(t), dspline(t)
-        tau = np.stack([np.interp(t, t50, cmd.tau_ff[:, j]) for j in range(cmd.q.shape[1])], 1)
-        return q, qd, tau
-    cols = range(cmd.q.shape[1])
-    q = np.stack([spline(tq[:, j])[:, j] for j in cols], 1)
-    qd = np.stack([dspline(tq[:, j])[:, j] for j in cols], 1)
-    tau = np.stack([np.interp(tq[:, j], t50, cmd.tau_ff[:, j]) for j in cols], 1)
+    q, qd, tau = (np.empty((len(times), n)) for _ in range(3))
+    for rate in np.unique(rate_hz):  # one evaluation per command rate, every joint at once
+        cols = np.flatnonzero(rate_hz == rate)
+        t = held_times(times, float(rate), t50)
+        q[:, cols], qd[:, cols] = spline(t)[:, cols], dspline(t)[:, cols]
+        tau[:, cols] = lerp(t50, cmd.tau_ff[:, cols], t)
     return q, qd, tau
+
+
+def held_times(times: np.ndarray, rate_hz: float, t50: np.ndarray) -> np.ndarray:
+    """The time of the command a joint commanded at `rate_hz` holds at each of `times`."""
+    return np.clip(np.floor(times * rate_hz + 1e-9) / rate_hz, t50[0], t50[-1])
+
+
+def lerp(t50: np.ndarray, y: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """y (T,m) sampled at increasing `t50`, linearly interpolated at `t` (K,) inside them."""
+    i = np.clip(np.searchsorted(t50, t, side="right") - 1, 0, len(t50) - 2)
+    w = ((t - t50[i]) / (t50[i + 1] - t50[i]))[:, None]
+    return y[i] * (1.0 - w) + y[i + 1] * w
+
+
+@dataclass(frozen=True)
+class Reference:
+    """The commands as the motors hold them at every control step k (time k·dt): q_ref, q̇_ref,
+    τ_ff (K,n, every robot joint). Both replays run at the same control rate and play the same
+    reference (the standing one overrides the legs), so it is computed once."""
+
+    dt: float
+    q: np.ndarray
+    qd: np.ndarray
+    tau: np.ndarray
+
+    @property
+    def times(self) -> np.ndarray:
+        return np.arange(len(self.q)) * self.dt
+
+
+def reference(robot: Robot, cmd: Commands) -> Reference:
+    """`cmd` at every control step of the robot's control rate, both ends included."""
+    act = actuation(robot)
+    dt = 1.0 / act.control_rate_hz
+    duration = (len(cmd.q) - 1) / cmd.fps
+    steps = int(np.floor(duration / dt + 1e-9)) + 1
+    q, qd, tau = reference_at(cmd, np.arange(steps) * dt, act.rate_hz)
+    return Reference(dt=dt, q=q, qd=qd, tau=tau)
 
 
 @dataclass(frozen=True)
@@ -251,21 +292,16 @@ class Rollout:
     qpos: np.ndarray
 
 
-def _roll(robot: Robot, rm: ReplayModel, cmd: Commands, qpos0: np.ndarray,
-          extra: np.ndarray | None = None) -> Rollout:
-    """Roll `cmd` out on replay model `rm` from `qpos0` (reference at t=0 on the driven joints);
-    `extra` (m,) feed-forward added to every step (the stance torques)."""
-    act = actuation(robot)
+def _roll(rm: ReplayModel, ref: Reference, qpos0: np.ndarray) -> Rollout:
+    """Roll the reference out on replay model `rm` (its driven joints' columns) from `qpos0`,
+    the driven joints starting at the reference's first step."""
     model = rm.model
     dt = float(model.opt.timestep)
-    duration = (len(cmd.q) - 1) / cmd.fps
-    steps = int(np.floor(duration / dt + 1e-9)) + 1
-    times = np.arange(steps) * dt
-    q_ref, qd_ref, tau = reference_at(cmd, times, act.rate_hz)
+    if not np.isclose(dt, ref.dt):
+        raise ValueError(f"reference at {1 / ref.dt:g} Hz for a replay model at {1 / dt:g} Hz")
     j = rm.joints
-    q_ref, qd_ref, tau = q_ref[:, j], qd_ref[:, j], tau[:, j]
-    if extra is not None:
-        tau = tau + extra
+    q_ref, qd_ref, tau = ref.q[:, j], ref.qd[:, j], ref.tau[:, j]
+    steps = len(q_ref)
     kp, kd = rm.kp, rm.kd
     ctrl = q_ref + (tau + kd * qd_ref) / kp
     data = mujoco.MjData(model)
@@ -297,10 +333,10 @@ class FixedBaseReplay:
     q50: np.ndarray
 
 
-def replay_fixed(robot: Robot, cmd: Commands) -> FixedBaseReplay:
-    """The commands played with the pelvis welded."""
+def replay_fixed(robot: Robot, cmd: Commands, ref: Reference | None = None) -> FixedBaseReplay:
+    """The commands played with the pelvis welded (`ref`: `reference(robot, cmd)` if known)."""
     rm = fixed_model(robot)
-    r = _roll(robot, rm, cmd, rm.model.qpos0.copy())
+    r = _roll(rm, reference(robot, cmd) if ref is None else ref, rm.model.qpos0.copy())
     return FixedBaseReplay(rollout=r, q50=_at_samples(r, cmd))
 
 
@@ -447,51 +483,69 @@ class StandingReplay:
     support: StanceSupport
 
 
-def replay_standing(robot: Robot, cmd: Commands) -> StandingReplay:
+def replay_standing(robot: Robot, cmd: Commands, ref: Reference | None = None) -> StandingReplay:
     """The commands played on the robot standing on the floor: arms, waist (and every other
     non-leg joint except the fingers) follow the commands; the legs hold the stance pose under
     PD at the YAML's `actuation.stance` gains (else their group's) plus the feed-forward of the
-    feet carrying the moving body (`stance_torques`)."""
+    feet carrying the moving body (`stance_torques`). `ref`: `reference(robot, cmd)` if known."""
     rm, qpos0, feet = standing_model(robot)
+    ref = reference(robot, cmd) if ref is None else ref
     legs = leg_joints(robot)[rm.joints]
-    stand = stance_pose(robot)
-    held = Commands(fps=cmd.fps, q=cmd.q.copy(), qd=cmd.qd.copy(), tau_ff=cmd.tau_ff.copy(),
-                    kp=cmd.kp, kd=cmd.kd)
     leg_cols = rm.joints[legs]
-    held.q[:, leg_cols] = stand[leg_cols]
-    held.qd[:, leg_cols] = 0.0
-    support = stance_torques(robot, rm, qpos0, feet, held.q[:, rm.joints], cmd.fps)
-    held.tau_ff[:, leg_cols] = support.torque[:, legs]
-    r = _roll(robot, rm, held, qpos0)
+    stand = stance_pose(robot)
+    q50 = cmd.q.copy()
+    q50[:, leg_cols] = stand[leg_cols]
+    support = stance_torques(robot, rm, qpos0, feet, q50[:, rm.joints], cmd.fps)
+    # the legs commanded to the stance, at rest, with the stance feed-forward held at their rate
+    q, qd, tau = ref.q.copy(), ref.qd.copy(), ref.tau.copy()
+    q[:, leg_cols], qd[:, leg_cols] = stand[leg_cols], 0.0
+    if len(cmd.q) < 2:
+        tau[:, leg_cols] = support.torque[:1, legs]
+    else:
+        rate = actuation(robot).rate_hz
+        for r in np.unique(rate[leg_cols]):
+            cols = np.flatnonzero(legs & (rate[rm.joints] == r))
+            tau[:, rm.joints[cols]] = lerp(cmd.times, support.torque[:, cols],
+                                           held_times(ref.times, float(r), cmd.times))
+    r = _roll(rm, Reference(dt=ref.dt, q=q, qd=qd, tau=tau), qpos0)
+    return _standing_figures(robot, rm, feet, r, cmd, support)
+
+
+def _standing_figures(robot: Robot, rm: ReplayModel, feet: np.ndarray, r: Rollout, cmd: Commands,
+                      support: StanceSupport) -> StandingReplay:
+    """How the simulated robot stood at the 50 Hz samples (`StandingReplay`'s figures)."""
     k = np.minimum(np.round(cmd.times / r.dt).astype(int), len(r.qpos) - 1)
     model = rm.model
     data = mujoco.MjData(model)
-    n = len(k)
-    tilt, drift, drop, com = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
-    bodies = sorted({int(model.geom_bodyid[g]) for g in feet})
-    ftilt, flift, fslip = (np.zeros((n, len(bodies))) for _ in range(3))
     root = model.body(robot.spec.root_body).id
-    data.qpos[:] = r.qpos[0]
-    mujoco.mj_kinematics(model, data)
-    p0 = data.xpos[root].copy()
-    z0 = data.geom_xpos[feet, 2].copy()
-    f0 = data.xpos[bodies, :2].copy()
-    up0 = data.xmat[root].reshape(3, 3)[:, 2].copy()  # z axes at the start
-    fup0 = data.xmat[bodies].reshape(-1, 3, 3)[:, :, 2].copy()
+    bodies = np.array(sorted({int(model.geom_bodyid[g]) for g in feet}))
     owner = model.geom_bodyid[feet]
     mass = np.where(model.body_rootid == root, model.body_mass, 0.0)
-    for i, s in enumerate(k):
+    # the kinematics of every sample (the first step, then the samples), gathered once
+    n = len(k) + 1
+    base_pos, base_z = np.empty((n, 3)), np.empty((n, 3))
+    foot_xy, foot_z = np.empty((n, len(bodies), 2)), np.empty((n, len(bodies), 3))
+    geom_z, com = np.empty((n, len(feet))), np.empty((n, 2))
+    for i, s in enumerate(np.concatenate([[0], k])):
         data.qpos[:] = r.qpos[s]
         mujoco.mj_kinematics(model, data)
-        com[i] = np.linalg.norm(mass @ data.xipos[:, :2] / mass.sum() - support.com[i, :2])
-        tilt[i] = np.arccos(np.clip(data.xmat[root].reshape(3, 3)[:, 2] @ up0, -1.0, 1.0))
-        drift[i] = np.linalg.norm(data.xpos[root, :2] - p0[:2])
-        drop[i] = p0[2] - data.xpos[root, 2]
-        fslip[i] = np.linalg.norm(data.xpos[bodies, :2] - f0, axis=1)
-        up = data.xmat[bodies].reshape(-1, 3, 3)[:, :, 2]
-        ftilt[i] = np.arccos(np.clip((up * fup0).sum(1), -1.0, 1.0))
-        for c, b in enumerate(bodies):
-            flift[i, c] = np.max((data.geom_xpos[feet, 2] - z0)[owner == b])
-    return StandingReplay(rollout=r, pelvis_tilt=tilt, pelvis_drift=drift, pelvis_drop=drop,
-                          foot_tilt=ftilt, foot_lift=flift, foot_slip=fslip, com_offset=com,
-                          support=support)
+        base_pos[i] = data.xpos[root]
+        base_z[i] = data.xmat[root, 2::3]  # the body's z axis (third column)
+        foot_xy[i] = data.xpos[bodies, :2]
+        foot_z[i] = data.xmat[bodies, 2::3]
+        geom_z[i] = data.geom_xpos[feet, 2]
+        com[i] = mass @ data.xipos[:, :2]
+    com = com[1:] / mass.sum()
+    p0, up0, f0, fup0, z0 = base_pos[0], base_z[0], foot_xy[0], foot_z[0], geom_z[0]
+    base_pos, base_z, foot_xy, foot_z, geom_z = base_pos[1:], base_z[1:], foot_xy[1:], foot_z[1:], geom_z[1:]
+    rise = geom_z - z0
+    return StandingReplay(
+        rollout=r,
+        pelvis_tilt=np.arccos(np.clip(base_z @ up0, -1.0, 1.0)),
+        pelvis_drift=np.linalg.norm(base_pos[:, :2] - p0[:2], axis=1),
+        pelvis_drop=p0[2] - base_pos[:, 2],
+        foot_tilt=np.arccos(np.clip((foot_z * fup0).sum(-1), -1.0, 1.0)),
+        foot_lift=np.stack([rise[:, owner == b].max(1) for b in bodies], axis=1),
+        foot_slip=np.linalg.norm(foot_xy - f0, axis=-1),
+        com_offset=np.linalg.norm(com - support.com[:, :2], axis=1),
+        support=support)
