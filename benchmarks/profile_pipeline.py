@@ -2,7 +2,9 @@
 
 All figures are CPU seconds (`time.process_time`: this process's threads, so llvmpipe's render
 threads count, the ffmpeg encoder child does not), which a loaded shared machine inflates far
-less than wall time; wall seconds per step are printed beside them.
+less than wall time; wall seconds per step are printed beside them. Torch runs on one thread, as
+in the pipeline's workers. Compiled kernels load from numba's cache: run it once in a fresh
+checkout before quoting figures (the first run compiles them inside the steps it times).
 
 The flow runs steps in Prefect worker threads, which cProfile does not follow; this script runs
 the flow's own step functions (`embody.tasks.stages`, through `tasks.execute.run_batch` with the
@@ -79,6 +81,9 @@ def main() -> None:
 
     store = args.store or Path(tempfile.mkdtemp(prefix="embody-prof-"))
     configure(store)
+    import torch
+    torch.set_num_threads(1)  # as each pipeline worker (`tasks.workers`): a second intra-op thread
+    # only spins at the barriers of the steps' many small torch ops (the IK's chain FK: ~2x its CPU)
     cfg = Config.model_validate({"run": {"store": str(store), "name": "profile"}})
     data = default_dataset(store / "data")
     refs = list(load_dataset(data))[: args.n]

@@ -59,6 +59,24 @@ def test_finger_targets_stop_where_the_fingers_meet(robot):
     np.testing.assert_allclose(out[1], flat, atol=0)  # a clear hand keeps its targets
 
 
+def test_a_second_clearance_solves_only_the_frames_that_changed(robot):
+    names = robot.hand_joint_names("left") + robot.hand_joint_names("right")
+    # a pinch closing over 8 frames: its last frames need the clearance
+    hand_q = np.stack([np.r_[PINCH * f, np.zeros(7)] for f in np.linspace(0.3, 1.0, 8)])
+    first = clear_fingers(robot, hand_q, names)
+    assert np.abs(first - hand_q).max() > 0.02
+    changed = first.copy()
+    changed[6, :7] = PINCH  # one frame put back into the thumb-through-index pose
+    again = clear_fingers(robot, changed, names, cleared=first)
+    keep = np.r_[0:6]
+    np.testing.assert_allclose(again[keep], first[keep], atol=1e-12)  # frames before it untouched
+    q = np.stack([_pose(robot, again[t, :7]) for t in range(len(again))])
+    assert (self_collision_contacts(robot, q) == 0).all()  # the changed frame is cleared again
+    assert np.abs(again[6, :7] - PINCH).max() > 0.02
+    full = clear_fingers(robot, changed, names)  # the same as clearing every frame again
+    np.testing.assert_allclose(again[6], full[6], atol=1e-3)
+
+
 def test_repair_separates_the_fingers(robot):
     q = np.repeat(_pose(robot, PINCH)[None], 12, axis=0)
     fixed = separate(robot, q, 30.0)

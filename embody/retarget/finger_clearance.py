@@ -31,11 +31,10 @@ CLEARANCE = 0.002
 WEIGHT = 1e7
 #: Gauss-Newton iterations per frame and hand at most.
 ITERATIONS = 40
-#: Pairs closer than clearance + this (m) are followed, so a step that overshoots the clearance
-#: comes back to it (the joint term pulls the fingers towards the target until they meet).
-WATCH = 0.01
 #: A frame's solve ends at an accepted step smaller than this (rad) on every joint.
 STEP = 1e-3
+#: Frames a robot's memo of solved frames keeps (per clearance) before it starts afresh.
+MEMO_FRAMES = 100_000
 
 
 class FingerClearance:
@@ -49,6 +48,11 @@ class FingerClearance:
         models, self.counted = robot.derived[key]
         #: per hand: its collision model, one MjData and its finger joints
         self.hands = [(m, mujoco.MjData(m), cols) for m, cols in models]
+        #: the robot's solved frames, by content: (hand, finger values) when clear as they are,
+        #: (hand, finger values, the previous frame's) otherwise. A sequence's targets are built
+        #: twice with the same finger targets (the retarget step's and the metrics step's IK-only
+        #: baseline, whose targets differ elsewhere), and the second build finds them here.
+        self.memo: dict[tuple, np.ndarray | None] = robot.derived.setdefault(("finger_clearance_memo", float(clearance)), {})
         m = robot.model
         self.jac1 = np.zeros((3, m.nv))
         self.jac2 = np.zeros((3, m.nv))
@@ -56,8 +60,10 @@ class FingerClearance:
 
     @staticmethod
     def _tables(robot: Robot, clearance: float) -> tuple[list[tuple[mujoco.MjModel, np.ndarray]], np.ndarray]:
-        """Per hand, a model in which only that hand's counted pairs collide (margin clearance +
-        `WATCH`) and its finger joints (indices into the robot's joints); the counted table."""
+        """Per hand, a model in which only that hand's counted pairs collide, with the clearance as
+        their margin (MuJoCo reports the pairs closer than it: the only ones the cost sees, and a
+        wider margin costs ~3x the narrow phase a call), and its finger joints (indices into the
+        robot's joints); the counted table."""
         counted = counted_geom_pairs(robot)
         hands = []
         for root in hand_roots(robot.model, robot.spec):
@@ -68,43 +74,57 @@ class FingerClearance:
             used = inside & (counted & inside[None, :]).any(1)
             m.geom_contype[used] = 1
             m.geom_conaffinity[used] = 1
-            m.geom_margin[used] = clearance + WATCH
+            m.geom_margin[used] = clearance
             side = next(s for s in robot.spec.hands
                         if any(root in ancestors(m, int(m.jnt_bodyid[m.joint(j).id]))
                                for j in robot.hand_joint_names(s)))
             hands.append((m, np.array([robot.joint_index(n) for n in robot.hand_joint_names(side)])))
         return hands, counted
 
-    def _contacts(self, hand: int, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Signed distances (K,) below clearance + `WATCH` of the counted pairs at joint values q
-        (n,) in hand `hand`, and their rates (K, H) over its finger joints."""
-        m, d, cols = self.hands[hand]
+    def _distances(self, hand: int, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances (K,) below the clearance of the counted pairs at joint values q (n,) in
+        hand `hand`, and their indices into the hand's MjData contacts."""
+        m, d, _ = self.hands[hand]
         d.qpos[self.robot.qpos_adr] = q
         mujoco.mj_kinematics(m, d)
         mujoco.mj_collision(m, d)
         n = d.ncon
         if not n:
-            return np.zeros(0), np.zeros((0, len(cols)))
+            return np.zeros(0), np.zeros(0, dtype=int)
         geom, dist = d.contact.geom[:n], d.contact.dist[:n]
-        hit = np.flatnonzero((dist < self.clearance + WATCH) & self.counted[geom[:, 0], geom[:, 1]])
+        hit = np.flatnonzero((dist < self.clearance) & self.counted[geom[:, 0], geom[:, 1]])
+        return dist[hit].copy(), hit
+
+    def _rates(self, hand: int, hit: np.ndarray) -> np.ndarray:
+        """Rates (K, H) of the distances of contacts `hit` (from the last `_distances` of hand
+        `hand`) over its finger joints: n_iᵀ(J₂ − J₁)."""
+        m, d, cols = self.hands[hand]
+        rates = np.zeros((len(hit), len(cols)))
         if not len(hit):
-            return np.zeros(0), np.zeros((0, len(cols)))
+            return rates
         mujoco.mj_comPos(m, d)
         dof = self.dof[cols]
-        rates = np.zeros((len(hit), len(cols)))
+        geom = d.contact.geom
         for k, i in enumerate(hit):
             b1, b2 = m.geom_bodyid[geom[i, 0]], m.geom_bodyid[geom[i, 1]]
             mujoco.mj_jac(m, d, self.jac1, None, d.contact.pos[i], b1)
             mujoco.mj_jac(m, d, self.jac2, None, d.contact.pos[i], b2)
             rates[k] = d.contact.frame[i, :3] @ (self.jac2 - self.jac1)[:, dof]
-        return dist[hit].copy(), rates
+        return rates
+
+    def _contacts(self, hand: int, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Signed distances (K,) below the clearance of the counted pairs at joint values q (n,) in
+        hand `hand`, and their rates (K, H) over its finger joints."""
+        dist, hit = self._distances(hand, q)
+        return dist, self._rates(hand, hit)
 
     def _cost(self, hand: int, q: np.ndarray, target: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
+        """The frame's cost at q, the missing clearance (S,) of the pairs short of it and their
+        rates (S, H)."""
         cols = self.hands[hand][2]
-        dist, rates = self._contacts(hand, q)
-        short = np.maximum(self.clearance - dist, 0.0)
-        rates = rates * (short > 0)[:, None]
-        return float(((q[cols] - target) ** 2).sum() + WEIGHT * (short**2).sum()), short, rates
+        dist, hit = self._distances(hand, q)
+        short = self.clearance - dist
+        return float(((q[cols] - target) ** 2).sum() + WEIGHT * (short**2).sum()), short, self._rates(hand, hit)
 
     def solve_frame(self, hand: int, q: np.ndarray, start: np.ndarray | None = None) -> np.ndarray | None:
         """q (n,) with hand `hand`'s finger joints moved the least that clears its pairs, or None
@@ -115,7 +135,7 @@ class FingerClearance:
         target = q[cols].copy()
         lo, hi = self.robot.lower[cols], self.robot.upper[cols]
         cost, short, rates = self._cost(hand, q, target)
-        if not short.any():
+        if not len(short):
             return None
         if start is not None:
             q[cols] = np.clip(start, lo, hi)
@@ -146,13 +166,17 @@ class FingerClearance:
         x = q.copy()
         for f in (0.25, 0.5, 0.75):
             x[cols] = (1.0 - f) * a + f * b
-            dist, _ = self._contacts(hand, x)
+            dist, _ = self._distances(hand, x)
             if (dist < 0).any():
                 return True
         return False
 
-    def apply(self, hand_q: np.ndarray, hand_joints: list[str]) -> np.ndarray:
-        """Finger targets (T,H) in `hand_joints` order, each frame's hands out of contact."""
+    def apply(self, hand_q: np.ndarray, hand_joints: list[str], cleared: np.ndarray | None = None) -> np.ndarray:
+        """Finger targets (T,H) in `hand_joints` order, each frame's hands out of contact.
+        `cleared` (T,H): what a clearance returned for these frames before they were changed
+        (the rate limit of `targets.build_targets` changes a few): a hand's frames equal to it
+        keep their values, unless the frame before them changed (its side of a finger is
+        checked again), so only the changed frames are solved again."""
         out = np.array(hand_q, dtype=np.float64, copy=True)
         if not len(out) or not self.hands:
             return out
@@ -163,8 +187,22 @@ class FingerClearance:
         for hand, (_, _, cols) in enumerate(self.hands):
             if not all(j in where for j in cols):
                 continue  # a hand retargeted only in part keeps its targets
-            slots, last = [where[j] for j in cols], None
-            for t in range(len(out)):
+            slots = [where[j] for j in cols]
+            frames = np.arange(len(out))
+            if cleared is not None:
+                changed = (out[:, slots] != np.asarray(cleared)[:, slots]).any(1)
+                frames = np.flatnonzero(changed | np.r_[False, changed[:-1]])
+            for t in frames:
+                last = out[t - 1, slots] if t else None
+                key = (hand, out[t, slots].tobytes())
+                if key in self.memo:
+                    continue  # clear as it is
+                full = (*key, b"" if last is None else last.tobytes())
+                if full in self.memo:
+                    out[t, slots] = self.memo[full]
+                    continue
+                if len(self.memo) > MEMO_FRAMES:
+                    self.memo.clear()
                 qt = self.solve_frame(hand, q[t])
                 if qt is not None and last is not None and self._crosses(hand, q[t], last, qt[cols]):
                     # the nearest clear pose lies on the other side of a finger than the last
@@ -172,16 +210,19 @@ class FingerClearance:
                     kept = self.solve_frame(hand, q[t], start=last)
                     if kept is not None and not self._crosses(hand, q[t], last, kept[cols]):
                         qt = kept
-                if qt is not None:
+                if qt is None:
+                    self.memo[key] = None
+                else:
                     out[t, slots] = qt[cols]
-                last = out[t, slots]
+                    self.memo[full] = out[t, slots]
         return out
 
 
 def clear_fingers(robot: Robot, hand_q: np.ndarray, hand_joints: list[str],
-                  clearance: float = CLEARANCE) -> np.ndarray:
+                  clearance: float = CLEARANCE, cleared: np.ndarray | None = None) -> np.ndarray:
     """`hand_q` (T,H) with every frame's fingers clear of each other and of their palm by
-    `clearance`, each changed the least (module docstring)."""
+    `clearance`, each changed the least (module docstring). `cleared`: the clearance's earlier
+    result for frames of which only some have changed since (`FingerClearance.apply`)."""
     if not hand_joints:
         return np.array(hand_q, dtype=np.float64, copy=True)
-    return FingerClearance(robot, clearance).apply(hand_q, hand_joints)
+    return FingerClearance(robot, clearance).apply(hand_q, hand_joints, cleared)

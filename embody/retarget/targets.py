@@ -368,12 +368,14 @@ def build_targets(motion: Motion, body: BodyModel, fit: ShapeFit, robot: Robot,
         # fingers the robot can follow: the IK places the arms around the fingers it will get
         vmax = robot.velocity_limits[[robot.joint_index(n) for n in hand_joints]] * (1.0 - cfg.velocity_headroom)
         for _ in range(RATE_CLEAR_ROUNDS if clearance else 1):
-            hand_q = rate_limit(hand_q, vmax, motion.fps)
+            limited = rate_limit(hand_q, vmax, motion.fps)
             if clearance:
                 # a finger slowed down on its way past another passes through it (synth seqs 0/5:
                 # 15-18 frames up to 18 mm, which the contact repair then pushed apart at the
-                # velocity limit, 5-10x the solve time): clear those frames, limit again
-                hand_q = clear_fingers(robot, hand_q, hand_joints)
+                # velocity limit, 5-10x the solve time): clear those frames, limit again (the
+                # frames the limit left alone are clear already)
+                limited = clear_fingers(robot, limited, hand_joints, cleared=hand_q)
+            hand_q = limited
     if preserving:
         anchored = anchored_targets(motion, body, fit, robot, wrist_rot, torso_rot, hand_q, hand_joints, cfg,
                                     human)
