@@ -18,6 +18,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from embody.cli import main
 from embody.store import ArtifactStore, Manifest
 from embody.store.writers import locked
 from s3_server import s3_endpoint, s3_url, store_root  # noqa: F401 (fixtures)
@@ -114,7 +115,7 @@ def _write(folder: Path, n: int, frames: int = 4) -> Path:
 
 @pytest.mark.parametrize("store_root", ["local", "s3"], indirect=True)
 def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp_path,
-                                                           store_root):
+                                                           store_root, capsys, monkeypatch):
     data = _write(tmp_path / "data", 8)
     store = store_root
     env = dict(os.environ, EMBODY_WORK_DIR=str(tmp_path / "work"), PREFECT_API_URL=prefect_harness,
@@ -143,7 +144,7 @@ def test_three_concurrent_runs_of_one_name_lose_no_sequence(prefect_harness, tmp
     rows = ArtifactStore(store).computations()
     published = Counter((r["step"], r.get("sequence")) for r in rows if r.get("published"))
     assert set(published.values()) == {1} and len(published) == 8 * len(steps) + 1
-    verify = subprocess.run([*EMBODY, "store", "verify", "--store", store, "--json"], env=env,
-                            capture_output=True, text=True)
-    assert verify.returncode == 0, verify.stderr
-    assert json.loads(verify.stdout) == {"checked": 8 * len(steps) + 1, "corrupt": []}
+    monkeypatch.setenv("EMBODY_WORK_DIR", env["EMBODY_WORK_DIR"])
+    capsys.readouterr()
+    assert main(["store", "verify", "--store", store, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == {"checked": 8 * len(steps) + 1, "corrupt": []}
