@@ -530,14 +530,53 @@ def _touching(robot: Robot, x: np.ndarray, rows: np.ndarray, prior: np.ndarray) 
     return (self_collision_contacts(robot, x[rows]) > 0) & ~prior[rows]
 
 
-def _local_start(prob: "_Problem", q: np.ndarray, ev: dict[str, np.ndarray], prior: np.ndarray
+#: Half width (s) of the hat a contact push in the start is spread over.
+PUSH_HAT_S = 0.2
+#: Width (Gaussian σ, samples) of the low-pass applied to a contact push.
+PUSH_SIGMA = 2.0
+#: Trust radii (deg) and passes per radius of a push: the repair's small radii only (its full
+#: ladder, up to an unbounded push, cost over 100 CPU-s on synth seq 17 under load).
+PUSH_TRUST_DEG = (5.0, 10.0)
+PUSH_PASSES = 6
+
+
+def _push_clear(prob: "_Problem", trial: np.ndarray, touch: np.ndarray, prior: np.ndarray, rate: float,
+                box_margin: float, velocity_margin: float) -> np.ndarray | None:
+    """trial with its `touch` samples pushed clear by the contact repair (`control.separate_checked`
+    on a wide hat, the push low-passed as the motion is: its hat's kinks are accelerations), or
+    None when no small push clears them."""
+    from scipy.ndimage import gaussian_filter1d
+
+    from embody.retarget.control import separate_checked
+    mov = prob.movable
+    kw = {"box_margin": box_margin, "velocity_margin": velocity_margin, "touching": touch,
+          "enforce_velocity": False, "blend_s": PUSH_HAT_S, "passes": PUSH_PASSES}
+    pushed = trial
+    for _push in range(3):
+        step, clear = separate_checked(prob.robot, pushed, rate, trust_deg=PUSH_TRUST_DEG, **kw)
+        if not clear:
+            return None
+        pushed = pushed + gaussian_filter1d(step - pushed, PUSH_SIGMA, axis=0, mode="nearest")
+        pushed[:, mov] = np.clip(pushed[:, mov], prob.lower[mov], prob.upper[mov])
+        pushed = clamp_velocity(pushed, prob.robot.velocity_limits * (1.0 - velocity_margin), rate)
+        moved = np.flatnonzero(np.abs(pushed - trial).max(1) > 0)
+        kw["touching"] = np.zeros(len(trial), dtype=bool)
+        kw["touching"][moved] = _touching(prob.robot, pushed, moved, prior)
+        if not kw["touching"].any():
+            return pushed
+    return None
+
+
+def _local_start(prob: "_Problem", q: np.ndarray, ev: dict[str, np.ndarray], prior: np.ndarray,
+                 rate: float, box_margin: float, velocity_margin: float
                  ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """The solve's start: around each failing sample, only the joint groups at fault
     (`_Problem.culprits`: the overloaded joint's own group; for the ZMP the arms and the waist)
     low-passed, the width raised sample by sample (`SIGMAS`) until the sample passes; a group at
     its widest that still fails brings in the groups it escalates to (fingers: their arm). A
-    sample the low-pass makes touch (MuJoCo; q had it clear: `prior`) sends the widths of the
-    groups that made it back one step, capped there (the Gauss-Newton's contact rows take over). Then each changed region keeps the smallest share of its change that
+    sample the low-pass makes touch (MuJoCo; q had it clear: `prior`) gets a small push
+    (`_push_clear`, kept under later widths); where none clears it, the widths of the groups
+    that made it go back one step, capped there (the Gauss-Newton's contact rows take over). Then each changed region keeps the smallest share of its change that
     still passes (`SHARES`). MuJoCo checks only the samples each step changed."""
     from scipy.ndimage import gaussian_filter1d
 
@@ -547,6 +586,8 @@ def _local_start(prob: "_Problem", q: np.ndarray, ev: dict[str, np.ndarray], pri
     level = np.zeros((len(q), n_groups), dtype=np.int64)
     cap = np.full((len(q), n_groups), len(SIGMAS), dtype=np.int64)
     x = q
+    push = np.zeros_like(q)  # the contact pushes so far, kept on top of every later blend
+    hopeless = np.zeros(len(q), dtype=bool)  # samples no push cleared
     for _ in range(3 * len(SIGMAS)):
         want = prob.culprits(ev)
         maxed = want & (level >= cap)
@@ -562,28 +603,35 @@ def _local_start(prob: "_Problem", q: np.ndarray, ev: dict[str, np.ndarray], pri
                 if at.any():
                     grow = _dilate(at, int(np.ceil(3.0 * SIGMAS[k - 1])))
                     level[grow, g] = np.minimum(np.maximum(level[grow, g], k), cap[grow, g])
-        trial = _blend(prob, q, passes, level)
+        trial = np.clip(_blend(prob, q, passes, level) + push, prob.lower, prob.upper)
         changed = np.flatnonzero(np.abs(trial - x).max(1) > 0)
         touch = np.zeros(len(q), dtype=bool)
         touch[changed] = _touching(prob.robot, trial, changed, prior)
         log.debug("start round: %d bad, %d changed, %d touching", int(bad.any(1).sum()), len(changed),
                   int(touch.sum()))
         if touch.any():
-            # the widths that made it go back a step and stay there (small contact pushes on top,
-            # tried on seqs 0 and 1, cleared none of these and cost 10 CPU-s)
             near = _dilate(touch, int(np.ceil(3.0 * SIGMAS[0])))
+            if not hopeless[touch].any():  # a push that failed there once is not tried again
+                pushed = _push_clear(prob, trial, touch, prior, rate, box_margin, velocity_margin)
+                if pushed is not None:
+                    push += pushed - trial
+                    x = pushed
+                    ev = prob.evaluate(x, ev)
+                    continue
+                hopeless |= _dilate(touch, int(np.ceil(3.0 * SIGMAS[-1])))
+            # no small push clears it: the widths that made it go back a step and stay there
             rows = np.flatnonzero(touch)
             culprit = np.zeros(n_groups, dtype=bool)
             for g in np.flatnonzero(bad[near].any(0)):  # the groups widened there this round
                 back = level.copy()
                 back[near, g] = np.maximum(back[near, g] - 1, 0)
-                culprit[g] = not _touching(prob.robot, _blend(prob, q, passes, back), rows, prior).any()
+                culprit[g] = not _touching(prob.robot, np.clip(_blend(prob, q, passes, back) + push, prob.lower, prob.upper), rows, prior).any()
             if not culprit.any():
                 culprit[:] = True
             for g in np.flatnonzero(culprit):
                 level[near, g] = np.maximum(level[near, g] - 1, 0)
                 cap[near, g] = np.minimum(cap[near, g], level[near, g])
-            trial = _blend(prob, q, passes, level)
+            trial = np.clip(_blend(prob, q, passes, level) + push, prob.lower, prob.upper)
             changed = np.flatnonzero(np.abs(trial - x).max(1) > 0)
             if _touching(prob.robot, trial, changed, prior).any():
                 continue
@@ -617,7 +665,7 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
         return q, True
     reach = max(1, int(round(REACH_S * rate)))
     prior = np.zeros(len(q), dtype=bool) if touching is None else np.asarray(touching, dtype=bool)
-    x, ev = _local_start(prob, q, ev, prior)
+    x, ev = _local_start(prob, q, ev, prior, rate, box_margin, velocity_margin)
     log.debug("start: %d changed, %d failing", int((np.abs(x - q).max(1) > 0).sum()),
               int(prob.failing(ev).sum()))
     if not prob.failing(ev).any():
