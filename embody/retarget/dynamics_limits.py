@@ -9,30 +9,33 @@ the chain guaranteed kept in the same problem.
 The torque is that of the curve the robot is commanded along: the natural cubic spline through
 the samples, whose slopes and inverse dynamics the export sends as q̇ and feed-forward
 (`physics.commands`, `dynamics.spline_derivatives`), so a limit held here holds in the replay.
-Per joint the motor must give, within `torque_fraction` of its effort limit,
 
-    |τ_rigid| + friction + kd·|q̈|/rate
+What the solve acts on is what the validation and the physics replay refuse, by their own
+definitions (`_Problem.failing_joints`): a sample whose exported feed-forward (rigid-body torque
+plus the dry friction at the spline's slope) plus the PD's share while the joint's velocity
+trails an accelerating reference by one command period (kd·|q̈|/rate, `_velocity_lag`: the
+replay saturates there) passes a joint's effort limit itself; a cart-table ZMP
+(`robot.dynamics.zmp`) closer than `zmp_margin` to the feet's edge; a velocity step past the
+limit. A trajectory with none comes back unchanged (the same array): sign fidelity pays only
+where the robot could not have executed the motion.
 
-the fixed-base free-motion inverse dynamics τ = M(q)q̈ + h(q, q̇) at the spline's q̇, q̈, the
-joint's dry friction (`frictionloss`, either sign) and the damping's share while the joint's
-velocity trails an accelerating reference by one command period (`_velocity_lag`). Balance:
-the cart-table ZMP (`robot.dynamics.zmp`) `zmp_margin` inside the feet's polygon.
-
-The excesses of retargeted sign motion are high-frequency (a 50 Hz zig-zag, the kinks of a
-30 → 50 Hz resample), so the solve starts from the trajectory low-passed around the samples past
-a limit, the width raised region by region until none is (`_smooth_start`), MuJoCo's contacts
-kept clear by low-passed pushes. Where that leaves a limit violated, a sequential convex
-refinement follows:
+Where it must act, the excesses of retargeted sign motion are high-frequency (a 50 Hz zig-zag,
+the kinks of a 30 → 50 Hz resample), so it starts by low-passing, around each failing sample
+only, the joint group at fault (the overloaded joint's arm, fingers or waist; for the ZMP the
+arms and the waist), the width raised sample by sample until the sample passes, a width that
+makes MuJoCo find a new contact taken back; then each changed region keeps the least share of
+its change that still passes (`_local_start`). Where that leaves a sample failing, a
+sequential convex refinement follows on windows around it:
 
     min_x  ½ Σ_t (x_t − q_t)ᵀ W (x_t − q_t) + ½ w_s ‖Δ²(x − q)‖² + ½ w_h Σ hinge rows²
 
-over the movable joints (arms, waist, fingers), its hinge rows zero inside the limits (torque
+over the movable joints (arms, waist, fingers), its hinge rows zero inside the limits with a
+margin (torque: |τ_rigid| + friction + kd·|q̈|/rate within `torque_fraction` of the limit,
 linearised through M(x_t) and the spline's acceleration map, banded; the ZMP through the CoM
 Jacobian; velocity; contacts on watched samples), a step kept only if the exact cost fell and
-MuJoCo finds no sample it moved newly touching. Where the motion is already feasible nothing is
-solved and the array comes back unchanged: sign fidelity pays only where the robot could not
-have executed the motion. A trajectory it cannot make feasible comes back improved, never with
-a new contact, and the validation counts what is left (`torque_viol`), which the export refuses.
+MuJoCo finds no sample it moved newly touching. A trajectory it cannot make feasible comes back
+improved, never with a new contact, and the validation counts what is left (`torque_viol`),
+which the export refuses.
 """
 
 from __future__ import annotations
@@ -51,8 +54,8 @@ from embody.config.ik import IKConfig
 from embody.retarget.limits import clamp_velocity, velocity_violations
 from embody.robot import Robot
 from embody.robot.contacts import collision_model, self_collision_contacts
-from embody.robot.dynamics import (GRAVITY, center_of_mass, derivatives, dof_adr, effort_limits,
-                                   inverse_dynamics, leg_joints, spline_acceleration_matrix,
+from embody.robot.dynamics import (FRICTION_SPEED, GRAVITY, center_of_mass, derivatives, dof_adr,
+                                   effort_limits, inverse_dynamics, leg_joints, spline_acceleration_matrix,
                                    spline_derivatives, stance_pose, standing_q, support_polygon)
 
 log = logging.getLogger(__name__)
@@ -152,6 +155,35 @@ def _spline_acceleration(t: int, dt: float) -> sp.csr_matrix:
     return sp.csr_matrix(np.where(np.abs(i - j) <= BAND, full, 0.0))
 
 
+def _joint_groups(robot: Robot, movable: np.ndarray) -> tuple[np.ndarray, list[list[int]], np.ndarray]:
+    """The movable joints in groups that the solve's low-pass moves together: per limb hanging
+    from the torso its arm joints and its fingers, and the waist (joints at or below the torso
+    body). Returns the group (nm,) of each movable joint, per group the groups added when its
+    own low-pass is at its widest (fingers: their arm, whose acceleration loads them too; the
+    waist: the arms), and
+    (G,) the groups that carry the upper body's CoM (arms and waist, not fingers)."""
+    m = robot.model
+    torso = m.body(robot.spec.torso_body).id
+    hands = {j for side in robot.spec.hands for j in robot.hand_joint_names(side)}
+    keys: list[tuple[str, int]] = []
+    group = np.empty(len(movable), dtype=np.int64)
+    for c, i in enumerate(movable):
+        name = robot.joint_names[i]
+        body = int(m.jnt_bodyid[m.joint(name).id])
+        limb = -1
+        while body > 0 and body != torso:
+            limb, body = body, int(m.body_parentid[body])
+        key = ("waist", -1) if body != torso or limb < 0 else ("hand" if name in hands else "arm", limb)
+        if key not in keys:
+            keys.append(key)
+        group[c] = keys.index(key)
+    arms = [k for k, (kind, _) in enumerate(keys) if kind == "arm"]
+    escalate = [[keys.index(("arm", limb))] if kind == "hand" and ("arm", limb) in keys else
+                arms if kind == "waist" else [] for kind, limb in keys]
+    upper = np.array([kind != "hand" for kind, _ in keys])
+    return group, escalate, upper
+
+
 class _Rows:
     """Triplets of the linearised hinge rows (sparse), their residuals."""
 
@@ -215,6 +247,7 @@ class _Problem:
         self.cdata = mujoco.MjData(self.cmodel)
         self.jac2 = np.zeros((3, self.cmodel.nv))
         self.watch: set[int] = set()
+        self.group, self.escalate, self.upper_body = _joint_groups(robot, self.movable)
 
     # --- exact evaluation --------------------------------------------------------------------
 
@@ -255,17 +288,39 @@ class _Problem:
         return {"x": x, "qd": qd, "qdd": qdd, "com": com, "lever": lever, "tau": tau, "point": point, "inward": inward, "corner": a, "edge": edge,
                 "over_tau": over_tau, "over_zmp": over_zmp, "over_vel": over_vel, "target": target}
 
-    def violating(self, ev: dict[str, np.ndarray]) -> np.ndarray:
-        """(T,) bool: samples past the limits themselves (not only past the hinges' inner start)."""
-        bound = self.limits.torque_fraction * self.effort
-        need = np.abs(ev["tau"]) + self.friction + self.lag * np.abs(ev["qdd"])
-        tau = ((need > bound) & self.limited).any(1)
+    def failing_joints(self, ev: dict[str, np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """What the validation and the physics replay refuse, per sample: (T,n) joints whose
+        exported feed-forward (rigid-body torque plus the dry friction at the spline's slope,
+        `dynamics.inverse_dynamics`) plus the PD's lag share (`_velocity_lag`) passes the effort
+        limit itself, (T,) ZMP closer than `zmp_margin` to the feet's edge, (T,) a velocity step
+        past the limit."""
+        ff = ev["tau"] + self.friction * np.tanh(ev["qd"] / FRICTION_SPEED)
+        tau = (np.abs(ff) + self.lag * np.abs(ev["qdd"]) > self.effort * (1.0 + 1e-9)) & self.limited
         zmp_ = (ev["edge"] < self.limits.zmp_margin).any(1)
         vel = np.zeros(len(tau), dtype=bool)
         v = (np.abs(np.diff(ev["x"], axis=0)) > self.vstep * (1.0 + 1e-9)).any(1)
         vel[1:] |= v
         vel[:-1] |= v
-        return tau | zmp_ | vel
+        return tau, zmp_, vel
+
+    def failing(self, ev: dict[str, np.ndarray]) -> np.ndarray:
+        """(T,) bool: samples the validation or the replay refuses (`failing_joints`)."""
+        tau, zmp_, vel = self.failing_joints(ev)
+        return tau.any(1) | zmp_ | vel
+
+    def culprits(self, ev: dict[str, np.ndarray]) -> np.ndarray:
+        """(T,G) bool: per failing sample the joint groups whose motion is low-passed first: a
+        joint over its torque, its own group (the arm of a limb, its fingers, the waist); a ZMP
+        short of its margin, every arm and the waist (the upper body's CoM)."""
+        tau, zmp_, _ = self.failing_joints(ev)
+        n_groups = len(self.escalate)
+        out = np.zeros((len(tau), n_groups), dtype=bool)
+        gj = np.full(self.robot.n_joints, -1)
+        gj[self.movable] = self.group
+        for g in range(n_groups):
+            out[:, g] = tau[:, gj == g].any(1)
+        out[zmp_] |= self.upper_body
+        return out
 
     def cost(self, x: np.ndarray, ev: dict[str, np.ndarray]) -> float:
         d = x - self.q0
@@ -433,82 +488,171 @@ def enforce_dynamics(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsL
 
 
 #: Widths (Gaussian σ, samples) of the low-pass the solve starts from, raised in turn around the
-#: samples still past a limit. Why: the torque and ZMP excesses of retargeted sign motion are
-#: high-frequency (a 50 Hz zig-zag, the kinks of a 30 → 50 Hz resample): σ = 2 samples (40 ms)
-#: brings every joint of the default synthetic sequences inside its limit with ≤ 7° change,
-#: while the Gauss-Newton on the active hinge rows alone, starting from the input, fixes the
-#: active rows by pushing their neighbours over (≥ 30 iterations).
+#: samples still failing. Why: the torque and ZMP excesses of retargeted sign motion are
+#: high-frequency (a 50 Hz zig-zag, the kinks of a 30 → 50 Hz resample), which a low-pass of a
+#: few samples removes where the Gauss-Newton on the active hinge rows alone, starting from the
+#: input, fixes the active rows by pushing their neighbours over (≥ 30 iterations).
 SIGMAS = (1.0, 1.5, 2.0, 3.0, 4.0, 6.0, 8.0)
+#: Shares of a region's low-pass change tried, smallest first, once the region passes: the
+#: least of it that still passes is kept (the change is paid in sign fidelity).
+SHARES = (0.25, 0.5, 0.75)
+
+
+def _runs(mask: np.ndarray) -> list[tuple[int, int]]:
+    """[start, end) of each run of True in mask."""
+    edge = np.diff(np.r_[0, mask.astype(np.int8), 0])
+    return list(zip(np.flatnonzero(edge == 1), np.flatnonzero(edge == -1)))
+
+
+def _blend(prob: "_Problem", q: np.ndarray, passes: list[np.ndarray], level: np.ndarray) -> np.ndarray:
+    """q with each joint group's motion low-passed to its per-sample level (level k: the k-th
+    width of SIGMAS; 0: q), each level's region ramped in over its own width (a smooth blend of
+    low-passes of q: inside the joint box, no faster than q but for the ramps)."""
+    from scipy.ndimage import gaussian_filter1d
+
+    mov = prob.movable
+    moved = q[:, mov].copy()
+    for g in range(level.shape[1]):
+        cols = prob.group == g
+        for k in range(1, int(level[:, g].max(initial=0)) + 1):
+            share = gaussian_filter1d((level[:, g] >= k).astype(np.float64), SIGMAS[k - 1], mode="nearest")
+            share = np.clip(2.0 * share, 0.0, 1.0)  # full inside the level's region, ramp outside
+            moved[:, cols] += share[:, None] * (passes[k][:, cols] - passes[k - 1][:, cols])
+    out = q.copy()
+    out[:, mov] = np.clip(moved, prob.lower[mov], prob.upper[mov])
+    return out
+
+
+def _touching(robot: Robot, x: np.ndarray, rows: np.ndarray, prior: np.ndarray) -> np.ndarray:
+    """(len(rows),) bool: samples `rows` of x MuJoCo finds touching that q had clear (`prior`)."""
+    if not len(rows):
+        return np.zeros(0, dtype=bool)
+    return (self_collision_contacts(robot, x[rows]) > 0) & ~prior[rows]
+
+
 #: Half width (s) of the hat a contact push in the start is spread over.
 PUSH_HAT_S = 0.2
 #: Width (Gaussian σ, samples) of the low-pass applied to a contact push.
 PUSH_SIGMA = 2.0
+#: Trust radii (deg) and passes per radius of a push: the repair's small radii only (its full
+#: ladder, up to an unbounded push, cost over 100 CPU-s on synth seq 17 under load).
+PUSH_TRUST_DEG = (5.0, 10.0)
+PUSH_PASSES = 6
 
 
-def _smooth_start(prob: "_Problem", q: np.ndarray, ev: dict[str, np.ndarray], prior: np.ndarray,
-                  rate: float, box_margin: float, velocity_margin: float
-                  ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """The solve's start: q low-passed (movable joints) around the samples past a limit, the
-    width raised region by region (`SIGMAS`) until none is, blended smoothly into q elsewhere
-    (a convex combination of samples: inside the joint box, never faster than q). A sample the
-    low-pass makes touch (MuJoCo; q had it clear: `prior` are q's own touching samples) is
-    pushed clear by the contact repair (`control.separate_checked`, on a wide hat); where no
-    push clears it, the width there goes back down and stays capped."""
+def _push_clear(prob: "_Problem", trial: np.ndarray, touch: np.ndarray, prior: np.ndarray, rate: float,
+                box_margin: float, velocity_margin: float) -> np.ndarray | None:
+    """trial with its `touch` samples pushed clear by the contact repair (`control.separate_checked`
+    on a wide hat, the push low-passed as the motion is: its hat's kinks are accelerations), or
+    None when no small push clears them."""
     from scipy.ndimage import gaussian_filter1d
 
-    from embody.retarget.control import TRUST_DEG, separate_checked
+    from embody.retarget.control import separate_checked
+    mov = prob.movable
+    kw = {"box_margin": box_margin, "velocity_margin": velocity_margin, "touching": touch,
+          "enforce_velocity": False, "blend_s": PUSH_HAT_S, "passes": PUSH_PASSES}
+    pushed = trial
+    for _push in range(3):
+        step, clear = separate_checked(prob.robot, pushed, rate, trust_deg=PUSH_TRUST_DEG, **kw)
+        if not clear:
+            return None
+        pushed = pushed + gaussian_filter1d(step - pushed, PUSH_SIGMA, axis=0, mode="nearest")
+        pushed[:, mov] = np.clip(pushed[:, mov], prob.lower[mov], prob.upper[mov])
+        pushed = clamp_velocity(pushed, prob.robot.velocity_limits * (1.0 - velocity_margin), rate)
+        moved = np.flatnonzero(np.abs(pushed - trial).max(1) > 0)
+        kw["touching"] = np.zeros(len(trial), dtype=bool)
+        kw["touching"][moved] = _touching(prob.robot, pushed, moved, prior)
+        if not kw["touching"].any():
+            return pushed
+    return None
+
+
+def _local_start(prob: "_Problem", q: np.ndarray, ev: dict[str, np.ndarray], prior: np.ndarray,
+                 rate: float, box_margin: float, velocity_margin: float
+                 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """The solve's start: around each failing sample, only the joint groups at fault
+    (`_Problem.culprits`: the overloaded joint's own group; for the ZMP the arms and the waist)
+    low-passed, the width raised sample by sample (`SIGMAS`) until the sample passes; a group at
+    its widest that still fails brings in the groups it escalates to (fingers: their arm). A
+    sample the low-pass makes touch (MuJoCo; q had it clear: `prior`) gets a small push
+    (`_push_clear`, kept under later widths); where none clears it, the widths of the groups
+    that made it go back one step, capped there (the Gauss-Newton's contact rows take over). Then each changed region keeps the smallest share of its change that
+    still passes (`SHARES`). MuJoCo checks only the samples each step changed."""
+    from scipy.ndimage import gaussian_filter1d
+
     mov = prob.movable
     passes = [q[:, mov]] + [gaussian_filter1d(q[:, mov], s, axis=0, mode="nearest") for s in SIGMAS]
-    level = np.zeros(len(q), dtype=np.int64)
-    cap = np.full(len(q), len(SIGMAS), dtype=np.int64)
+    n_groups = len(prob.escalate)
+    level = np.zeros((len(q), n_groups), dtype=np.int64)
+    cap = np.full((len(q), n_groups), len(SIGMAS), dtype=np.int64)
     x = q
-    for _ in range(2 * len(SIGMAS)):
-        bad = prob.violating(ev) & (level < cap)
+    push = np.zeros_like(q)  # the contact pushes so far, kept on top of every later blend
+    hopeless = np.zeros(len(q), dtype=bool)  # samples no push cleared
+    for _ in range(3 * len(SIGMAS)):
+        want = prob.culprits(ev)
+        maxed = want & (level >= cap)
+        for g in range(n_groups):
+            for h in prob.escalate[g]:
+                want[:, h] |= maxed[:, g]
+        bad = want & (level < cap)
         if not bad.any():
             break
-        for k in range(len(SIGMAS), 0, -1):  # widen each bad sample's level by the next width's reach
-            at = bad & (level == k - 1)
-            if at.any():
-                grow = _dilate(at, int(np.ceil(3.0 * SIGMAS[k - 1])))
-                level[grow] = np.minimum(np.maximum(level[grow], k), cap[grow])
-        moved = q[:, mov].copy()
-        for k in range(1, len(SIGMAS) + 1):
-            share = gaussian_filter1d((level >= k).astype(np.float64), SIGMAS[k - 1], mode="nearest")
-            share = np.clip(2.0 * share, 0.0, 1.0)  # full inside the level's region, ramp outside
-            moved += share[:, None] * (passes[k] - passes[k - 1])
-        trial = q.copy()
-        trial[:, mov] = np.clip(moved, prob.lower[mov], prob.upper[mov])
-        changed = np.flatnonzero(np.abs(trial - q).max(1) > 0)
+        for g in range(n_groups):
+            for k in range(len(SIGMAS), 0, -1):
+                at = bad[:, g] & (level[:, g] == k - 1)
+                if at.any():
+                    grow = _dilate(at, int(np.ceil(3.0 * SIGMAS[k - 1])))
+                    level[grow, g] = np.minimum(np.maximum(level[grow, g], k), cap[grow, g])
+        trial = np.clip(_blend(prob, q, passes, level) + push, prob.lower, prob.upper)
+        changed = np.flatnonzero(np.abs(trial - x).max(1) > 0)
         touch = np.zeros(len(q), dtype=bool)
-        touch[changed] = (self_collision_contacts(prob.robot, trial[changed]) > 0) & ~prior[changed]
-        log.debug("start round: %d bad, %d touching, levels %s", int(bad.sum()), int(touch.sum()),
-                  np.bincount(level, minlength=len(SIGMAS) + 1))
+        touch[changed] = _touching(prob.robot, trial, changed, prior)
+        log.debug("start round: %d bad, %d changed, %d touching", int(bad.any(1).sum()), len(changed),
+                  int(touch.sum()))
         if touch.any():
-            # a wide hat, never a one-sample push: a push's acceleration is what is limited here
-            kw = {"box_margin": box_margin, "velocity_margin": velocity_margin, "touching": touch,
-                  "enforce_velocity": False, "blend_s": PUSH_HAT_S}
-            pushed, clear = trial, False
-            for _push in range(3):  # the push low-passed as the motion is (its hat's kinks are accelerations)
-                step, clear = separate_checked(prob.robot, pushed, rate, trust_deg=TRUST_DEG, **kw)
-                if not clear:
-                    break
-                pushed = pushed + gaussian_filter1d(step - pushed, PUSH_SIGMA, axis=0, mode="nearest")
-                pushed[:, mov] = np.clip(pushed[:, mov], prob.lower[mov], prob.upper[mov])
-                pushed = clamp_velocity(pushed, prob.robot.velocity_limits * (1.0 - velocity_margin), rate)
-                moved_ = np.flatnonzero(np.abs(pushed - trial).max(1) > 0)
-                kw["touching"] = np.zeros(len(q), dtype=bool)
-                kw["touching"][moved_] = (self_collision_contacts(prob.robot, pushed[moved_]) > 0) & ~prior[moved_]
-                clear = not kw["touching"].any()
-                if clear:
-                    break
-            if not clear:  # no push clears it: the widths stay off those samples
-                near = _dilate(touch, int(np.ceil(3.0 * SIGMAS[0])))
-                level[near] = np.maximum(level[near] - 1, 0)
-                cap[near] = level[near]
+            near = _dilate(touch, int(np.ceil(3.0 * SIGMAS[0])))
+            if not hopeless[touch].any():  # a push that failed there once is not tried again
+                pushed = _push_clear(prob, trial, touch, prior, rate, box_margin, velocity_margin)
+                if pushed is not None:
+                    push += pushed - trial
+                    x = pushed
+                    ev = prob.evaluate(x, ev)
+                    continue
+                hopeless |= _dilate(touch, int(np.ceil(3.0 * SIGMAS[-1])))
+            # no small push clears it: the widths that made it go back a step and stay there
+            rows = np.flatnonzero(touch)
+            culprit = np.zeros(n_groups, dtype=bool)
+            for g in np.flatnonzero(bad[near].any(0)):  # the groups widened there this round
+                back = level.copy()
+                back[near, g] = np.maximum(back[near, g] - 1, 0)
+                culprit[g] = not _touching(prob.robot, np.clip(_blend(prob, q, passes, back) + push, prob.lower, prob.upper), rows, prior).any()
+            if not culprit.any():
+                culprit[:] = True
+            for g in np.flatnonzero(culprit):
+                level[near, g] = np.maximum(level[near, g] - 1, 0)
+                cap[near, g] = np.minimum(cap[near, g], level[near, g])
+            trial = np.clip(_blend(prob, q, passes, level) + push, prob.lower, prob.upper)
+            changed = np.flatnonzero(np.abs(trial - x).max(1) > 0)
+            if _touching(prob.robot, trial, changed, prior).any():
                 continue
-            trial = pushed
         x = trial
         ev = prob.evaluate(x, ev)
+    # the least share of each region's change that still passes
+    pad = 3 * BAND + 2
+    for a, b in _runs(np.abs(x - q).max(1) > 0):
+        lo, hi = max(a - pad, 0), min(b + pad, len(q))
+        if prob.failing(ev)[lo:hi].any():
+            continue
+        for share in SHARES:
+            trial = x.copy()
+            trial[a:b] = q[a:b] + share * (x[a:b] - q[a:b])
+            ev_t = prob.evaluate(trial, ev)
+            if prob.failing(ev_t)[lo:hi].any():
+                continue
+            if _touching(prob.robot, trial, np.arange(a, b), prior).any():
+                continue
+            x, ev = trial, ev_t
+            break
     return x, ev
 
 
@@ -516,19 +660,17 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
              velocity_margin: float, touching: np.ndarray | None) -> tuple[np.ndarray, bool]:
     """`enforce_dynamics`' solve."""
     prob = _Problem(robot, q, rate, limits, box_margin, velocity_margin)
-    x = q.copy()
-    ev = prob.evaluate(x)
-    bad = prob.violating(ev)
-    if not bad.any():
+    ev = prob.evaluate(q)
+    if not prob.failing(ev).any():
         return q, True
     reach = max(1, int(round(REACH_S * rate)))
     prior = np.zeros(len(q), dtype=bool) if touching is None else np.asarray(touching, dtype=bool)
-    x, ev = _smooth_start(prob, q, ev, prior, rate, box_margin, velocity_margin)
-    log.debug("start: %d changed, %d violating", int((np.abs(x - q).max(1) > 0).sum()),
-              int(prob.violating(ev).sum()))
-    bad = prob.violating(ev) | (np.abs(x - q).max(1) > 0)
-    if not prob.violating(ev).any():
+    x, ev = _local_start(prob, q, ev, prior, rate, box_margin, velocity_margin)
+    log.debug("start: %d changed, %d failing", int((np.abs(x - q).max(1) > 0).sum()),
+              int(prob.failing(ev).sum()))
+    if not prob.failing(ev).any():
         return x, True
+    bad = prob.failing(ev) | (np.abs(x - q).max(1) > 0)
     free = _dilate(bad, reach)
     nm = len(prob.movable)
     cost = prob.cost(x, ev)
@@ -574,9 +716,9 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
             break
         x, ev, cost = trial, ev_t, c_t
         log.debug("rows %d cost %.4g free %d", len(r), cost, int(free.sum()))
-        if not prob.violating(ev).any():
+        if not prob.failing(ev).any():
             break
-        grown = free | _dilate(prob.violating(ev), reach)
+        grown = free | _dilate(prob.failing(ev), reach)
         if (grown != free).any():
             prob.watch_near(x, grown & ~free)
         free = grown
@@ -586,5 +728,4 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
         if ((self_collision_contacts(robot, clamped[changed]) > 0) & ~prior[changed]).any():
             return q, False  # never a contact for a torque: the input, whose verdict is the caller's
         x, ev = clamped, prob.evaluate(clamped)
-    ok = not prob.violating(ev).any()
-    return x, ok
+    return x, not prob.failing(ev).any()
