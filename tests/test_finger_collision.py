@@ -105,7 +105,7 @@ def test_exclusions_inside_a_hand_must_touch_by_construction(tmp_path):
     with pytest.raises(ConfigError, match="not a joint's two links"):
         load_robot(cfg)
     cfg = _write_robot(tmp_path, "structural", {"bodies": list(PAIR), "kind": "structural", "reason": "x"})
-    with pytest.raises(ConfigError, match="inside one hand"):
+    with pytest.raises(ConfigError, match=r"ignore_pairs\.\d+\.kind"):
         load_robot(cfg)
 
 
@@ -116,20 +116,42 @@ def test_a_pair_in_contact_at_every_pose_is_accepted(tmp_path):
     assert load_robot(cfg).name == "base"
 
 
-def test_an_mjcf_exclude_must_be_listed(tmp_path):
-    # H1's MJCF <exclude>s torso/shoulder-roll: unlisted in the YAML it would hide contacts
-    # unchecked, so the robot is refused; listed (configs), it loads and its depths are measured
-    # with the MJCF exclusion lifted (it meets in ~10 % of shoulder poses, up to ~12 mm)
-    from embody.robot.exclusions import mjcf_excludes, pair_depths
-    spec = yaml.safe_load((robots_dir(RobotConfig()) / "unitree_h1.yaml").read_text())
-    spec["collision"]["ignore_pairs"] = []
-    (tmp_path / "h1_bare.yaml").write_text(yaml.safe_dump(spec))
-    with pytest.raises(ConfigError, match=r"collision\.ignore_pairs'?: the MJCF excludes torso_link–"
-                                          r"(left|right)_shoulder_roll_link") as exc:
-        load_robot(RobotConfig(name="h1_bare", robots_dir=str(tmp_path)))
-    assert "\n" not in str(exc.value)
+def test_an_mjcf_exclude_not_always_in_contact_is_lifted_and_counted():
+    # H1's MJCF <exclude>s torso/shoulder-roll, which meet in ~10 % of shoulder poses (up to
+    # ~12 mm): unlisted in the YAML, the loader lifts the exclusion and MuJoCo reports the pair
+    from embody.robot.exclusions import pair_depths
     h1 = load_robot(RobotConfig(name="unitree_h1"))
-    pairs = mjcf_excludes(h1.model)
-    assert len(pairs) == 2
-    depth = pair_depths(h1.model, *pairs[0], h1.spec.collision.geom_groups)
+    torso, housing = h1.model.body("torso_link").id, h1.model.body("left_shoulder_roll_link").id
+    depth = pair_depths(h1.model, torso, housing, h1.spec.collision.geom_groups)
     assert 0.02 < (depth < 0).mean() < 0.3 and -0.02 < depth.min() < -0.005
+    q = h1.rest.copy()
+    q[h1.joint_index("left_shoulder_pitch")] = -2.4  # arm raised high in front: the housing turns in
+    q[h1.joint_index("left_shoulder_roll")] = 0.3
+    assert set(contact_pairs(h1, q[None])) == {("left_shoulder_roll_link", "torso_link")}
+
+
+def _shoulder_in_torso(robot) -> np.ndarray:
+    """Left arm raised forward (pitch −1.5) and rolled 0.25 rad inward: the shoulder-roll
+    housing (its collision cylinder) inside the torso shell, and nothing else touching."""
+    q = robot.rest.copy()
+    q[robot.joint_index("left_shoulder_pitch_joint")] = -1.5
+    q[robot.joint_index("left_shoulder_roll_joint")] = -0.25
+    return q
+
+
+def test_a_pair_not_always_in_contact_is_refused_as_an_exclusion(tmp_path):
+    # the shoulder-roll housing meets the torso in ~38 % of its poses (on the real meshes too)
+    cfg = _write_robot(tmp_path, "shoulder", {"bodies": ["torso_link", "left_shoulder_roll_link"],
+                                              "kind": "always", "reason": "housing grazes the torso"})
+    with pytest.raises(ConfigError, match=r"collision\.ignore_pairs\.\d+'?: torso_link–left_shoulder_roll_link "
+                                          r"is not in contact at every pose: clear at \d+ of 300") as exc:
+        load_robot(cfg)
+    assert "\n" not in str(exc.value)
+
+
+def test_the_shoulder_housing_in_the_torso_is_caught_and_repaired(robot):
+    q = _shoulder_in_torso(robot)[None]
+    assert set(contact_pairs(robot, q)) == {("left_shoulder_roll_link", "torso_link")}
+    assert validation_counts(robot, q, 30.0)["self_collision_frames"] == 1.0
+    fixed = separate(robot, np.repeat(q, 6, axis=0), 30.0)
+    assert (self_collision_contacts(robot, fixed) == 0).all()

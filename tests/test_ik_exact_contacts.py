@@ -145,11 +145,12 @@ def test_contact_phase_resolves_a_pass_between_clear_frames(robot):
 
 
 def _swap(robot):
-    """Left hand above the right for 6 frames, then below it for 6: q and its targets."""
+    """Left hand above the right for 6 frames, then below it for 6, each asked 3 cm past the
+    midline (so the solved hands are in line, and pass through each other): q and its targets."""
     from tests.test_retarget_ik import _targets_from_q
 
-    above = _pose(robot, [0.30, 0.0, 0.20], [0.30, 0.0, 0.0], IKConfig())
-    below = _pose(robot, [0.30, 0.0, 0.0], [0.30, 0.0, 0.20], IKConfig())
+    above = _pose(robot, [0.30, -0.03, 0.20], [0.30, 0.03, 0.0], IKConfig())
+    below = _pose(robot, [0.30, -0.03, 0.0], [0.30, 0.03, 0.20], IKConfig())
     q = np.concatenate([np.tile(above, (6, 1)), np.tile(below, (6, 1))])
     return q, _targets_from_q(robot, q)
 

@@ -9,14 +9,15 @@ pair must be one that touches by construction:
     are sampled over their ranges (`SAMPLES` seeded uniform poses) and the pair must penetrate
     at each one; a single clear pose means the exclusion hides real collisions (a thumb
     stalling against the index finger) and the robot is refused;
-  * `structural`: a housing grazing its mount (G1's shoulder-roll housing on the torso shell),
-    never two bodies of one hand: inside a hand only `joint` and `always` are accepted.
+Nothing else may be listed: a housing that grazes its mount over part of its range (G1's and
+H1's shoulder-roll housings on the torso shell, 10-39 % of shoulder poses) collides there for
+real, so it is counted, and the IK keeps out of it through its proxies.
 Why: a blanket exclusion (every contact inside a wrist's subtree) once hid fingers up to 26 mm
 through each other from every counter.
 
-The MJCF's own `<exclude>` pairs hide contacts from MuJoCo (so from every counter) as well: each
-must be listed in `collision.ignore_pairs` too, with its kind, reason and measured depth, and is
-checked like any listed pair (its depths are measured with the MJCF exclusions lifted).
+The MJCF's own `<exclude>` pairs hide contacts from MuJoCo (so from every counter) as well: one
+listed in `collision.ignore_pairs` is checked like any listed pair (its depths measured with the
+MJCF exclusions lifted); an unlisted one is lifted (`lift_unlisted_excludes`), so it counts.
 """
 
 from __future__ import annotations
@@ -96,18 +97,22 @@ def pair_depths(model: mujoco.MjModel, a: int, b: int, groups: list[int], sample
     return out
 
 
+def lift_unlisted_excludes(model: mujoco.MjModel, spec: RobotSpec) -> mujoco.MjModel:
+    """The model with every MJCF `<exclude>` not in `collision.ignore_pairs` lifted (a copy when
+    there is one): MuJoCo then reports that pair's contacts like any other counted pair's."""
+    listed = {frozenset(p.bodies) for p in spec.collision.ignore_pairs}
+    lift = [i for i, (a, b) in enumerate(mjcf_excludes(model))
+            if frozenset((model.body(a).name, model.body(b).name)) not in listed]
+    if not lift:
+        return model
+    model = model.__copy__()
+    model.exclude_signature[lift] = 0  # world–world: no geoms, so no exclusion
+    return model
+
+
 def check_ignored_pairs(model: mujoco.MjModel, spec: RobotSpec, where: str) -> None:
     """ConfigError (one line naming `<where>:collision.ignore_pairs.<i>`) for an excluded pair
     that does not touch by construction (module docstring)."""
-    listed = {frozenset(p.bodies) for p in spec.collision.ignore_pairs}
-    for a, b in mjcf_excludes(model):
-        names = frozenset((model.body(a).name, model.body(b).name))
-        if names not in listed:
-            raise ConfigError(f"{where}:collision.ignore_pairs",
-                              f"the MJCF excludes {model.body(a).name}–{model.body(b).name} from collision: "
-                              "list it with its kind, reason and depth (or it hides contacts unchecked)")
-    roots = hand_roots(model, spec)
-    subtree = {r: {b for b in range(model.nbody) if r in ancestors(model, b)} for r in roots}
     for i, pair in enumerate(spec.collision.ignore_pairs):
         key = f"{where}:collision.ignore_pairs.{i}"
         ids = []
@@ -121,10 +126,6 @@ def check_ignored_pairs(model: mujoco.MjModel, spec: RobotSpec, where: str) -> N
         if pair.kind == "joint":
             if model.body_parentid[a] != b and model.body_parentid[b] != a:
                 raise ConfigError(key, f"{label} is not a joint's two links (neither is the other's parent)")
-        elif pair.kind == "structural":
-            if any(a in s and b in s for s in subtree.values()):
-                raise ConfigError(key, f"{label}: inside one hand only a joint's two links or a pair in "
-                                       "contact at every pose may be excluded (kind joint or always)")
         else:
             depth = pair_depths(model, a, b, spec.collision.geom_groups)
             clear = int((depth >= 0).sum())

@@ -14,7 +14,7 @@ import torch
 from embody.errors import ConfigError
 from embody.robot.chain import ChainFK
 from embody.robot.compiled import compiled_model
-from embody.robot.exclusions import check_ignored_pairs
+from embody.robot.exclusions import check_ignored_pairs, lift_unlisted_excludes
 from embody.robot.fk import BodyFK
 from embody.robot.kinematics import Kinematics, check_joint_pivots
 from embody.robot.spec import RobotSpec
@@ -219,6 +219,7 @@ def build_robot(name: str, spec: RobotSpec, mjcf_path: Path, where: str) -> Robo
                 if jn not in names:
                     raise ConfigError(f"{where}:hands.{side}.{finger}", f"unknown joint {jn!r}")
     check_ignored_pairs(model, spec, where)
+    model = lift_unlisted_excludes(model, spec)
     ik_mask = np.array([_match(n, spec.ik_joints) for n in names])
     if not ik_mask.any():
         raise ConfigError(f"{where}:ik_joints", "matches no joint")

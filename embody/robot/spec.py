@@ -35,9 +35,8 @@ class IgnoredPair(_Strict):
 
     bodies: tuple[str, str]
     #: joint: a joint's two links (parent and child; MuJoCo never reports them);
-    #: always: in contact at every pose of the joints between them (sampled at load);
-    #: structural: a housing grazing its mount, never inside one hand.
-    kind: Literal["joint", "always", "structural"]
+    #: always: in contact at every pose of the joints between them (sampled at load).
+    kind: Literal["joint", "always"]
     reason: str = Field(min_length=1)
     #: Measured penetration (mm) of the pair's collision geoms at rest (range over the sampled
     #: poses where it varies), for the record.
