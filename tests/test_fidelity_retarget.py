@@ -34,12 +34,13 @@ def setup():
     return cfg, body, robot, shape_fit(robot, body, cfg.ik)
 
 
-def _touching_pose(body, tip: str, gap: float) -> np.ndarray:
+def _touching_pose(body, tip: str, gap: float, wrist: tuple[float, float, float] = (0.0, 1.5, 0.0)) -> np.ndarray:
     """A pose (55,3) whose right `tip` landmark sits `gap` m in front of the chin (right hand
-    in front of the face, pointing back at it): the synthetic generator's arm IK places the wrist, iterated on the tip's offset."""
+    in front of the face; the default `wrist` rotation (axis-angle) points the finger back at
+    it): the synthetic generator's arm IK places the wrist, iterated on the tip's offset."""
     pose = np.zeros((1, 55, 3))
     pose[0, 40:55] = handshape("point", "right")
-    pose[0, JOINT_NAMES.index("right_wrist")] = [0.0, 1.5, 0.0]  # the finger turned back to the face
+    pose[0, JOINT_NAMES.index("right_wrist")] = wrist
     ik = ArmIK()
     pose, _ = ik.solve(pose, np.stack([space.location("rest", "left"), space.location("chin", "right")])[None])
     for _ in range(15):  # move the wrist by half what the tip still misses (the IK's own frame)
@@ -76,29 +77,32 @@ def test_fingertip_on_the_chin_lands_on_the_robot_chin(setup):
 
 def test_critic_moves_a_hand_planted_below_the_chin_up(setup):
     cfg, body, robot, fit = setup
-    # a critic test, so the wrist-only IK plants the hand: with the hand-point term the anchored
-    # point is the middle tip, and the neck's collision proxies stop a hand pushed 8 cm down after
-    # ~4 cm (the robot then sits mostly out and forward, a different error to correct)
+    # the hand held open before the chin (no wrist turn): 8 cm lower it is still clear of the
+    # chest, and the robot reaches both places with its shoulder housings out of the torso (a
+    # finger turned back at the face hits the chest when lowered: the IK then sits elsewhere).
+    # A critic test, so the wrist-only IK plants the hand where asked (with the hand-point term
+    # the anchored middle tip holds it ~3 cm off the planted wrist target)
     ik = cfg.ik.model_copy(update={"w_hand_points": 0.0})
-    motion = _motion(_touching_pose(body, "right_palm", 0.06))
+    motion = _motion(_touching_pose(body, "right_palm", 0.06, wrist=(0.0, 0.0, 0.0)))
     reference = build_targets(motion, body, fit, robot, ik)
     planted_pos = reference.wrist_pos.copy()
     planted_pos[:, 1, 2] -= 0.08
     planted = reference.with_wrists(planted_pos, reference.wrist_rot)
     start = solve(robot, planted, ik)
+    wrist, _ = robot.link_poses(start.q, ["right_wrist"])
+    assert np.linalg.norm(wrist[:, 0] - planted_pos[:, 1], axis=-1).max() < 0.02  # planted: 8 cm low
     result = refine(motion, body, fit, robot, reference, start, CriticConfig(rounds=1), ik,
                     RenderConfig(), ik_targets=planted)
     first = result.rounds[0]
     moves = {p["name"]: p["amount"] for p in first.action["primitives_positions"]}
-    assert moves.get("move_right_up", 0.0) >= 0.05, first.action
+    assert moves.get("move_right_up", 0.0) >= 0.05, first.action  # 0.09 here
     assert first.action["verdict"] == "revise"
-    # the round also turns both palms (28.6 -> 4.9 deg here): it is judged on the fidelity score
-    # (location + palm), and its location must not get worse
+    # judged against the human: the location error (both hands) drops (0.29 -> 0.16 body scales
+    # here), and with it the fidelity score (location + palm angle)
     again = result.rounds[1].metrics
+    assert again["location_err"] < 0.8 * first.metrics["location_err"]
     assert again["fidelity_score"] < 0.9 * first.metrics["fidelity_score"]
-    assert again["location_err"] <= first.metrics["location_err"]
-    # critic.keep auto keeps the round with the best fidelity score (location + palm angle):
-    # since the control-rate contact repair, the move up can cost palm angle near the head.
+    # critic.keep auto keeps the round with the best fidelity score
     best = min(result.rounds, key=lambda r: r.metrics["fidelity_score"])
     assert result.final is best
 
