@@ -28,9 +28,9 @@ import mujoco
 import numpy as np
 
 from embody.retarget.dynamics_limits import DEFAULT_LIMITS, DynamicsLimits, enforce_dynamics
-from embody.retarget.limits import clamp_velocity, resample, velocity_violations
+from embody.retarget.limits import EXPORT_GAP, EXPORT_GAP_PUSH, clamp_velocity, resample, velocity_violations
 from embody.robot import Robot
-from embody.robot.contacts import collision_model, self_collision_contacts
+from embody.robot.contacts import collision_model, near_contacts
 
 #: Clearance (m) a repaired sample gets between the geoms that penetrated.
 CLEARANCE = 0.002
@@ -58,11 +58,13 @@ SMALL = 3
 
 
 class _Separator:
-    """Per-sample contact repair on one robot (one MjData, reused)."""
+    """Per-sample contact repair on one robot (one MjData, reused). A counted pair closer than
+    `gap` (m; 0: penetrating) is a contact, pushed to `clearance`."""
 
-    def __init__(self, robot: Robot, clearance: float = CLEARANCE) -> None:
-        self.robot, self.clearance = robot, clearance
-        self.model, self.counted = collision_model(robot)  # the counted pairs' collisions only
+    def __init__(self, robot: Robot, clearance: float = CLEARANCE, gap: float = 0.0) -> None:
+        self.robot, self.gap = robot, gap
+        self.clearance = max(clearance, gap + EXPORT_GAP_PUSH) if gap else clearance
+        self.model, self.counted = collision_model(robot, margin=gap)  # the counted pairs' only
         self.data = mujoco.MjData(self.model)
         jid = [self.model.joint(n).id for n in robot.joint_names]
         self.dof = self.model.jnt_dofadr[jid]
@@ -77,7 +79,7 @@ class _Separator:
         self.jac2 = np.zeros((3, self.model.nv))
 
     def contacts(self, q: np.ndarray, jacobians: bool = True) -> list[int]:
-        """Indices (into data.contact) of counted penetrating contacts at joint values q
+        """Indices (into data.contact) of counted contacts closer than `gap` at joint values q
         (`jacobians`: also prepare `mj_jac`, which needs `mj_comPos`)."""
         d = self.data
         d.qpos[:] = self.model.qpos0
@@ -90,7 +92,7 @@ class _Separator:
         if not n:
             return []
         geom = d.contact.geom[:n]
-        hit = (d.contact.dist[:n] < 0) & self.counted[geom[:, 0], geom[:, 1]]
+        hit = (d.contact.dist[:n] < self.gap) & self.counted[geom[:, 0], geom[:, 1]]
         return np.flatnonzero(hit).tolist()
 
     def frame(self, q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
@@ -168,7 +170,7 @@ def bridge_contacts(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
 
 def bridge_contacts_checked(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_FRAMES,
                             fps: float | None = None, bad: np.ndarray | None = None,
-                            grow: int = 0) -> tuple[np.ndarray, np.ndarray]:
+                            grow: int = 0, gap: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """q (T,n) with each short run (≤ `max_run` frames) of MuJoCo contact frames between two clear
     frames replaced by a clear one between those neighbours: the straight line, the line pushed
     clear (`_Separator.frame`), or the neighbours held; the first that MuJoCo finds clear on
@@ -184,9 +186,10 @@ def bridge_contacts_checked(robot: Robot, q: np.ndarray, max_run: int = BRIDGE_F
     up to `grow` further out on each side (a longer path: more time for the same change, so a
     velocity-feasible one is likelier; the samples in between are replaced too, and must be clear).
     Also MuJoCo's verdict (T,) bool on the returned q: the input's, with every bridged sample
-    clear (each was checked), so the repair after it need not check the clear samples again."""
+    clear (each was checked), so the repair after it need not check the clear samples again.
+    `gap` (m): a counted pair closer than it counts as touching (0: penetrating)."""
     q = np.array(q, dtype=np.float64)
-    sep = _Separator(robot)
+    sep = _Separator(robot, gap=gap)
     if bad is None:
         bad = np.array([bool(sep.contacts(x, jacobians=False)) for x in q])
     bad = np.asarray(bad, dtype=bool)
@@ -246,17 +249,18 @@ def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = P
                      box_margin: float = 0.0, velocity_margin: float = 0.0, clearance: float = CLEARANCE,
                      enforce_velocity: bool = True,
                      trust_deg: tuple[float | None, ...] = TRUST_DEG,
-                     touching: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+                     touching: np.ndarray | None = None, gap: float = 0.0) -> tuple[np.ndarray, bool]:
     """`separate`, and whether MuJoCo checked every returned sample clear (False only when the
     passes ran out at every trust radius): a caller then need not run the same collision check
     again. The repair is tried inside each trust radius of `trust_deg` in turn (no joint of any
     sample leaves ± that many degrees of its input value; None: unbounded) and the first that
     clears every sample wins: the smallest correction that works, never a wide swing when a
     small one exists. `touching` (T,) bool: MuJoCo's verdict on q when the caller has it (the
-    bridge's); the samples it finds clear are not checked again on the first pass."""
+    bridge's); the samples it finds clear are not checked again on the first pass. `gap` (m): a
+    counted pair closer than it is a contact (0: penetrating), pushed past it."""
     q = np.array(q, dtype=np.float64)
     out, clear = q, False
-    sep = _Separator(robot, clearance)
+    sep = _Separator(robot, clearance, gap)
     check = np.ones(len(q), dtype=bool) if touching is None else np.array(touching, dtype=bool)
     for radius in trust_deg:
         out, clear, check = _separate_within(sep, q, fps, None if radius is None else np.radians(radius),
@@ -350,7 +354,7 @@ def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: fl
     if limits is None:
         return out, clear
     # the dynamics solve moves no sample into a contact, so MuJoCo's verdict carries over
-    touching = None if clear else self_collision_contacts(robot, out) > 0
+    touching = None if clear else near_contacts(robot, out, EXPORT_GAP) > 0
     out, _ = enforce_dynamics(robot, out, rate, limits, box_margin=BOX_MARGIN,
                               velocity_margin=VELOCITY_MARGIN, touching=touching)
     return out, clear
@@ -368,8 +372,8 @@ def _kinematic_control(robot: Robot, q: np.ndarray, fps: float, rate: float,
     # interpolated samples that touch between clear ones: bridged locally first, as at the source
     # rate (the repair alone moved synth seqs 15 and 17's exported arms by 89-101°)
     run = int(np.ceil(BRIDGE_FRAMES * rate / fps))
-    qc, touching = bridge_contacts_checked(robot, qc, max_run=run, fps=rate)
-    kw = {"box_margin": BOX_MARGIN, "velocity_margin": VELOCITY_MARGIN}
+    qc, touching = bridge_contacts_checked(robot, qc, max_run=run, fps=rate, gap=EXPORT_GAP)
+    kw = {"box_margin": BOX_MARGIN, "velocity_margin": VELOCITY_MARGIN, "gap": EXPORT_GAP}
     out, clear = separate_checked(robot, qc, rate, trust_deg=TRUST_DEG[:SMALL], touching=touching, **kw)
     if clear:
         return out, clear
@@ -378,7 +382,7 @@ def _kinematic_control(robot: Robot, q: np.ndarray, fps: float, rate: float,
     # move more than a 15° push would)
     out, clear = separate_checked(robot, qc, rate, trust_deg=TRUST_DEG[SMALL:], touching=touching, **kw)
     wide, wide_touching = bridge_contacts_checked(robot, qc, max_run=run, fps=rate, bad=touching,
-                                                  grow=int(np.ceil(BRIDGE_GROW_S * rate)))
+                                                  grow=int(np.ceil(BRIDGE_GROW_S * rate)), gap=EXPORT_GAP)
     if not np.array_equal(wide, qc):
         bridged, bridged_clear = separate_checked(robot, wide, rate, touching=wide_touching, **kw)
         if bridged_clear and (not clear or np.abs(bridged - qc).max() <= np.abs(out - qc).max()):

@@ -51,9 +51,9 @@ from scipy.linalg import solveh_banded
 from threadpoolctl import threadpool_limits
 
 from embody.config.ik import IKConfig
-from embody.retarget.limits import clamp_velocity, velocity_violations
+from embody.retarget.limits import EXPORT_GAP, clamp_velocity, velocity_violations
 from embody.robot import Robot
-from embody.robot.contacts import collision_model, self_collision_contacts
+from embody.robot.contacts import collision_model, near_contacts
 from embody.robot.dynamics import (FRICTION_SPEED, GRAVITY, center_of_mass, derivatives, dof_adr,
                                    effort_limits, inverse_dynamics, leg_joints, spline_acceleration_matrix,
                                    spline_derivatives, stance_pose, standing_q, support_polygon)
@@ -527,7 +527,7 @@ def _touching(robot: Robot, x: np.ndarray, rows: np.ndarray, prior: np.ndarray) 
     """(len(rows),) bool: samples `rows` of x MuJoCo finds touching that q had clear (`prior`)."""
     if not len(rows):
         return np.zeros(0, dtype=bool)
-    return (self_collision_contacts(robot, x[rows]) > 0) & ~prior[rows]
+    return (near_contacts(robot, x[rows], EXPORT_GAP) > 0) & ~prior[rows]
 
 
 #: Half width (s) of the hat a contact push in the start is spread over.
@@ -549,7 +549,7 @@ def _push_clear(prob: "_Problem", trial: np.ndarray, touch: np.ndarray, prior: n
 
     from embody.retarget.control import separate_checked
     mov = prob.movable
-    kw = {"box_margin": box_margin, "velocity_margin": velocity_margin, "touching": touch,
+    kw = {"box_margin": box_margin, "velocity_margin": velocity_margin, "touching": touch, "gap": EXPORT_GAP,
           "enforce_velocity": False, "blend_s": PUSH_HAT_S, "passes": PUSH_PASSES}
     pushed = trial
     for _push in range(3):
@@ -704,7 +704,7 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
                 # MuJoCo's verdict on what moved: a step that pushes a sample into a contact is
                 # no step (the correction is never paid for with a contact)
                 changed = np.flatnonzero(np.abs(trial - x).max(1) > 0)
-                hits = (self_collision_contacts(robot, trial[changed]) > 0) & ~prior[changed]
+                hits = (near_contacts(robot, trial[changed], EXPORT_GAP) > 0) & ~prior[changed]
                 if not hits.any():
                     accepted = True
                     start = min(1.0, 2.0 * scale)  # the next direction starts near this one's length
@@ -725,7 +725,7 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
     if velocity_violations(x, robot.velocity_limits * (1.0 - velocity_margin), rate):
         clamped = clamp_velocity(x, robot.velocity_limits * (1.0 - velocity_margin), rate)
         changed = np.flatnonzero(np.abs(clamped - x).max(1) > 0)
-        if ((self_collision_contacts(robot, clamped[changed]) > 0) & ~prior[changed]).any():
+        if ((near_contacts(robot, clamped[changed], EXPORT_GAP) > 0) & ~prior[changed]).any():
             return q, False  # never a contact for a torque: the input, whose verdict is the caller's
         x, ev = clamped, prob.evaluate(clamped)
     return x, not prob.failing(ev).any()

@@ -4,6 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 
+#: Distance (m) the exported control-rate array keeps between every counted pair of bodies (its
+#: contact repair pushes closer pairs apart, the torque/ZMP solve moves no sample closer): the
+#: physics replay at the robot's real gains tracks each joint to ~1°, which closed the gap of a
+#: counted pair by up to 1.87 mm on the default G1 run (`benchmarks/physics.py`,
+#: `replay_closure_max_mm`), so a narrower exported gap touches on the robot.
+EXPORT_GAP = 0.002
+#: How far past `EXPORT_GAP` (m) the repair pushes a pair it moves: a linearised push that
+#: aims at the gap itself lands a hair short of it.
+EXPORT_GAP_PUSH = 0.0005
+
 
 def clamp_velocity(q: np.ndarray, vmax: np.ndarray, fps: float) -> np.ndarray:
     """Limit every per-step change to vmax/fps (one forward pass).

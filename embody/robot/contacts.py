@@ -152,9 +152,10 @@ def exclusion_bits(model: mujoco.MjModel, pairs: np.ndarray) -> tuple[np.ndarray
     return contype, conaff
 
 
-def _frame_pairs(robot: Robot, q: np.ndarray) -> list[np.ndarray]:
-    """Per frame, the (geom1, geom2) pairs of every counted penetrating contact."""
-    model, counted = collision_model(robot)
+def _frame_pairs(robot: Robot, q: np.ndarray, gap: float = 0.0) -> list[np.ndarray]:
+    """Per frame, the (geom1, geom2) pairs of every counted contact closer than `gap` (m; 0:
+    penetrating)."""
+    model, counted = collision_model(robot, margin=gap)
     data = mujoco.MjData(model)
     out = []
     none = np.zeros((0, 2), dtype=np.int32)
@@ -167,9 +168,15 @@ def _frame_pairs(robot: Robot, q: np.ndarray) -> list[np.ndarray]:
             out.append(none)
             continue
         geom = data.contact.geom[: data.ncon]
-        hit = (data.contact.dist[: data.ncon] < 0) & counted[geom[:, 0], geom[:, 1]]
+        hit = (data.contact.dist[: data.ncon] < gap) & counted[geom[:, 0], geom[:, 1]]
         out.append(geom[hit])
     return out
+
+
+def near_contacts(robot: Robot, q: np.ndarray, gap: float) -> np.ndarray:
+    """Per frame (T,), the counted pairs closer than `gap` (m): `self_collision_contacts` with a
+    clearance, for an array that must keep its pairs apart by more than a tracking error."""
+    return np.array([len(f) for f in _frame_pairs(robot, q, gap)], dtype=np.int64)
 
 
 def self_collision_contacts(robot: Robot, q: np.ndarray) -> np.ndarray:
