@@ -36,22 +36,13 @@ WITHIN = 0.01
 def pair_distances(robot, q: np.ndarray) -> list[dict[tuple[int, int], float]]:
     """Per sample of q (T,n): {(geom1, geom2): distance (m)} of the counted pairs within WITHIN
     (MuJoCo's contact distance, negative inside)."""
-    import mujoco
-
-    from embody.robot.contacts import collision_model
-    model, counted = collision_model(robot, margin=WITHIN)
-    data = mujoco.MjData(model)
-    data.qpos[:] = model.qpos0
+    from embody.robot.contacts import counted_contacts
     out = []
-    for qt in q:
-        data.qpos[robot.qpos_adr] = qt
-        mujoco.mj_kinematics(model, data)
-        mujoco.mj_collision(model, data)
+    for pairs, dists in counted_contacts(robot, q, WITHIN):
         found: dict[tuple[int, int], float] = {}
-        for g, d in zip(data.contact.geom[: data.ncon].tolist(), data.contact.dist[: data.ncon].tolist()):
+        for g, d in zip(pairs.tolist(), dists.tolist()):
             key = (min(g), max(g))
-            if counted[key] and d < WITHIN:
-                found[key] = min(found.get(key, WITHIN), d)
+            found[key] = min(found.get(key, WITHIN), d)
         out.append(found)
     return out
 

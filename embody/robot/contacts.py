@@ -152,13 +152,13 @@ def exclusion_bits(model: mujoco.MjModel, pairs: np.ndarray) -> tuple[np.ndarray
     return contype, conaff
 
 
-def _frame_pairs(robot: Robot, q: np.ndarray, gap: float = 0.0) -> list[np.ndarray]:
-    """Per frame, the (geom1, geom2) pairs of every counted contact closer than `gap` (m; 0:
-    penetrating)."""
+def counted_contacts(robot: Robot, q: np.ndarray, gap: float = 0.0) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per frame of q (T,n), the counted contacts closer than `gap` (m; 0: penetrating): their
+    (geom1, geom2) pairs (k, 2) and MuJoCo's distances (k,), negative inside."""
     model, counted = collision_model(robot, margin=gap)
     data = mujoco.MjData(model)
     out = []
-    none = np.zeros((0, 2), dtype=np.int32)
+    none = (np.zeros((0, 2), dtype=np.int32), np.zeros(0))
     data.qpos[:] = model.qpos0
     for qt in np.atleast_2d(q):
         data.qpos[robot.qpos_adr] = qt
@@ -167,28 +167,28 @@ def _frame_pairs(robot: Robot, q: np.ndarray, gap: float = 0.0) -> list[np.ndarr
         if not data.ncon:  # most poses: nothing to filter
             out.append(none)
             continue
-        geom = data.contact.geom[: data.ncon]
-        hit = (data.contact.dist[: data.ncon] < gap) & counted[geom[:, 0], geom[:, 1]]
-        out.append(geom[hit])
+        geom, dist = data.contact.geom[: data.ncon], data.contact.dist[: data.ncon]
+        hit = (dist < gap) & counted[geom[:, 0], geom[:, 1]]
+        out.append((geom[hit], dist[hit].copy()))
     return out
 
 
 def near_contacts(robot: Robot, q: np.ndarray, gap: float) -> np.ndarray:
     """Per frame (T,), the counted pairs closer than `gap` (m): `self_collision_contacts` with a
     clearance, for an array that must keep its pairs apart by more than a tracking error."""
-    return np.array([len(f) for f in _frame_pairs(robot, q, gap)], dtype=np.int64)
+    return np.array([len(pairs) for pairs, _ in counted_contacts(robot, q, gap)], dtype=np.int64)
 
 
 def self_collision_contacts(robot: Robot, q: np.ndarray) -> np.ndarray:
     """Penetrating self-contacts per frame (T,)."""
-    return np.array([len(f) for f in _frame_pairs(robot, q)], dtype=np.int64)
+    return near_contacts(robot, q, 0.0)
 
 
 def contact_pairs(robot: Robot, q: np.ndarray) -> Counter:
     """Frames per penetrating body pair (names sorted), for breakdowns."""
     out: Counter = Counter()
     body = robot.model.geom_bodyid
-    for found in _frame_pairs(robot, q):
+    for found, _ in counted_contacts(robot, q):
         out.update({tuple(sorted((robot.model.body(body[a]).name, robot.model.body(body[b]).name)))
                     for a, b in found})
     return out
