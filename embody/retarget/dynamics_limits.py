@@ -704,7 +704,7 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
                 # MuJoCo's verdict on what moved: a step that pushes a sample into a contact is
                 # no step (the correction is never paid for with a contact)
                 changed = np.flatnonzero(np.abs(trial - x).max(1) > 0)
-                hits = (near_contacts(robot, trial[changed], EXPORT_GAP) > 0) & ~prior[changed]
+                hits = _touching(robot, trial, changed, prior)
                 if not hits.any():
                     accepted = True
                     start = min(1.0, 2.0 * scale)  # the next direction starts near this one's length
@@ -725,7 +725,7 @@ def _enforce(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, b
     if velocity_violations(x, robot.velocity_limits * (1.0 - velocity_margin), rate):
         clamped = clamp_velocity(x, robot.velocity_limits * (1.0 - velocity_margin), rate)
         changed = np.flatnonzero(np.abs(clamped - x).max(1) > 0)
-        if ((near_contacts(robot, clamped[changed], EXPORT_GAP) > 0) & ~prior[changed]).any():
+        if _touching(robot, clamped, changed, prior).any():
             return q, False  # never a contact for a torque: the input, whose verdict is the caller's
         x, ev = clamped, prob.evaluate(clamped)
     return x, not prob.failing(ev).any()
