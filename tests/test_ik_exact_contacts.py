@@ -287,6 +287,30 @@ def test_contact_phase_gives_up_when_the_deepest_contact_stalls(robot):
     assert len(budget) > 2 * len(stalled)
 
 
+def test_a_round_with_clear_rows_is_not_a_stall(robot):
+    """A contact round whose MuJoCo rows see no penetration while its verdict (`clear`) still
+    fails (the velocity clamp moved a pose the rows judged clear into contact) ends after
+    `contact_stall` evaluations without marking the phase stalled: the next round, from the
+    clamped q, sees the contact. With the rows penetrating and not improving it is a stall."""
+    from embody.retarget.ik import _Problem
+    from tests.test_retarget_ik import _targets_from_q
+
+    cfg = IKConfig(contact_stall=4, contact_iterations=40, tolerance=0.0, contact_sample_proxies=False)
+    apart = _pose(robot, [0.30, 0.15, 0.10], [0.30, -0.15, 0.10], IKConfig())
+    planted = _pose(robot, [0.30, 0.05, 0.10], [0.30, -0.05, 0.10],
+                    IKConfig(w_collision=0.0, contact_rounds=0))
+    outcomes = []
+    for q, weight in ((np.tile(apart, (6, 1)), cfg.w_contact), (np.tile(planted, (6, 1)), 1e-12)):
+        problem = _Problem(robot, _targets_from_q(robot, q), cfg.model_copy(update={"polish_iterations": 0}))
+        problem.residuals.exact = ExactContacts(robot, cfg.contact_margin, weight)
+        problem.solve(q[:, problem.ik], cold=False, contact_frames=np.ones(len(q), bool),
+                      clear=lambda qi: False)
+        outcomes.append((problem.residuals.exact.deepest, problem.stalled))
+    (clear_deepest, clear_stalled), (deep, deep_stalled) = outcomes
+    assert clear_deepest >= 0 and not clear_stalled
+    assert deep < 0 and deep_stalled
+
+
 def test_rows_stop_early_only_past_the_limit(robot):
     """`ExactContacts.rows(limit=)`: None only when the rows' sum of squares is above the limit
     (the LM trial it serves is rejected either way); under it, the same rows bit for bit."""

@@ -166,7 +166,9 @@ class IKConfig(Section):
     #: End a contact round, and the contact phase, when MuJoCo's deepest penetration on the
     #: checked frames and samples has not improved by `contact_stall_mm` over the last
     #: `contact_stall` evaluations: a contact the window cannot route round (interlocked
-    #: fingers) is the repair's, and rounds spent on it are wasted. 0: off.
+    #: fingers) is the repair's, and rounds spent on it are wasted. A round whose rows are clear
+    #: while the velocity-clamped trajectory still touches ends, but the phase goes on: the next
+    #: round's rows start from the clamped q and see what the clamp moved in. 0: off.
     contact_stall: int = Field(6, ge=0, le=10_000)
     contact_stall_mm: float = Field(0.5, ge=0, le=100)
     #: The contact phase's samples between frames also get the proxies' rows (hinged at

@@ -274,6 +274,7 @@ class _Problem:
             lam = max(lam, LAMBDA_MIN)
             watch = exact and clear is not None and self.cfg.contact_stall > 0
             best, since = (self.residuals.exact.deepest, 0) if watch else (0.0, 0)
+            deepest = best  # MuJoCo's deepest distance over the rows' poses at qi
             for _ in range(budget):
                 step = self.step(h, g, lam)
                 cand = np.clip(qi + step, lower, upper)
@@ -283,6 +284,8 @@ class _Problem:
                     rho = (cost - c_new) / max(predicted, 1e-300)
                     done = cost - c_new < self.cfg.tolerance * cost
                     qi, cost = cand, c_new
+                    if watch:
+                        deepest = self.residuals.exact.deepest
                     lam *= max(1.0 / 3.0, 1.0 - (2.0 * rho - 1.0) ** 3)
                     nu = 2.0
                     if exact and clear is not None:
@@ -304,7 +307,11 @@ class _Problem:
                         break
                 since += 1
                 if watch and since >= self.cfg.contact_stall:
-                    self.stalled = True  # MuJoCo's deepest contact no longer improves
+                    # MuJoCo's deepest contact no longer improves. Stalled only while the rows
+                    # still penetrate: with them clear and `clear` failing, the contact is the
+                    # velocity clamp's (it moves the rows' poses; the next round's rows start
+                    # from the clamped q and see it)
+                    self.stalled = deepest < 0
                     break
         self.dtd = smooth
         self.residuals.sample_points = None
