@@ -437,16 +437,16 @@ RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _rend
                       files=_robot_files)
 # The exported control-rate array, its validation counts (torque included) and jerk, Table III's
 # sign fidelity on it against the mitigated human, and the report's wrist tracks.
-METRICS = Step("metrics", "14", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS = Step("metrics", "15", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "14", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "15", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC, REFINE),
                        files=_robot_files)
 
 # The exported array replayed in MuJoCo with the robot's actuation, fixed base and standing.
-PHYSICS = Step("physics", "2", ("body", "robot", "fidelity"), _physics, _physics_result,
+PHYSICS = Step("physics", "3", ("body", "robot", "fidelity"), _physics, _physics_result,
                (COLLIDE, METRICS), files=_robot_files)
-PHYSICS_REFINED = Step("physics", "2", ("body", "robot", "fidelity"), _physics, _physics_result,
+PHYSICS_REFINED = Step("physics", "3", ("body", "robot", "fidelity"), _physics, _physics_result,
                        (COLLIDE, METRICS_REFINED), files=_robot_files)
 
 

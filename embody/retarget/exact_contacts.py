@@ -89,9 +89,9 @@ class ExactContacts:
                     return None
         self._weight = (self._weight_key, weight)
         self.deepest = min((f[1] for f in found), default=np.inf)
-        # one row per geom pair and frame: MuJoCo reports up to several points of one mesh pair
-        # at the same depth; the pair's row is its deepest distance with the mean separation rate
-        # of the points at that depth (each pair weighs the same, however many points it has)
+        # one row per geom pair and frame: the model reports one point a pair (`single_contact`);
+        # should a pair bring several, its row is its deepest distance with the mean separation
+        # rate of the points at that depth (each pair weighs the same, however many points)
         pairs: dict[tuple[int, int, int, int], list] = {}
         for t, dist, scale, rate, (g1, g2), tag in found:
             key = (t, min(g1, g2), max(g1, g2), tag)

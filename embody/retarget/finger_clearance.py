@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 
 from embody.robot import Robot
-from embody.robot.contacts import counted_geom_pairs
+from embody.robot.contacts import counted_geom_pairs, single_contact
 from embody.robot.exclusions import ancestors, hand_roots
 
 #: Clearance (m) the fingers keep from each other and from the palm.
@@ -67,7 +67,7 @@ class FingerClearance:
         counted = counted_geom_pairs(robot)
         hands = []
         for root in hand_roots(robot.model, robot.spec):
-            m = robot.model.__copy__()
+            m = single_contact(robot.model.__copy__())  # the verdict's distances
             m.geom_contype[:] = 0
             m.geom_conaffinity[:] = 0
             inside = np.array([root in ancestors(m, int(b)) for b in m.geom_bodyid])

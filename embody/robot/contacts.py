@@ -58,11 +58,12 @@ def collision_model(robot: Robot, margin: float = 0.0,
     `robot.model`, for less of its collision time (the verdict, the repair and the IK's polish
     run it per frame). `margin`: every used geom's margin (contacts closer
     than it are reported, dist ≥ 0 included). `movable_only`: only pairs whose relative pose
-    the IK joints change (the IK's exact-contact rows; the verdict needs every counted pair)."""
+    the IK joints change (the IK's exact-contact rows; the verdict needs every counted pair).
+    One contact per geom pair (`single_contact`): the same pairs and distances on every MuJoCo."""
     key = ("collision_model", float(margin), bool(movable_only))
     if key in robot.derived:
         return robot.derived[key]
-    model = robot.model.__copy__()
+    model = single_contact(robot.model.__copy__())
     counted = counted_geom_pairs(robot)
     contype, conaff = model.geom_contype.astype(np.int64), model.geom_conaffinity.astype(np.int64)
     counted &= ((contype[:, None] & conaff[None, :]) | (conaff[:, None] & contype[None, :])) != 0
@@ -85,6 +86,17 @@ def collision_model(robot: Robot, margin: float = 0.0,
     model.geom_margin[used] = margin
     robot.derived[key] = (model, counted)
     return robot.derived[key]
+
+
+def single_contact(model: mujoco.MjModel) -> mujoco.MjModel:
+    """`model`, changed in place, with MuJoCo's multi-point convex contacts off: one contact per
+    geom pair, the deepest. Why: with them on (both versions' default), mujoco 4.0's mesh pairs
+    report 3-4 points whose deepest differs from the single point's by -0.10..+0.43 mm (3.11's
+    extra points share the single point's depth), so counts and distances depended on the
+    version; with them off 3.11 and 4.0 report the same pairs and counts and the same distances
+    to 1.2 µm (410 G1 poses, margins 0 and 2 mm)."""
+    model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_MULTICCD)
+    return model
 
 
 def pair_bits(geom_body: np.ndarray, pairs: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:

@@ -77,6 +77,8 @@ def pair_depths(model: mujoco.MjModel, a: int, b: int, groups: list[int], sample
     m.geom_conaffinity[geoms] = 1
     m.geom_margin[geoms] = 0.0
     m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
+    # one contact per pair, as the verdict's (`contacts.single_contact`): the same depths on every MuJoCo
+    m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_MULTICCD
     m.exclude_signature[:] = 0  # the MJCF's own exclusions lifted (world-world: no geoms)
     d = mujoco.MjData(m)
     joints = path_joints(m, a, b)
