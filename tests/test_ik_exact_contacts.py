@@ -11,14 +11,9 @@ from embody.robot.contacts import self_collision_contacts
 
 @pytest.fixture(scope="module")
 def robot():
-    """A Robot of this module's own, not the process's cached one: the swap tests sit near a
-    threshold, and under pytest-xdist, after other files had used the cached robot, one swap
-    was solved differently (7 contacts at a 50 Hz sample; it passes on its own and in a serial
-    run). Which of the robot's caches carries that history is an open question."""
-    from embody.config import RobotConfig
-    from embody.robot import _load, robots_dir
-    cfg = RobotConfig()
-    return _load.__wrapped__(cfg.name, str(robots_dir(cfg).resolve()), cfg.mjcf_path)
+    """The process's cached default robot (the library's own `load_robot`)."""
+    from embody.robot import load_robot
+    return load_robot()
 
 
 def _hands_plant(robot):
