@@ -21,10 +21,13 @@ where the robot could not have executed the motion.
 
 Where it must act, the excesses of retargeted sign motion are high-frequency (a 50 Hz zig-zag,
 the kinks of a 30 → 50 Hz resample), so it starts by low-passing, around each failing sample
-only, the joint group at fault (the overloaded joint's arm, fingers or waist; for the ZMP the
-arms and the waist), the width raised sample by sample until the sample passes, a width that
-makes MuJoCo find a new contact taken back; then each changed region keeps the least share of
-its change that still passes (`_local_start`). Where that leaves a sample failing, a
+only, the whole upper body (arms, fingers and waist together: a limb low-passed alone moves
+against the other limb, and the hands the contact repair kept 2 mm apart touch), the width
+raised sample by sample until the sample passes, a width that makes MuJoCo find a new contact
+taken back; then each changed region keeps the least share of its change that still passes
+(`_local_start`). Where that leaves samples failing, the solve runs again low-passing only the
+joint group at fault (the overloaded joint's arm, fingers or waist; for the ZMP the arms and the
+waist), and the result with fewer failing samples is kept. Where that leaves a sample failing, a
 sequential convex refinement follows on windows around it:
 
     min_x  ½ Σ_t (x_t − q_t)ᵀ W (x_t − q_t) + ½ w_s ‖Δ²(x − q)‖² + ½ w_h Σ hinge rows²
@@ -90,6 +93,11 @@ CONTACT_SCALE = 0.001
 #: Contacts closer than this (m) are rows on a watched sample; the contact model reports up to
 #: twice it.
 CLEARANCE = 0.002
+#: How far past CLEARANCE (m) a watched sample's contact row holds its pair. Why: the rows are
+#: hinges, active only where the pair is already closer than their target, so a row at the
+#: CLEARANCE itself never acts on a pair that is clear now but that the step closes (synth seq 16:
+#: one sample touched on every trial step of the Gauss-Newton and the solve stalled there).
+WATCH_BUFFER = 0.001
 #: How far (s) on each side of a violating sample the trajectory may change.
 REACH_S = 0.5
 
@@ -451,9 +459,9 @@ class _Problem:
             if col[t] < 0:
                 continue
             for dist, a in self.contact_rows(x[t]):
-                if dist < CLEARANCE:
+                if dist < CLEARANCE + WATCH_BUFFER:
                     c, v = place(np.array([t]), (-a / CONTACT_SCALE)[None])
-                    out.add((CLEARANCE - dist) / CONTACT_SCALE, c, v)
+                    out.add((CLEARANCE + WATCH_BUFFER - dist) / CONTACT_SCALE, c, v)
         return out
 
 
