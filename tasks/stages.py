@@ -416,17 +416,17 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
                  shared=True, files=_robot_files)
 # The whole-sequence IK on location-preserving targets; its 50 Hz array clear of contacts and inside
 # the effort limits and ZMP margin (`retarget.control`, `retarget.dynamics_limits`), with its counts.
-RETARGET = Step("retarget", "24", ("body", "robot", "ik"), _retarget, _ik_solution,
+RETARGET = Step("retarget", "25", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # The same solve when the critic follows: its 50 Hz array kinematic only (contacts, joint box,
 # velocities; counted as such), the torque and ZMP solve left to the round the critic chooses.
-RETARGET_BEFORE_CRITIC = Step("retarget", "24+critic", ("body", "robot", "ik"), _retarget_before_critic,
+RETARGET_BEFORE_CRITIC = Step("retarget", "25+critic", ("body", "robot", "ik"), _retarget_before_critic,
                               _ik_solution, (COLLIDE, SHAPE_FIT), files=_robot_files)
 # Every critic round's IK solution, action and comparison sheet (the re-solves' 50 Hz arrays
 # kinematic only); the chosen round's exported control-rate array (torque and ZMP solve
 # included, once) with its validation counts, the critic's verdict on that array, and the
 # rounds' wrist positions, which `metrics` reuses.
-REFINE = Step("refine", "26", ("body", "robot", "ik", "render", "critic"), _refine,
+REFINE = Step("refine", "27", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC), metrics=_refine_metrics,
               files=_robot_files)
 # The comparison sheet and the 15 fps preview of the reference (a MuJoCo skin) and the robot.

@@ -153,3 +153,34 @@ def test_export_refuses_torque_violations():
     assert not export_valid(counters)
     assert violations(counters) == {"torque_viol": 3}
     assert not export_valid({k: v for k, v in counters.items() if k != "torque_viol"})  # unmeasured
+
+
+def test_two_handed_excerpt_is_repaired_without_contacts(robot):
+    """1.4 s of a retargeted two-handed sign's kinematic 50 Hz export (synth seq 0, samples
+    100-169: the contact repair keeps the hands 2 mm apart while the arms zig-zag): its motors
+    are asked for more than their limits, and low-passing the limb at fault alone makes the
+    hands touch, so that start is capped and samples stay over. The solve low-passes the whole
+    upper body and repairs it: every sample's need within its limit, the ZMP inside its margin,
+    no counted pair closer than the export's gap, the velocity limits kept."""
+    from pathlib import Path
+
+    from embody.retarget.dynamics_limits import _enforce_with
+    from embody.retarget.limits import EXPORT_GAP
+    from embody.robot.contacts import near_contacts
+
+    data = np.load(Path(__file__).parent / "data" / "g1_two_hands_kinematic_50hz.npz")
+    assert list(data["joint_names"]) == list(robot.joint_names)
+    q = data["q"]
+    assert (near_contacts(robot, q, EXPORT_GAP) == 0).all()
+    assert _need(robot, q).max() > 2.0
+    limits = DynamicsLimits()
+    _, by_group, left = _enforce_with(robot, q, RATE, limits, 0.0, 0.0, None, False)
+    assert not by_group and left > 0
+    out, ok = enforce_dynamics(robot, q, RATE, limits)
+    assert ok
+    assert _need(robot, out).max() <= 1.0
+    assert zmp(robot, out, 1 / RATE)[2].min() >= 0.02 - 1e-6
+    assert (near_contacts(robot, out, EXPORT_GAP) == 0).all()
+    assert velocity_violations(out, robot.velocity_limits, RATE) == 0
+    assert limit_violations(out, robot.lower, robot.upper) == 0
+    assert np.abs(out - q).max() < np.radians(20)
