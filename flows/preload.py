@@ -20,3 +20,7 @@ import embody.tasks.stages  # noqa: F401
 
 threadpool_limits(limits=1, user_api="blas")
 torch.set_num_threads(1)
+try:
+    torch.set_num_interop_threads(1)
+except RuntimeError:  # inter-op work already started in this process: its pool is fixed
+    pass
