@@ -39,7 +39,8 @@ def _thread_counts(dask_worker: Any) -> dict[str, Any]:
 
     return {"dask": dask_worker.state.nthreads, "torch": torch.get_num_threads(),
             "torch_interop": torch.get_num_interop_threads(), "numba": numba.get_num_threads(),
-            "pools": sorted({f"{i['user_api']}:{i['num_threads']}" for i in threadpool_info()})}
+            "pools": sorted({f"{i['user_api']}:{i['num_threads']}" for i in threadpool_info()}),
+            "profiler": "profile" in dask_worker.periodic_callbacks}
 
 
 class DaskProcesses(LocalService):
@@ -132,7 +133,8 @@ class DaskProcesses(LocalService):
         """Per worker address, the threads its compute libraries would use: Dask's task
         threads, torch's intra- and inter-op pools, numba's, and every BLAS/OpenMP pool
         threadpoolctl finds. All 1 when the workers are single-threaded, as the benchmarks'
-        worker counts assume (a second thread per worker would compete for the same cores)."""
+        worker counts assume (a second thread per worker would compete for the same cores).
+        `profiler`: whether Dask's statistical profiler samples the worker's tasks."""
         from distributed import Client
 
         with Client(self.address, timeout=30) as client:
