@@ -31,10 +31,21 @@ dataset (default lengths, default stage configs, render on; the end-of-run repor
 started from their command lines (`embody.flows.cluster`), with the Prefect server on a
 throwaway PostgreSQL (`embody.flows.postgres`) and the store given by `--store-url` (default a
 local folder). It prints seq/min, the driver's and the workers' peak RSS, API errors, the
-store's files and bytes per sequence, the most task runs any flow run held, and the hours the
-same rate needs for 1,000 and 20,000 sequences:
+store's files (objects) and bytes per sequence, the most task runs any flow run held, the
+workers' CPU seconds per sequence, and the hours the same rate needs for 1,000 and 20,000
+sequences. With `--store-url s3://bucket/prefix` and no `AWS_ENDPOINT_URL`, it starts a moto S3
+server on localhost and counts, from the server's own access log, the HTTP requests the run
+(driver and workers) sent per sequence (`store_requests_per_seq`):
 
-    python benchmarks/scale.py --full --n 1000     # hours on 2 cores: see docs/orchestration.md
+    python benchmarks/scale.py --full --n 1000 [--store-url s3://bench/full]   # hours on 2 cores
+
+`--full --compare-workers` measures what a second single-threaded worker buys
+(`compare_workers`): the same `--chunk` default-config sequences on fresh clusters of 2, 1, 1,
+2 workers (ABBA), rates over the steady spans, with the CPU seconds per sequence of the
+workers, their steps, the driver, the scheduler and the Prefect server, so a loaded machine
+can be told apart from a serial part:
+
+    python benchmarks/scale.py --full --compare-workers --chunk 8 --rounds 2 --batch-size 2
 """
 
 from __future__ import annotations
@@ -291,10 +302,158 @@ def warm_compute(rows: list[dict[str, Any]]) -> tuple[float, float]:
     return sum(statistics.median(v) for v in per_step.values()), shared
 
 
+def _cpu_tree(pid: int) -> float:
+    """CPU seconds of a process and its children (0 when gone)."""
+    import psutil
+    try:
+        p = psutil.Process(pid)
+        return _cpu_s(p) + sum(_cpu_s(c) for c in p.children(recursive=True))
+    except (psutil.Error, ValueError):  # gone, or no process (-1)
+        return 0.0
+
+
+class S3Counter:
+    """`--store-url s3://bucket/...` without `AWS_ENDPOINT_URL`: a moto S3 server on localhost
+    (as the tests and `benchmarks/object_store.py` start one), the `AWS_*` variables pointing
+    at it for this process and the ones it starts; `requests()` counts the HTTP requests the
+    server has answered, from its own access log (one line per request): a count independent
+    of embody's code. With `AWS_ENDPOINT_URL` set (a real bucket) nothing is counted."""
+
+    def __init__(self, store: str, work: Path) -> None:
+        self.store, self.work = store, work
+        self.proc: subprocess.Popen | None = None
+        self.log = work / "moto.log"
+
+    def __enter__(self) -> "S3Counter":
+        if not self.store.startswith("s3://") or os.environ.get("AWS_ENDPOINT_URL"):
+            return self
+        import socket
+        import urllib.request
+        with socket.socket() as s:
+            s.bind(("127.0.0.1", 0))
+            port = s.getsockname()[1]
+        with open(self.log, "wb") as out:
+            self.proc = subprocess.Popen([sys.executable, "-m", "moto.server", "-H", "127.0.0.1",
+                                          "-p", str(port)], stdout=out, stderr=subprocess.STDOUT)
+        os.environ.update(AWS_ENDPOINT_URL=f"http://127.0.0.1:{port}", AWS_ACCESS_KEY_ID="bench",
+                          AWS_SECRET_ACCESS_KEY="bench", AWS_REGION="us-east-1")
+        bucket = self.store[len("s3://"):].split("/", 1)[0]
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                urllib.request.urlopen(urllib.request.Request(
+                    f"http://127.0.0.1:{port}/{bucket}", method="PUT"), timeout=5)
+                break
+            except OSError:
+                if self.proc.poll() is not None or time.monotonic() > deadline:
+                    raise SystemExit("moto's S3 server did not start (pip install 'moto[server]')")
+                time.sleep(0.2)
+        print(f"moto S3 server on 127.0.0.1:{port}, bucket {bucket}", flush=True)
+        return self
+
+    def requests(self) -> int | None:
+        if self.proc is None:
+            return None
+        time.sleep(0.5)  # the last requests' log lines
+        return sum(1 for line in self.log.read_text(errors="replace").splitlines()
+                   if " HTTP/1.1\" " in line)
+
+    def __exit__(self, *exc: object) -> None:
+        if self.proc is not None:
+            self.proc.terminate()
+            self.proc.wait()
+            for k in ("AWS_ENDPOINT_URL", "AWS_ACCESS_KEY_ID", "AWS_SECRET_ACCESS_KEY",
+                      "AWS_REGION"):
+                os.environ.pop(k, None)
+
+
+def store_size(store: str) -> tuple[int, int]:
+    """(files or objects, bytes) of a store folder or URL."""
+    from embody.store.objects import Objects, is_url
+    files = size = 0
+    if is_url(store) and not store.startswith("file://"):
+        for meta in Objects(store).list(""):
+            files += 1
+            size += int(meta["size"])
+        return files, size
+    for root, _, names in os.walk(store.removeprefix("file://")):
+        for name in names:
+            files += 1
+            size += os.path.getsize(os.path.join(root, name))
+    return files, size
+
+
+def drive(label: str, cmd: list[str], env: dict[str, str], work: Path, cluster: Any,
+          server_pid: int, db_pid: int = -1) -> dict[str, Any]:
+    """Run one `embody run` driver to its end, sampling every 0.5 s: its process tree's RSS
+    and CPU, the workers' RSS, the load; CPU seconds of the workers, the scheduler and the
+    Prefect server spent while it ran."""
+    import psutil
+
+    err_path, out_path = work / f"{label}.stderr", work / f"{label}.json"
+    pids = {"workers": [w.pid for w in cluster.workers], "scheduler": [cluster.scheduler.pid],
+            "server": [server_pid], "database": [db_pid]}
+    cpu0 = {k: sum(_cpu_tree(p) for p in v) for k, v in pids.items()}
+    started, t0 = time.time(), time.perf_counter()
+    peak_driver = peak_worker = 0
+    driver_cpu = 0.0
+    loads = [os.getloadavg()[0]]
+    with open(err_path, "w") as err, open(out_path, "w") as out:
+        proc = subprocess.Popen(cmd, env=env, cwd=work, stdout=out, stderr=err,
+                                start_new_session=True)
+        try:
+            ps = psutil.Process(proc.pid)
+            while proc.poll() is None:
+                try:
+                    tree = [ps] + ps.children(recursive=True)
+                    peak_driver = max(peak_driver, sum(
+                        p.memory_info().rss for p in tree if p.is_running()))
+                    driver_cpu = max(driver_cpu, sum(_cpu_s(p) for p in tree))
+                except psutil.Error:
+                    pass
+                peak_worker = max([peak_worker] + [_rss(w.pid) for w in cluster.workers])
+                loads.append(os.getloadavg()[0])
+                time.sleep(0.5)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    wall = time.perf_counter() - t0
+    cpu = {k: sum(_cpu_tree(p) for p in v) - cpu0[k] for k, v in pids.items()}
+    summary = json.loads(out_path.read_text() or "{}")
+    if summary.get("failed"):
+        print(f"  {label}: {summary['failed']} failed; first: {summary['failures'][0]}",
+              flush=True)
+    errors = 0
+    for path in [err_path, *cluster.folder.glob("worker-*/worker.log")]:
+        errors += sum(bool(_ERRORS.search(line)) for line in
+                      path.read_text(errors="replace").splitlines())
+    return {"label": label, "started": started, "wall_s": wall, "summary": summary,
+            "peak_driver": peak_driver, "peak_worker": peak_worker, "driver_cpu_s": driver_cpu,
+            "worker_cpu_s": cpu["workers"], "scheduler_cpu_s": cpu["scheduler"],
+            "server_cpu_s": cpu["server"], "database_cpu_s": cpu["database"],
+            "load_avg": sum(loads) / len(loads),
+            "errors": errors, "exit": proc.returncode}
+
+
+def _full_env(api: str, work: Path) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_")}
+    env.update(PREFECT_API_URL=api, PREFECT_HOME=str(work / "driver-prefect"),
+               PYTHONPATH=str(ROOT), DO_NOT_TRACK="1", PREFECT_SERVER_ANALYTICS_ENABLED="false")
+    return env
+
+
+def _full_cmd(data: Path, store: str, name: str, address: str, workers: int, batch: int,
+              extra: list[str] = ()) -> list[str]:
+    return [*EMBODY, "run", str(data), "--store", store, "--name", name,
+            "--runner", "dask", "--dask-address", address, "--workers", str(workers),
+            "--batch-size", str(batch), "--set", "run.report=false", "--no-progress", "--json",
+            *extra]
+
+
 def full_run(args: argparse.Namespace, work: Path) -> None:
     """The production-shaped run (`--full`): see the module docstring."""
     import httpx
-    import psutil
 
     from embody.flows.cluster import DaskProcesses
     from embody.flows.postgres import LocalPostgres
@@ -308,64 +467,32 @@ def full_run(args: argparse.Namespace, work: Path) -> None:
           f"({data})", flush=True)
     store = args.store_url or str(work / "store-full")
     pg = LocalPostgres()
-    errors = 0
-    with pg as db_url, LocalServer(work / "prefect-home", database_url=db_url) as api:
-        print(f"prefect server {api} on PostgreSQL ({db_url})", flush=True)
-        cluster = DaskProcesses(work / "cluster", args.workers)
-        with cluster as address:
-            print(f"dask scheduler {address}, {args.workers} workers", flush=True)
-            env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_")}
-            env.update(PREFECT_API_URL=api, PREFECT_HOME=str(work / "driver-prefect"),
-                       PYTHONPATH=str(ROOT), DO_NOT_TRACK="1",
-                       PREFECT_SERVER_ANALYTICS_ENABLED="false")
-            cmd = [*EMBODY, "run", str(data), "--store", store, "--name", "full",
-                   "--runner", "dask", "--dask-address", address, "--workers", str(args.workers),
-                   "--batch-size", str(args.batch_size), "--set", "run.report=false",
-                   "--no-progress", "--json"]
-            err_path, out_path = work / "full.stderr", work / "full.json"
-            started, t0 = time.time(), time.perf_counter()
-            peak_driver = peak_worker = 0
-            with open(err_path, "w") as err, open(out_path, "w") as out:
-                proc = subprocess.Popen(cmd, env=env, cwd=work, stdout=out, stderr=err,
-                                        start_new_session=True)
-                try:
-                    ps = psutil.Process(proc.pid)
-                    while proc.poll() is None:
-                        try:
-                            tree = [ps] + ps.children(recursive=True)
-                            peak_driver = max(peak_driver, sum(
-                                p.memory_info().rss for p in tree if p.is_running()))
-                        except psutil.Error:
-                            pass
-                        peak_worker = max([peak_worker] + [_rss(w.pid) for w in cluster.workers])
-                        time.sleep(0.5)
-                finally:
-                    if proc.poll() is None:
-                        os.killpg(proc.pid, signal.SIGKILL)
-                    proc.wait()
-            wall = time.perf_counter() - t0
-            logs = [err_path, work / "prefect-home" / "server.log",
-                    *(work / "cluster").glob("worker-*/worker.log")]
-            for path in logs:
-                if path.is_file():
-                    errors += sum(bool(_ERRORS.search(line)) for line in
-                                  path.read_text(errors="replace").splitlines())
-        flow_runs = httpx.post(api + "/flow_runs/filter", json={}, timeout=60).json()
-        per_run = [int(httpx.post(api + "/task_runs/count", json={
-            "flow_runs": {"id": {"any_": [r["id"]]}}}, timeout=60).json()) for r in flow_runs]
-    summary = json.loads(out_path.read_text() or "{}")
-    rows = [r for r in ArtifactStore(store).computations() if r["time"] >= started]
-    done = [r["time"] for r in rows if r["step"] == "metrics"]
-    span = (max(done) - min(r["time"] for r in rows)) if len(done) > 1 else None
+    with S3Counter(store, work) as s3, pg as db_url:
+        server = LocalServer(work / "prefect-home", database_url=db_url)
+        with server as api:
+            print(f"prefect server {api} on PostgreSQL ({db_url})", flush=True)
+            cluster = DaskProcesses(work / "cluster", args.workers)
+            with cluster as address:
+                print(f"dask scheduler {address}, {args.workers} workers; worker threads: "
+                      f"{json.dumps(cluster.thread_counts())}", flush=True)
+                requests0 = s3.requests()
+                r = drive("full", _full_cmd(data, store, "full", address, args.workers,
+                                            args.batch_size),
+                          _full_env(api, work), work, cluster, server.proc.pid, pg.pid())
+                requests = s3.requests()
+            errors = r["errors"] + _log_errors(work / "prefect-home" / "server.log")
+            flow_runs = httpx.post(api + "/flow_runs/filter", json={}, timeout=60).json()
+            per_run = [int(httpx.post(api + "/task_runs/count", json={
+                "flow_runs": {"id": {"any_": [fr["id"]]}}}, timeout=60).json())
+                for fr in flow_runs]
+            summary, wall, n = r["summary"], r["wall_s"], args.n
+            rows = [x for x in ArtifactStore(store).computations() if x["time"] >= r["started"]]
+            files, size = store_size(store)
+    done = [x["time"] for x in rows if x["step"] == "metrics"]
+    span = (max(done) - min(x["time"] for x in rows)) if len(done) > 1 else None
     compute: dict[str, float] = {}
-    for r in rows:
-        compute[r["step"]] = compute.get(r["step"], 0.0) + float(r.get("compute_s") or 0.0)
-    files = size = 0
-    for root, _, names in os.walk(store):
-        for name in names:
-            files += 1
-            size += os.path.getsize(os.path.join(root, name))
-    n = args.n
+    for x in rows:
+        compute[x["step"]] = compute.get(x["step"], 0.0) + float(x.get("compute_s") or 0.0)
     rate = 60 * n / wall
     steady = 60 * len(done) / span if span else rate
     print("compute seconds per sequence (summed over workers): " + " ".join(
@@ -373,20 +500,134 @@ def full_run(args: argparse.Namespace, work: Path) -> None:
     median_s, shared_s = warm_compute(rows)
     # hours for N sequences at the warm per-sequence compute, W workers busy, plus the shared fit
     hours = {m: (m * median_s / args.workers + shared_s) / 3600 for m in (1000, 20000)}
-    if summary.get("failed"):
-        print(f"  {summary['failed']} failed; first: {summary['failures'][0]}", flush=True)
+    print(f"projection at {median_s:.1f} warm compute-s per sequence on {args.workers} "
+          f"workers: {hours[1000]:.1f} h for 1,000 sequences, {hours[20000]:.1f} h for 20,000; "
+          f"at this run's steady rate ({steady:.2f} seq/min): {1000 / steady / 60:.1f} h and "
+          f"{20000 / steady / 60:.1f} h", flush=True)
+    req = (f"store_requests_per_seq={(requests - requests0) / n:.1f} "
+           if requests is not None else "")
     print(f"RESULT mode=full sequences={n} ok={summary.get('ok')} wall_s={wall:.1f} "
           f"seq_per_min={rate:.2f} steady_seq_per_min={steady:.2f} "
-          f"peak_driver_rss_mb={peak_driver / 2**20:.0f} peak_worker_rss_mb={peak_worker / 2**20:.0f} "
+          f"peak_driver_rss_mb={r['peak_driver'] / 2**20:.0f} "
+          f"peak_worker_rss_mb={r['peak_worker'] / 2**20:.0f} "
           f"api_errors={errors} store_files_per_seq={files / n:.1f} "
-          f"store_mb_per_seq={size / n / 2**20:.2f} "
+          f"store_mb_per_seq={size / n / 2**20:.2f} {req}"
           f"compute_s_per_seq={sum(compute.values()) / n:.2f} "
+          f"worker_cpu_s_per_seq={r['worker_cpu_s'] / n:.2f} "
           f"max_task_runs_per_flow_run={max(per_run, default=0)} flow_runs={len(flow_runs)} "
           f"warm_compute_s_per_seq={median_s:.2f} projected_h_1000={hours[1000]:.1f} "
           f"projected_h_20k={hours[20000]:.1f} "
           f"workers={args.workers} batch={args.batch_size} database=postgresql "
           f"store={'local' if '://' not in store else store.split('://')[0]} "
-          f"render=on configs=default load_avg={os.getloadavg()[0]:.1f}", flush=True)
+          f"render=on configs=default load_avg={r['load_avg']:.1f}", flush=True)
+
+
+def _log_errors(path: Path) -> int:
+    if not path.is_file():
+        return 0
+    return sum(bool(_ERRORS.search(line)) for line in
+               path.read_text(errors="replace").splitlines())
+
+
+def compare_workers(args: argparse.Namespace, work: Path) -> None:
+    """`--full --compare-workers`: 1 and 2 single-threaded Dask workers on the same default-
+    config sequences. A warm-up run (1 worker, 1 sequence) computes the shared shape fit and
+    fills numba's kernel cache; then `2 × --rounds` chunks in the order 2,1,1,2,… (ABBA, so a
+    load change hits both alike), each on a fresh cluster of that many workers and a fresh
+    store holding only the warm-up's shape fit, so every chunk computes the same `--chunk`
+    sequences. Rates are taken over the steady spans (first computed artifact → last
+    metrics); the per-sequence CPU seconds of the workers, the driver, the scheduler and the
+    Prefect server say where time went whatever the machine's load."""
+    from embody.flows.cluster import DaskProcesses
+    from embody.flows.postgres import LocalPostgres
+    from embody.flows.server import LocalServer
+    from embody.store import ArtifactStore
+    from embody.synth import default_dataset
+
+    size = args.chunk or 8
+    data = default_dataset(work / "data", n=size, seed=0)
+    order = [w for r in range(args.rounds) for w in ((2, 1) if r % 2 == 0 else (1, 2))]
+    runs: list[dict[str, Any]] = []
+    pg = LocalPostgres()
+    with pg as db_url:
+        server = LocalServer(work / "prefect-home", database_url=db_url)
+        with server as api:
+            env = _full_env(api, work)
+            print(f"prefect server {api} on PostgreSQL; {size} sequences per chunk, batch "
+                  f"{args.batch_size}, order {order}", flush=True)
+            warm_store = work / "store-warm"
+            cluster = DaskProcesses(work / "cluster-warm", 1)
+            with cluster as address:
+                print(f"worker threads: {json.dumps(cluster.thread_counts())}", flush=True)
+                warm = drive("warmup", _full_cmd(data, str(warm_store), "warm", address, 1, 1,
+                                                 ["--limit", "1"]), env, work, cluster,
+                             server.proc.pid, pg.pid())
+            print(f"warm-up (shape fit, kernel caches): {warm['wall_s']:.0f} s", flush=True)
+            for i, workers in enumerate(order):
+                store = work / f"store-c{i}"
+                shutil.copytree(warm_store / "artifacts" / "shape_fit",
+                                store / "artifacts" / "shape_fit")
+                cluster = DaskProcesses(work / f"cluster-c{i}", workers)
+                with cluster as address:
+                    r = drive(f"chunk{i}_{workers}w", _full_cmd(
+                        data, str(store), f"c{i}", address, workers, args.batch_size),
+                        env, work, cluster, server.proc.pid, pg.pid())
+                rows = ArtifactStore(store).computations()
+                done = [x["time"] for x in rows if x["step"] == "metrics"]
+                r.update(workers=workers, n=size, ok=r["summary"].get("ok"),
+                         compute_s=sum(float(x.get("compute_s") or 0.0) for x in rows),
+                         step_cpu_s=sum(float(x.get("cpu_s") or 0.0) for x in rows),
+                         done=len(done), span_s=max(done) - min(x["time"] for x in rows)
+                         if len(done) > 1 else None)
+                r.pop("summary")
+                runs.append(r)
+                print(json.dumps({k: round(v, 2) if isinstance(v, float) else v
+                                  for k, v in r.items()}), flush=True)
+            errors = sum(r["errors"] for r in runs) + _log_errors(server.log_path)
+    fig: dict[int, dict[str, float]] = {}
+    for w in (1, 2):
+        mine = [r for r in runs if r["workers"] == w and r["span_s"]]
+        n = sum(r["n"] for r in mine)
+        span = sum(r["span_s"] for r in mine)
+        fig[w] = {"steady": 60 * sum(r["done"] for r in mine) / span,
+                  "wall": 60 * n / sum(r["wall_s"] for r in mine),
+                  "load": sum(r["load_avg"] for r in mine) / len(mine),
+                  "worker_cpu": sum(r["worker_cpu_s"] for r in mine) / n,
+                  "compute": sum(r["compute_s"] for r in mine) / n,
+                  # CPU seconds of the steps' own compute threads: the load-independent cost
+                  "step_cpu": sum(r["step_cpu_s"] for r in mine) / n,
+                  "driver_cpu": sum(r["driver_cpu_s"] for r in mine) / n,
+                  "server_cpu": sum(r["server_cpu_s"] for r in mine) / n,
+                  "database_cpu": sum(r["database_cpu_s"] for r in mine) / n,
+                  "scheduler_cpu": sum(r["scheduler_cpu_s"] for r in mine) / n,
+                  # the share of the workers' wall time spent in a step's compute
+                  "busy": sum(r["compute_s"] for r in mine) / (span * w),
+                  "ok": sum(r["ok"] or 0 for r in mine), "n": n}
+    one, two = fig[1], fig[2]
+    print("per sequence, 1 worker / 2 workers: " + "; ".join(
+        f"{k} {one[k]:.2f} / {two[k]:.2f}" for k in
+        ("worker_cpu", "step_cpu", "compute", "driver_cpu", "server_cpu", "database_cpu",
+         "scheduler_cpu", "busy")),
+        flush=True)
+    print(f"RESULT mode=full_compare chunks={len(runs)} chunk={size} "
+          f"order={''.join(map(str, order))} "
+          f"ok={one['ok'] + two['ok']}/{one['n'] + two['n']} "
+          f"seq_per_min_1w={one['steady']:.3f} seq_per_min_2w={two['steady']:.3f} "
+          f"ratio_2w_1w={two['steady'] / one['steady']:.2f} "
+          f"wall_ratio_2w_1w={two['wall'] / one['wall']:.2f} "
+          f"worker_cpu_s_per_seq_1w={one['worker_cpu']:.1f} "
+          f"worker_cpu_s_per_seq_2w={two['worker_cpu']:.1f} "
+          f"cpu_ratio_2w_1w={two['worker_cpu'] / one['worker_cpu']:.2f} "
+          f"step_cpu_s_per_seq_1w={one['step_cpu']:.1f} "
+          f"step_cpu_s_per_seq_2w={two['step_cpu']:.1f} "
+          f"server_cpu_s_per_seq={(one['server_cpu'] + two['server_cpu']) / 2:.2f} "
+          f"scheduler_cpu_s_per_seq={(one['scheduler_cpu'] + two['scheduler_cpu']) / 2:.2f} "
+          f"database_cpu_s_per_seq={(one['database_cpu'] + two['database_cpu']) / 2:.2f} "
+          f"driver_cpu_s_per_seq={(one['driver_cpu'] + two['driver_cpu']) / 2:.2f} "
+          f"busy_1w={one['busy']:.2f} busy_2w={two['busy']:.2f} "
+          f"load_1w={one['load']:.1f} load_2w={two['load']:.1f} api_errors={errors} "
+          f"batch={args.batch_size} database=postgresql store=local render=on configs=default",
+          flush=True)
 
 
 def interleaved(b: Bench, size: int, rounds: int) -> tuple[dict[str, float], list[dict[str, Any]]]:
@@ -451,8 +692,12 @@ def main() -> None:
                              "N=1000 on 2 cores).")
     parser.add_argument("--store-url", default=None,
                         help="--full: the store (a folder or URL; default a folder in --out).")
-    parser.add_argument("--chunk", type=int, default=64,
-                        help="Sequences per chunk of the interleaved 1-vs-2-worker phase.")
+    parser.add_argument("--compare-workers", action="store_true",
+                        help="--full: 1 vs 2 Dask workers on interleaved chunks (order 2,1,1,2) "
+                             "instead of the N-sequence run.")
+    parser.add_argument("--chunk", type=int, default=None,
+                        help="Sequences per chunk of the 1-vs-2-worker comparison (default 64; "
+                             "--full --compare-workers: 8).")
     parser.add_argument("--rounds", type=int, default=2,
                         help="Rounds of the interleaved phase (each: one 1- and one 2-worker chunk).")
     parser.add_argument("--skip", default="", help="Comma-separated phases to skip: "
@@ -466,11 +711,15 @@ def main() -> None:
         shutil.rmtree(old, ignore_errors=True)
     if args.full:
         shutil.rmtree(work / "prefect-home", ignore_errors=True)
-        print(f"scale --full: {args.n} default synthetic sequences (default lengths and "
-              f"configs, render on, report off), batch {args.batch_size}, {args.workers} dask "
-              f"workers; {os.cpu_count()} CPUs, load {os.getloadavg()[0]:.1f}; work {work}",
-              flush=True)
-        full_run(args, work)
+        what = (f"1 vs 2 dask workers on {2 * args.rounds} chunks of {args.chunk or 8}"
+                if args.compare_workers else f"{args.n} sequences on {args.workers} dask workers")
+        print(f"scale --full: {what}; default synthetic sequences (default lengths and configs, "
+              f"render on, report off), batch {args.batch_size}; {os.cpu_count()} CPUs, load "
+              f"{os.getloadavg()[0]:.1f}; work {work}", flush=True)
+        if args.compare_workers:
+            compare_workers(args, work)
+        else:
+            full_run(args, work)
         return
     print(f"scale: {args.n} synthetic sequences of {args.frames} frames, batch {args.batch_size}, "
           f"{args.workers} workers; render OFF, end-of-run report OFF; "
@@ -504,7 +753,7 @@ def main() -> None:
         chunks: list[dict[str, Any]] = []
         if "ratio" not in skip:
             try:
-                rates, chunks = interleaved(b, args.chunk, args.rounds)
+                rates, chunks = interleaved(b, args.chunk or 64, args.rounds)
                 print("interleaved 1 vs 2 workers (steady seq/min, wall seq/min, mean load): "
                       + json.dumps(rates), flush=True)
             except Exception as exc:

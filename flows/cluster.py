@@ -18,7 +18,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 from embody.flows.service import LocalService
 
@@ -29,6 +29,18 @@ def _dask() -> str:
     """The `dask` command of this interpreter's environment (else the one on PATH)."""
     local = Path(sys.executable).with_name("dask")
     return str(local) if local.is_file() else (shutil.which("dask") or "dask")
+
+
+def _thread_counts(dask_worker: Any) -> dict[str, Any]:
+    """Run inside a worker (`Client.run`): see `DaskProcesses.thread_counts`."""
+    import numba
+    import torch
+    from threadpoolctl import threadpool_info
+
+    return {"dask": dask_worker.state.nthreads, "torch": torch.get_num_threads(),
+            "torch_interop": torch.get_num_interop_threads(), "numba": numba.get_num_threads(),
+            "pools": sorted({f"{i['user_api']}:{i['num_threads']}" for i in threadpool_info()}),
+            "profiler": "profile" in dask_worker.periodic_callbacks}
 
 
 class DaskProcesses(LocalService):
@@ -52,7 +64,8 @@ class DaskProcesses(LocalService):
 
     def _env(self, home: Path) -> dict[str, str]:
         """The parent's environment without its Prefect settings and temp folder: a worker
-        gets its own `PREFECT_HOME` and `TMPDIR`; single-threaded BLAS (one task per worker)."""
+        gets its own `PREFECT_HOME` and `TMPDIR`; single-threaded BLAS, OpenMP and numba (one
+        task per worker, `--nthreads 1`; `embody.flows.preload` also holds torch to one thread)."""
         env = {k: v for k, v in os.environ.items()
                if not k.startswith(("PREFECT_", "DASK_")) and k not in ("TMPDIR", "TMP", "TEMP")}
         tmp = home / "tmp"
@@ -60,6 +73,7 @@ class DaskProcesses(LocalService):
         env.update(TMPDIR=str(tmp), PREFECT_HOME=str(home / "prefect"), DO_NOT_TRACK="1",
                    PREFECT_SERVER_ANALYTICS_ENABLED="false", PREFECT_LOGGING_LEVEL="WARNING",
                    OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
+                   NUMBA_NUM_THREADS="1", NUMEXPR_NUM_THREADS="1", VECLIB_MAXIMUM_THREADS="1",
                    **self.extra_env)
         return env
 
@@ -114,6 +128,17 @@ class DaskProcesses(LocalService):
                 if time.monotonic() > deadline:
                     raise TimeoutError(f"{n} dask workers not up within the timeout")
                 time.sleep(0.2)
+
+    def thread_counts(self) -> dict[str, dict[str, Any]]:
+        """Per worker address, the threads its compute libraries would use: Dask's task
+        threads, torch's intra- and inter-op pools, numba's, and every BLAS/OpenMP pool
+        threadpoolctl finds. All 1 when the workers are single-threaded, as the benchmarks'
+        worker counts assume (a second thread per worker would compete for the same cores).
+        `profiler`: whether Dask's statistical profiler samples the worker's tasks."""
+        from distributed import Client
+
+        with Client(self.address, timeout=30) as client:
+            return client.run(_thread_counts)
 
     def _check(self, proc: subprocess.Popen, name: str, deadline: float) -> None:
         if proc.poll() is not None:

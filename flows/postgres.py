@@ -90,6 +90,13 @@ class LocalPostgres(LocalService):
         self._createdb()
         return self.url
 
+    def pid(self) -> int:
+        """The postmaster's process id (its backends are its children), -1 when not running."""
+        try:
+            return int((self.data / "postmaster.pid").read_text().split()[0])
+        except (OSError, ValueError, IndexError):
+            return -1
+
     def _createdb(self) -> None:
         deadline = time.monotonic() + 30
         while True:

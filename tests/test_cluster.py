@@ -309,3 +309,20 @@ def test_task_runs_per_flow_run_stay_under_the_bound(prefect_pg, tmp_path):
     # the chunks hold every step's task run: 4 steps × 12 batches + the shape fit
     assert sum(per_run[r["id"]] for r in chunks) == 4 * n + 1
     assert {(s, k) for s, k, _ in store.entries()} == Manifest.load(store, "bounded").keys()
+
+
+def test_cluster_workers_are_single_threaded(tmp_path):
+    """A `dask worker --nthreads 1 --preload embody.flows.preload` of `DaskProcesses` runs one
+    task at a time and every pool its compute could use (torch intra- and inter-op, numba,
+    BLAS, OpenMP) has one thread: the benchmarks count one core per worker. Dask's profiler,
+    which samples the task's stack from a second thread, is off."""
+    cluster = _cluster(tmp_path / "cluster", workers=1)
+    with cluster:
+        counts = cluster.thread_counts()
+    assert len(counts) == 1
+    (worker,) = counts.values()
+    assert {k: worker[k] for k in ("dask", "torch", "torch_interop", "numba")} == \
+        {"dask": 1, "torch": 1, "torch_interop": 1, "numba": 1}
+    assert any(p.startswith("blas:") for p in worker["pools"])
+    assert all(p.endswith(":1") for p in worker["pools"]), worker["pools"]
+    assert worker["profiler"] is False  # the preload turns Dask's stack sampler off
