@@ -499,6 +499,9 @@ def warm(ctx: Context, pipeline: Pipeline) -> None:
         from embody.physics.replay import fixed_model, standing_model
         fixed_model(ctx.robot)
         standing_model(ctx.robot)
+    if "render" in names:  # the robot as drawn (decimated meshes), before a worker forks
+        from embody.render.scene import prepared_robot_model
+        prepared_robot_model(ctx.robot, ctx.cfg.render, ctx.robot.spec.torso_body)
     if "retarget" in names:  # the robot's proxies and hand-clearance tables (per robot)
         from types import SimpleNamespace
 
