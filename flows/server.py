@@ -48,7 +48,12 @@ class LocalServer:
         env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_")}
         env.update(PREFECT_HOME=str(self.home), DO_NOT_TRACK="1",
                    PREFECT_SERVER_ANALYTICS_ENABLED="false", PREFECT_UI_ENABLED="false",
-                   PREFECT_LOGGING_LEVEL="WARNING")
+                   PREFECT_LOGGING_LEVEL="WARNING",
+                   # Prefect's 5 s connect / 10 s statement defaults: on a loaded machine (load
+                   # 33-41 on 2 cores) the server's own background services timed out on
+                   # PostgreSQL 162 times in one run while every API call the run made succeeded.
+                   PREFECT_SERVER_DATABASE_CONNECTION_TIMEOUT="30",
+                   PREFECT_SERVER_DATABASE_TIMEOUT="30")
         if self.database_url:
             env["PREFECT_API_DATABASE_CONNECTION_URL"] = self.database_url
         return env
