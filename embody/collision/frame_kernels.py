@@ -549,10 +549,11 @@ def floods(vertices: np.ndarray, vptr: np.ndarray, verts: np.ndarray, vgroup: np
             for u in range(w1 - w0):
                 seen[u] = not allowed[b, vgroup[w0 + u]]
             stack = np.empty(w1 - w0, dtype=np.int64)
-            # bounds on a vertex's distance to the surface, from the vertex that pushed it
-            # (that one's distance, or its bounds, ± the edge between them): NaN until pushed
+            # bounds on a vertex's distance to the surface, from its visited neighbours (their
+            # distance, or their bounds, ± the edge between them; the tightest): NaN until one
             low = np.full(w1 - w0, np.nan)
             high = np.full(w1 - w0, np.nan)
+            popped = np.zeros(w1 - w0, dtype=np.bool_)
             top = 0
             for k2 in range(seed_ptr[job], seed_ptr[job + 1]):
                 u = seeds[k2]
@@ -587,14 +588,20 @@ def floods(vertices: np.ndarray, vptr: np.ndarray, verts: np.ndarray, vgroup: np
                     if checked[vgroup[w0 + u], fgroup[f0 + face]] and d > deepest:
                         deepest = d
                     lo_u, hi_u = d, d
+                popped[u] = True
                 for k3 in range(nptr[w0 + a + u], nptr[w0 + a + u + 1]):
                     nb = nidx[k3]
+                    if popped[nb]:
+                        continue
+                    # a neighbour still to visit: pushed now, or its bounds narrowed
+                    r = vt[verts[w0 + nb]]
+                    e = _norm(r[0] - p[0], r[1] - p[1], r[2] - p[2])
+                    if not low[nb] >= lo_u - e:
+                        low[nb] = lo_u - e
+                    if not high[nb] <= hi_u + e:
+                        high[nb] = hi_u + e
                     if not seen[nb]:
                         seen[nb] = True
-                        r = vt[verts[w0 + nb]]
-                        e = _norm(r[0] - p[0], r[1] - p[1], r[2] - p[2])
-                        low[nb] = lo_u - e
-                        high[nb] = hi_u + e
                         stack[top] = nb
                         top += 1
             if deepest > best[t]:
