@@ -237,6 +237,23 @@ def test_compiled_depths_are_the_numpy_reference_bit_for_bit():
     assert ours[0] == 0.0 and ours[1] > 0.01 and (ours > 0).sum() >= 4
 
 
+def test_compiled_depths_keep_the_reference_bits_on_deep_penetrations():
+    """A hand ~10 cm inside the torso (seed 0 sequence 4, the frame-rate test's clip): the
+    compiled flood skips the queries its depth bounds settle (`frame_kernels.floods`), which
+    only happens well inside a solid, and still returns the NumPy reference's depths."""
+    from embody.synth import generate_sequence
+    body = MannequinBody()
+    mesh = depth.depth_mesh(body)
+    m = generate_sequence(0, 4)
+    with torch.no_grad():
+        v = body.vertices(torch.as_tensor(np.asarray(m.pose[94:120:5], dtype=np.float64)),
+                          torch.as_tensor(np.asarray(m.betas, dtype=np.float64))).numpy()
+    ours = depth.frame_depths(mesh, v)
+    ref = depth.frame_depths_reference(mesh, v)
+    assert ours.tobytes() == ref.tobytes()
+    assert ours.min() > 0.05
+
+
 def test_compiled_depths_cover_skins_and_unchecked_groups():
     """A non-solid component (an open skin spanning several groups, the patch path in NumPy)
     next to solids, and a checked matrix with unchecked pairs: same bits as the reference."""

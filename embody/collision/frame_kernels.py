@@ -24,9 +24,10 @@ centroid plane test (`_separated`), a sound filter whose dot products NumPy hand
 can only differ on a pair whose two point sets touch within rounding, where no triangle pair
 crosses anyway. Non-solid components (skins) stay in Python (`depth._skin_depth`).
 
-numba's cache (`cache=True`) is keyed by this file: the kernels it uses from `closest.py` are
-compiled into these, and an edit there alone leaves this file's cached code stale. After editing
-`closest.py`, touch this file (or clear `__pycache__`)."""
+numba's cache (`cache=True`) is keyed by the text of this file (a hash of its source): the
+kernels it uses from `closest.py` are compiled into these, and an edit there alone leaves this
+file's cached code stale. After editing `closest.py`, change this file's text too (a touch is not
+enough), or clear `__pycache__`."""
 
 from __future__ import annotations
 
@@ -443,6 +444,14 @@ def corner_cosines(vertices: np.ndarray, fptr: np.ndarray, gfaces: np.ndarray,
     return out, ptr
 
 
+#: `floods` skips the closest-triangle query of a vertex whose lower bound on its depth exceeds
+#: this (m: it is inside, with a margin far above rounding) and whose upper bound is below the
+#: deepest depth found by this margin (m): the query could neither stop the flood there nor
+#: raise the frame's depth, so the depths keep their bits.
+_INSIDE_BY = 1e-6
+_BOUND_SLACK = 1e-9
+
+
 @njit(cache=True, nogil=True, error_model="numpy")
 def floods(vertices: np.ndarray, vptr: np.ndarray, verts: np.ndarray, vgroup: np.ndarray,
            fptr: np.ndarray, faces: np.ndarray, gfaces: np.ndarray, fgroup: np.ndarray,
@@ -540,6 +549,11 @@ def floods(vertices: np.ndarray, vptr: np.ndarray, verts: np.ndarray, vgroup: np
             for u in range(w1 - w0):
                 seen[u] = not allowed[b, vgroup[w0 + u]]
             stack = np.empty(w1 - w0, dtype=np.int64)
+            # bounds on a vertex's distance to the surface, from its visited neighbours (their
+            # distance, or their bounds, ± the edge between them; the tightest): NaN until one
+            low = np.full(w1 - w0, np.nan)
+            high = np.full(w1 - w0, np.nan)
+            popped = np.zeros(w1 - w0, dtype=np.bool_)
             top = 0
             for k2 in range(seed_ptr[job], seed_ptr[job + 1]):
                 u = seeds[k2]
@@ -552,24 +566,44 @@ def floods(vertices: np.ndarray, vptr: np.ndarray, verts: np.ndarray, vgroup: np
                 top -= 1
                 u = stack[top]
                 p = vt[verts[w0 + u]]
-                d, feat, face = nearest_one(p, tri, centroid, radius, reach, fn, offset, slack,
-                                            lo, dims, cell, start, cell_tri, q, scratch, pc)
-                if feat < 3:
-                    nrm = vn[faces[f0 + face, feat]]
-                elif feat < 6:
-                    nrm = en[eof[f0 + face, feat - 3]]
+                lo_u, hi_u = low[u], high[u]
+                if lo_u > _INSIDE_BY and hi_u < max(deepest, best[t]) - _BOUND_SLACK:
+                    # inside (the ball of radius lo_u around its pusher holds no surface) and
+                    # no deeper than a depth already found: the query could change nothing
+                    d = np.nan
                 else:
-                    nrm = fn[face]
-                side = ((p[0] - q[0]) * nrm[0] + (p[1] - q[1]) * nrm[1]) + (p[2] - q[2]) * nrm[2]
-                if side < 0:
+                    d, feat, face = nearest_one(p, tri, centroid, radius, reach, fn, offset,
+                                                slack, lo, dims, cell, start, cell_tri, q,
+                                                scratch, pc)
+                    if feat < 3:
+                        nrm = vn[faces[f0 + face, feat]]
+                    elif feat < 6:
+                        nrm = en[eof[f0 + face, feat - 3]]
+                    else:
+                        nrm = fn[face]
+                    side = (((p[0] - q[0]) * nrm[0] + (p[1] - q[1]) * nrm[1])
+                            + (p[2] - q[2]) * nrm[2])
+                    if not side < 0:
+                        continue
                     if checked[vgroup[w0 + u], fgroup[f0 + face]] and d > deepest:
                         deepest = d
-                    for k3 in range(nptr[w0 + a + u], nptr[w0 + a + u + 1]):
-                        nb = nidx[k3]
-                        if not seen[nb]:
-                            seen[nb] = True
-                            stack[top] = nb
-                            top += 1
+                    lo_u, hi_u = d, d
+                popped[u] = True
+                for k3 in range(nptr[w0 + a + u], nptr[w0 + a + u + 1]):
+                    nb = nidx[k3]
+                    if popped[nb]:
+                        continue
+                    # a neighbour still to visit: pushed now, or its bounds narrowed
+                    r = vt[verts[w0 + nb]]
+                    e = _norm(r[0] - p[0], r[1] - p[1], r[2] - p[2])
+                    if not low[nb] >= lo_u - e:
+                        low[nb] = lo_u - e
+                    if not high[nb] <= hi_u + e:
+                        high[nb] = hi_u + e
+                    if not seen[nb]:
+                        seen[nb] = True
+                        stack[top] = nb
+                        top += 1
             if deepest > best[t]:
                 best[t] = deepest
     return best
