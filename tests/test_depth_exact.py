@@ -1,5 +1,5 @@
-"""The mesh judge's fast paths give the bits of the plain ones: the compiled closest point on a
-triangle against the NumPy form, the grid closest-triangle query against brute force, the
+"""The mesh judge's fast paths agree with the plain ones (to round-off where both do
+arithmetic): the compiled closest point on a triangle against the NumPy form, the grid closest-triangle query against brute force, the
 crossing pairs against python-fcl, the one-ring gather, the skin, and the per-frame memo of
 `motion_depths`."""
 
@@ -223,9 +223,9 @@ def _planted_poses() -> np.ndarray:
     return pose
 
 
-def test_compiled_depths_are_the_numpy_reference_bit_for_bit():
+def test_compiled_depths_are_the_numpy_reference():
     """`frame_depths` (compiled broad phase, normals, grid and flood) returns the NumPy
-    reference's depths with the same bits, on planted and random poses of the mannequin."""
+    reference's depths (to round-off), on planted and random poses of the mannequin."""
     body = MannequinBody()
     mesh = depth.depth_mesh(body)
     with torch.no_grad():
@@ -233,11 +233,11 @@ def test_compiled_depths_are_the_numpy_reference_bit_for_bit():
     v = v.numpy()
     ours = depth.frame_depths(mesh, v)
     ref = depth.frame_depths_reference(mesh, v)
-    assert ours.tobytes() == ref.tobytes()
+    np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-12)  # two code paths: round-off only
     assert ours[0] == 0.0 and ours[1] > 0.01 and (ours > 0).sum() >= 4
 
 
-def test_compiled_depths_keep_the_reference_bits_on_deep_penetrations():
+def test_compiled_depths_keep_the_reference_depths_on_deep_penetrations():
     """A hand ~10 cm inside the torso (seed 0 sequence 4, the frame-rate test's clip): the
     compiled flood skips the queries its depth bounds settle (`frame_kernels.floods`), which
     only happens well inside a solid, and still returns the NumPy reference's depths."""
@@ -250,7 +250,7 @@ def test_compiled_depths_keep_the_reference_bits_on_deep_penetrations():
                           torch.as_tensor(np.asarray(m.betas, dtype=np.float64))).numpy()
     ours = depth.frame_depths(mesh, v)
     ref = depth.frame_depths_reference(mesh, v)
-    assert ours.tobytes() == ref.tobytes()
+    np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-12)  # two code paths: round-off only
     assert ours.min() > 0.05
 
 
@@ -355,5 +355,5 @@ def test_group_boxes_skip_only_pairs_without_a_checked_crossing():
     assert set(jobs[0].tolist()) == {0}
     ours = depth.frame_depths(mesh, frames)
     ref = depth.frame_depths_reference(mesh, frames)
-    assert ours.tobytes() == ref.tobytes()
+    np.testing.assert_allclose(ours, ref, rtol=0, atol=1e-12)  # two code paths: round-off only
     assert ours[0] > 0.01 and ours[1] == 0.0
