@@ -1,7 +1,7 @@
-"""The mesh judge's fast paths agree with the plain ones (to round-off where both do
-arithmetic): the compiled closest point on a triangle against the NumPy form, the grid
-closest-triangle query against brute force, the crossing pairs against python-fcl, the one-ring gather, the skin, and the per-frame memo of
-`motion_depths`."""
+"""The mesh judge's fast paths agree with the plain ones (to round-off where both do arithmetic):
+the compiled closest point on a triangle against the NumPy form, the grid closest-triangle query
+against brute force, the crossing pairs against python-fcl, the one-ring gather, the skin, and
+the per-frame memo of `motion_depths`."""
 
 from __future__ import annotations
 
