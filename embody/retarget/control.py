@@ -38,6 +38,12 @@ CLEARANCE = 0.002
 #: the last one changed, so clean trajectories stop at the first; 12 left synth seq 15's 50 Hz
 #: export with a fingertip 2.3 mm in the other wrist (export-invalid), 24 cleared it.
 PASSES = 32
+#: Passes a trust radius may run without a new fewest-touching count before it is given up for
+#: the next. Why: a radius that cannot clear a sample stalls at the same count from its second
+#: pass (tests/test_ik_tracking_preset.py's tight solve: 5°, 7.5° and 10° sat at 19-21 touching
+#: samples for all 32 passes, 120 of the solve's 135 CPU-s), while over the 24 default inputs no
+#: call that cleared went more than 11 passes without a new fewest count.
+STALL_PASSES = 12
 #: Margin (rad) kept inside the joint box, and relative margin under the velocity limits, in the
 #: exported control-rate array: larger than float32 rounding (≤ 2.4e-7 rad below 4 rad).
 BOX_MARGIN = 1e-6
@@ -251,9 +257,9 @@ def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = P
                      trust_deg: tuple[float | None, ...] = TRUST_DEG,
                      touching: np.ndarray | None = None, gap: float = 0.0) -> tuple[np.ndarray, bool]:
     """`separate`, and whether MuJoCo checked every returned sample clear (False only when the
-    passes ran out at every trust radius): a caller then need not run the same collision check
-    again. The repair is tried inside each trust radius of `trust_deg` in turn (no joint of any
-    sample leaves ± that many degrees of its input value; None: unbounded) and the first that
+    passes ran out, or stalled (`STALL_PASSES`), at every trust radius): a caller then need not
+    run the same collision check again. The repair is tried inside each trust radius of
+    `trust_deg` in turn (no joint of any sample leaves ± that many degrees of its input value; None: unbounded) and the first that
     clears every sample wins: the smallest correction that works, never a wide swing when a
     small one exists. `touching` (T,) bool: MuJoCo's verdict on q when the caller has it (the
     bridge's); the samples it finds clear are not checked again on the first pass. `gap` (m): a
@@ -275,8 +281,8 @@ def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float |
                      blend_s: float, box_margin: float, velocity_margin: float,
                      enforce_velocity: bool, check: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray]:
     """The repair passes with every joint kept within `radius` (rad) of q (None: the joint box
-    only); the result, whether it is clear, and the samples of q whose verdict the caller does
-    not know (`check` in: the samples to check on the first pass; out: the first pass's touching
+    only), given up after `STALL_PASSES` passes without a new fewest-touching count; the result,
+    whether it is clear, and the samples of q whose verdict the caller does not know (`check` in: the samples to check on the first pass; out: the first pass's touching
     samples, all that a retry at another radius must look at again)."""
     robot = sep.robot
     lower, upper = robot.lower + box_margin, robot.upper - box_margin
@@ -285,6 +291,7 @@ def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float |
     vmax = robot.velocity_limits * (1.0 - velocity_margin)
     half = max(int(round(blend_s * fps)), 0)
     first = None
+    best, since = len(q) + 1, 0
     for _ in range(passes):
         bad = [t for t in np.flatnonzero(check) if sep.contacts(q[t], jacobians=False)]
         if first is None:
@@ -292,6 +299,10 @@ def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float |
             first[bad] = True
         if not bad:
             return q, True, first
+        # every sample outside `check` was found clear before and is unchanged: bad is the count
+        best, since = (len(bad), 0) if len(bad) < best else (best, since + 1)
+        if since >= STALL_PASSES:
+            return q, False, first
         delta = np.zeros_like(q)
         local = q.copy()
         for t in bad:
