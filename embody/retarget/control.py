@@ -358,14 +358,24 @@ def control_trajectory(robot: Robot, q: np.ndarray, fps: float, rate: float,
 
 
 def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: float,
-                               repair: bool = True, limits: DynamicsLimits | None = DEFAULT_LIMITS
-                               ) -> tuple[np.ndarray, bool]:
-    """`control_trajectory`, and whether MuJoCo found every returned sample clear."""
-    out, clear = _kinematic_control(robot, q, fps, rate, repair)
+                               repair: bool = True, limits: DynamicsLimits | None = DEFAULT_LIMITS,
+                               kinematic: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+    """`control_trajectory`, and whether MuJoCo found every returned sample clear. `kinematic`:
+    this very call's array with `limits=None` (same q, fps, rate and repair), when the caller
+    already has it (a solve without the dynamics limits made it): its resample and contact
+    repair are not run again, only MuJoCo's verdict on its samples (the contact repair of a
+    critic's chosen round cost as much as its solve)."""
+    if kinematic is None:
+        out, clear = _kinematic_control(robot, q, fps, rate, repair)
+        touching = None if clear else near_contacts(robot, out, EXPORT_GAP) > 0
+    else:
+        out = np.array(kinematic, dtype=np.float64)
+        touching = near_contacts(robot, out, EXPORT_GAP) > 0
+        clear = not touching.any()
     if limits is None:
         return out, clear
     # the dynamics solve moves no sample into a contact, so MuJoCo's verdict carries over
-    touching = None if clear else near_contacts(robot, out, EXPORT_GAP) > 0
+    touching = None if touching is None or not touching.any() else touching
     out, _ = enforce_dynamics(robot, out, rate, limits, box_margin=BOX_MARGIN,
                               velocity_margin=VELOCITY_MARGIN, touching=touching)
     return out, clear
