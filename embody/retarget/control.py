@@ -39,7 +39,7 @@ CLEARANCE = 0.002
 #: export with a fingertip 2.3 mm in the other wrist (export-invalid), 24 cleared it.
 PASSES = 32
 #: Passes a trust radius may run without a new fewest-touching count before it is given up for
-#: the next. Why: a radius that cannot clear a sample stalls at the same count from its second
+#: the next (the ladder's last radius, whose result stands when none clears, runs all). Why: a radius that cannot clear a sample stalls at the same count from its second
 #: pass (tests/test_ik_tracking_preset.py's tight solve: 5°, 7.5° and 10° sat at 19-21 touching
 #: samples for all 32 passes, 120 of the solve's 135 CPU-s), while over the 24 default inputs no
 #: call that cleared went more than 11 passes without a new fewest count.
@@ -257,8 +257,8 @@ def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = P
                      trust_deg: tuple[float | None, ...] = TRUST_DEG,
                      touching: np.ndarray | None = None, gap: float = 0.0) -> tuple[np.ndarray, bool]:
     """`separate`, and whether MuJoCo checked every returned sample clear (False only when the
-    passes ran out, or stalled (`STALL_PASSES`), at every trust radius): a caller then need not
-    run the same collision check again. The repair is tried inside each trust radius of
+    passes stalled (`STALL_PASSES`) at every trust radius but the last, and ran out at the last):
+    a caller then need not run the same collision check again. The repair is tried inside each trust radius of
     `trust_deg` in turn (no joint of any sample leaves ± that many degrees of its input value; None: unbounded) and the first that
     clears every sample wins: the smallest correction that works, never a wide swing when a
     small one exists. `touching` (T,) bool: MuJoCo's verdict on q when the caller has it (the
@@ -268,10 +268,12 @@ def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = P
     out, clear = q, False
     sep = _Separator(robot, clearance, gap)
     check = np.ones(len(q), dtype=bool) if touching is None else np.array(touching, dtype=bool)
-    for radius in trust_deg:
+    for i, radius in enumerate(trust_deg):
+        # the last radius is the answer when none clears: it runs its whole budget
+        stall = STALL_PASSES if i < len(trust_deg) - 1 else passes
         out, clear, check = _separate_within(sep, q, fps, None if radius is None else np.radians(radius),
                                              passes, blend_s, box_margin, velocity_margin,
-                                             enforce_velocity, check)
+                                             enforce_velocity, check, stall)
         if clear:
             break
     return out, clear
@@ -279,9 +281,10 @@ def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = P
 
 def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float | None, passes: int,
                      blend_s: float, box_margin: float, velocity_margin: float,
-                     enforce_velocity: bool, check: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray]:
+                     enforce_velocity: bool, check: np.ndarray,
+                     stall: int = STALL_PASSES) -> tuple[np.ndarray, bool, np.ndarray]:
     """The repair passes with every joint kept within `radius` (rad) of q (None: the joint box
-    only), given up after `STALL_PASSES` passes without a new fewest-touching count; the result,
+    only), given up after `stall` passes without a new fewest-touching count; the result,
     whether it is clear, and the samples of q whose verdict the caller does not know (`check` in: the samples to check on the first pass; out: the first pass's touching
     samples, all that a retry at another radius must look at again)."""
     robot = sep.robot
@@ -301,7 +304,7 @@ def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float |
             return q, True, first
         # every sample outside `check` was found clear before and is unchanged: bad is the count
         best, since = (len(bad), 0) if len(bad) < best else (best, since + 1)
-        if since >= STALL_PASSES:
+        if since >= stall:
             return q, False, first
         delta = np.zeros_like(q)
         local = q.copy()
