@@ -224,7 +224,8 @@ def _store_png(data: bytes, out_dir: Path | None, name: str) -> dict[str, str | 
 
 def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticConfig, cfg_ik,
            cfg_render: RenderConfig, out_dir: str | Path | None = None,
-           critic: Critic | None = None, ik_targets=None, ik_kinematic: bool = False) -> RefineResult:
+           critic: Critic | None = None, ik_targets=None,
+           ik_kinematic: bool = False) -> RefineResult:
     """Run up to `cfg_critic.rounds` critique-and-re-solve rounds after the IK-only solution.
 
     `targets` is the reference; `ik_targets` the targets `ik_solution` was solved for (default

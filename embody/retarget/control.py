@@ -39,8 +39,9 @@ CLEARANCE = 0.002
 #: export with a fingertip 2.3 mm in the other wrist (export-invalid), 24 cleared it.
 PASSES = 32
 #: Passes a trust radius may run without a new fewest-touching count before it is given up for
-#: the next (the ladder's last radius, whose result stands when none clears, runs all). Why: a radius that cannot clear a sample stalls at the same count from its second
-#: pass (tests/test_ik_tracking_preset.py's tight solve: 5°, 7.5° and 10° sat at 19-21 touching
+#: the next (the ladder's last radius, whose result stands when none clears, runs all). Why: a
+#: radius that cannot clear a sample stalls at the same count from its second pass
+#: (tests/test_ik_tracking_preset.py's tight solve: 5°, 7.5° and 10° sat at 19-21 touching
 #: samples for all 32 passes, 120 of the solve's 135 CPU-s), while over the 24 default inputs no
 #: call that cleared went more than 11 passes without a new fewest count.
 STALL_PASSES = 12
@@ -256,10 +257,11 @@ def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = P
                      enforce_velocity: bool = True,
                      trust_deg: tuple[float | None, ...] = TRUST_DEG,
                      touching: np.ndarray | None = None, gap: float = 0.0) -> tuple[np.ndarray, bool]:
-    """`separate`, and whether MuJoCo checked every returned sample clear (False only when the
-    passes stalled (`STALL_PASSES`) at every trust radius but the last, and ran out at the last):
-    a caller then need not run the same collision check again. The repair is tried inside each trust radius of
-    `trust_deg` in turn (no joint of any sample leaves ± that many degrees of its input value; None: unbounded) and the first that
+    """`separate`, and whether MuJoCo checked every returned sample clear (False only when no
+    trust radius cleared it: each ran out of passes or stalled, `STALL_PASSES`): a caller then
+    need not run the same collision check again. The repair is tried inside each trust radius of
+    `trust_deg` in turn (no joint of any sample leaves ± that many degrees of its input value;
+    None: unbounded) and the first that
     clears every sample wins: the smallest correction that works, never a wide swing when a
     small one exists. `touching` (T,) bool: MuJoCo's verdict on q when the caller has it (the
     bridge's); the samples it finds clear are not checked again on the first pass. `gap` (m): a
@@ -285,7 +287,8 @@ def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float |
                      stall: int = STALL_PASSES) -> tuple[np.ndarray, bool, np.ndarray]:
     """The repair passes with every joint kept within `radius` (rad) of q (None: the joint box
     only), given up after `stall` passes without a new fewest-touching count; the result,
-    whether it is clear, and the samples of q whose verdict the caller does not know (`check` in: the samples to check on the first pass; out: the first pass's touching
+    whether it is clear, and the samples of q whose verdict the caller does not know (`check`
+    in: the samples to check on the first pass; out: the first pass's touching
     samples, all that a retry at another radius must look at again)."""
     robot = sep.robot
     lower, upper = robot.lower + box_margin, robot.upper - box_margin
