@@ -192,7 +192,7 @@ def _refine(ctx: Context, inputs: dict[str, Any]) -> Any:
     motion, fit = inputs["collide"].motion, inputs["shape_fit"]
     targets = _targets(ctx, motion, fit, ctx.cfg.ik)
     return refine(motion, ctx.body, fit, ctx.robot, targets, inputs["retarget"], ctx.cfg.critic,
-                  ctx.cfg.ik, ctx.cfg.render, critic=ctx.critic)
+                  ctx.cfg.ik, ctx.cfg.render, critic=ctx.critic, ik_kinematic=True)
 
 
 def _refine_metrics(result: Any) -> dict[str, Any]:

@@ -356,6 +356,32 @@ def test_separate_stays_inside_its_trust_radius(robot, passing):
     assert clear and self_collision_contacts(robot, out).sum() == 0
 
 
+def test_a_stalled_trust_radius_is_given_up(robot, passing, monkeypatch):
+    """A trust radius that cannot clear the samples (0.5° for hands passing through each other)
+    is given up once its fewest-touching count has not improved for `STALL_PASSES` passes,
+    whatever the pass budget, and the ladder's next radius clears them; the last radius, whose
+    result stands when none clears, runs its whole budget."""
+    from embody.retarget import control
+
+    q, fps = passing
+    plain = resample(q, fps, RATE)
+    passes = []
+    spread = control._spread
+
+    def counted(delta, half_width):  # one call per pass that goes on to push
+        passes.append(1)
+        return spread(delta, half_width)
+    monkeypatch.setattr(control, "_spread", counted)
+    budget = 10 * control.PASSES
+    out, clear = control.separate_checked(robot, plain, RATE, trust_deg=(0.5, None), passes=budget)
+    assert clear and self_collision_contacts(robot, out).sum() == 0
+    assert control.STALL_PASSES <= len(passes) < 2 * control.STALL_PASSES
+    passes.clear()
+    out, clear = control.separate_checked(robot, plain, RATE, trust_deg=(0.5,), passes=2 * control.STALL_PASSES)
+    assert not clear and len(passes) == 2 * control.STALL_PASSES
+    assert np.degrees(np.abs(out - plain).max()) <= 0.5 + 1e-9
+
+
 def test_repair_clears_a_sample_on_a_run_at_the_velocity_limit(robot):
     """21 samples of a real 50 Hz export (the default run's synth seq 15 after the s11 merges,
     `tests/data`): the wrists move at their velocity limit through sample 10, where the two

@@ -224,7 +224,8 @@ def _store_png(data: bytes, out_dir: Path | None, name: str) -> dict[str, str | 
 
 def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticConfig, cfg_ik,
            cfg_render: RenderConfig, out_dir: str | Path | None = None,
-           critic: Critic | None = None, ik_targets=None) -> RefineResult:
+           critic: Critic | None = None, ik_targets=None,
+           ik_kinematic: bool = False) -> RefineResult:
     """Run up to `cfg_critic.rounds` critique-and-re-solve rounds after the IK-only solution.
 
     `targets` is the reference; `ik_targets` the targets `ik_solution` was solved for (default
@@ -233,6 +234,9 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
     preview when `out_dir` is given (paths in the record are relative to `out_dir`).
     The re-solves make no torque and ZMP solve; the chosen round's exported array does
     (`cfg_ik.dynamics_limits`), once, and an accepted round's export is judged again.
+    `ik_kinematic`: `ik_solution`'s control-rate array was made `without_dynamics_limits(cfg_ik)`
+    (the pipeline's retarget step before the critic), so the export of round 0 starts from it, as
+    a re-solve's does, instead of repeating its resample and contact repair.
     """
     from embody.render.keyframes import select_keyframes
     from embody.retarget import solve
@@ -252,6 +256,8 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
     working, solution = ik_targets if ik_targets is not None else targets, ik_solution
     cfg_rounds = without_dynamics_limits(cfg_ik)  # the export's solve runs on the chosen round only
     rounds: list[RoundRecord] = []
+    resolved: set[int] = set()  # the rounds whose solution a re-solve here made (kinematic)
+    solved_here = False
 
     def critique(index: int, q: np.ndarray, pos: np.ndarray, rot: np.ndarray, location_offset: Any,
                  fidelity: dict[str, float], renders_seen: dict[str, Any],
@@ -280,6 +286,8 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
             record = RoundRecord(index, q, np.asarray(working.wrist_pos), np.asarray(working.wrist_rot),
                                  wrist_metrics(ref_pos, ref_rot, pos, rot, targets.arm_length),
                                  q_control=getattr(solution, "q_control", None), wrist_pos=pos)
+            if solved_here:
+                resolved.add(index)
             location_offset, fidelity = judge(q) if judge is not None else (None, {})
             record.metrics.update(fidelity)
             rounds.append(record)
@@ -303,14 +311,18 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
                                                 action.primitives, blend)
             working = working.with_wrists(new_pos, new_rot)  # hand-point targets move along
             solution = solve(robot, working, cfg_rounds, init=solution)
+            solved_here = True
         chosen = _chosen_round(rounds, cfg_critic)
         for i, r in enumerate(rounds):  # only the result's control-rate array is kept
             if i != chosen % len(rounds):
                 r.q_control = None
         final = rounds[chosen]
         final.q_kinematic = final.q_control
-        # the exported array: the chosen round's, with the torque and ZMP solve (once)
-        final.q_control, clear = exported_control(robot, final.q, targets.fps, cfg_ik)
+        # the exported array: the chosen round's, with the torque and ZMP solve (once), from the
+        # kinematic array its solve made (every re-solve's; round 0's when the caller says so)
+        known = final.q_kinematic is not None and (ik_kinematic or final.index in resolved)
+        final.q_control, clear = exported_control(robot, final.q, targets.fps, cfg_ik,
+                                                  kinematic=final.q_kinematic if known else None)
         final.metrics.update(control_counts(robot, final.q_control, cfg_ik.control_rate_hz, clear))
         export: dict[str, Any] = {}
         if final.accepted:  # the critic's acceptance must hold for the array a user receives

@@ -38,6 +38,13 @@ CLEARANCE = 0.002
 #: the last one changed, so clean trajectories stop at the first; 12 left synth seq 15's 50 Hz
 #: export with a fingertip 2.3 mm in the other wrist (export-invalid), 24 cleared it.
 PASSES = 32
+#: Passes a trust radius may run without a new fewest-touching count before it is given up for
+#: the next (the ladder's last radius, whose result stands when none clears, runs all). Why: a
+#: radius that cannot clear a sample stalls at the same count from its second pass
+#: (tests/test_ik_tracking_preset.py's tight solve: 5°, 7.5° and 10° sat at 19-21 touching
+#: samples for all 32 passes, 120 of the solve's 135 CPU-s), while over the 24 default inputs no
+#: call that cleared went more than 11 passes without a new fewest count.
+STALL_PASSES = 12
 #: Margin (rad) kept inside the joint box, and relative margin under the velocity limits, in the
 #: exported control-rate array: larger than float32 rounding (≤ 2.4e-7 rad below 4 rad).
 BOX_MARGIN = 1e-6
@@ -250,10 +257,11 @@ def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = P
                      enforce_velocity: bool = True,
                      trust_deg: tuple[float | None, ...] = TRUST_DEG,
                      touching: np.ndarray | None = None, gap: float = 0.0) -> tuple[np.ndarray, bool]:
-    """`separate`, and whether MuJoCo checked every returned sample clear (False only when the
-    passes ran out at every trust radius): a caller then need not run the same collision check
-    again. The repair is tried inside each trust radius of `trust_deg` in turn (no joint of any
-    sample leaves ± that many degrees of its input value; None: unbounded) and the first that
+    """`separate`, and whether MuJoCo checked every returned sample clear (False only when no
+    trust radius cleared it: each ran out of passes or stalled, `STALL_PASSES`): a caller then
+    need not run the same collision check again. The repair is tried inside each trust radius of
+    `trust_deg` in turn (no joint of any sample leaves ± that many degrees of its input value;
+    None: unbounded) and the first that
     clears every sample wins: the smallest correction that works, never a wide swing when a
     small one exists. `touching` (T,) bool: MuJoCo's verdict on q when the caller has it (the
     bridge's); the samples it finds clear are not checked again on the first pass. `gap` (m): a
@@ -262,10 +270,12 @@ def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = P
     out, clear = q, False
     sep = _Separator(robot, clearance, gap)
     check = np.ones(len(q), dtype=bool) if touching is None else np.array(touching, dtype=bool)
-    for radius in trust_deg:
+    for i, radius in enumerate(trust_deg):
+        # the last radius is the answer when none clears: it runs its whole budget
+        stall = STALL_PASSES if i < len(trust_deg) - 1 else passes
         out, clear, check = _separate_within(sep, q, fps, None if radius is None else np.radians(radius),
                                              passes, blend_s, box_margin, velocity_margin,
-                                             enforce_velocity, check)
+                                             enforce_velocity, check, stall)
         if clear:
             break
     return out, clear
@@ -273,10 +283,12 @@ def separate_checked(robot: Robot, q: np.ndarray, fps: float, *, passes: int = P
 
 def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float | None, passes: int,
                      blend_s: float, box_margin: float, velocity_margin: float,
-                     enforce_velocity: bool, check: np.ndarray) -> tuple[np.ndarray, bool, np.ndarray]:
+                     enforce_velocity: bool, check: np.ndarray,
+                     stall: int = STALL_PASSES) -> tuple[np.ndarray, bool, np.ndarray]:
     """The repair passes with every joint kept within `radius` (rad) of q (None: the joint box
-    only); the result, whether it is clear, and the samples of q whose verdict the caller does
-    not know (`check` in: the samples to check on the first pass; out: the first pass's touching
+    only), given up after `stall` passes without a new fewest-touching count; the result,
+    whether it is clear, and the samples of q whose verdict the caller does not know (`check`
+    in: the samples to check on the first pass; out: the first pass's touching
     samples, all that a retry at another radius must look at again)."""
     robot = sep.robot
     lower, upper = robot.lower + box_margin, robot.upper - box_margin
@@ -285,6 +297,7 @@ def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float |
     vmax = robot.velocity_limits * (1.0 - velocity_margin)
     half = max(int(round(blend_s * fps)), 0)
     first = None
+    best, since = len(q) + 1, 0
     for _ in range(passes):
         bad = [t for t in np.flatnonzero(check) if sep.contacts(q[t], jacobians=False)]
         if first is None:
@@ -292,6 +305,10 @@ def _separate_within(sep: _Separator, q: np.ndarray, fps: float, radius: float |
             first[bad] = True
         if not bad:
             return q, True, first
+        # every sample outside `check` was found clear before and is unchanged: bad is the count
+        best, since = (len(bad), 0) if len(bad) < best else (best, since + 1)
+        if since >= stall:
+            return q, False, first
         delta = np.zeros_like(q)
         local = q.copy()
         for t in bad:
@@ -347,14 +364,24 @@ def control_trajectory(robot: Robot, q: np.ndarray, fps: float, rate: float,
 
 
 def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: float,
-                               repair: bool = True, limits: DynamicsLimits | None = DEFAULT_LIMITS
-                               ) -> tuple[np.ndarray, bool]:
-    """`control_trajectory`, and whether MuJoCo found every returned sample clear."""
-    out, clear = _kinematic_control(robot, q, fps, rate, repair)
+                               repair: bool = True, limits: DynamicsLimits | None = DEFAULT_LIMITS,
+                               kinematic: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+    """`control_trajectory`, and whether MuJoCo found every returned sample clear. `kinematic`:
+    this very call's array with `limits=None` (same q, fps, rate and repair), when the caller
+    already has it (a solve without the dynamics limits made it): its resample and contact
+    repair are not run again, only MuJoCo's verdict on its samples (the contact repair of a
+    critic's chosen round cost as much as its solve)."""
+    if kinematic is None:
+        out, clear = _kinematic_control(robot, q, fps, rate, repair)
+        touching = None if clear else near_contacts(robot, out, EXPORT_GAP) > 0
+    else:
+        out = np.array(kinematic, dtype=np.float64)
+        touching = near_contacts(robot, out, EXPORT_GAP) > 0
+        clear = not touching.any()
     if limits is None:
         return out, clear
     # the dynamics solve moves no sample into a contact, so MuJoCo's verdict carries over
-    touching = None if clear else near_contacts(robot, out, EXPORT_GAP) > 0
+    touching = None if touching is None or not touching.any() else touching
     out, _ = enforce_dynamics(robot, out, rate, limits, box_margin=BOX_MARGIN,
                               velocity_margin=VELOCITY_MARGIN, touching=touching)
     return out, clear

@@ -594,12 +594,14 @@ def without_dynamics_limits(cfg: IKConfig) -> IKConfig:
     return cfg.model_copy(update={"dynamics_limits": False}) if cfg.dynamics_limits else cfg
 
 
-def exported_control(robot: Robot, q: np.ndarray, fps: float, cfg: IKConfig) -> tuple[np.ndarray, bool]:
+def exported_control(robot: Robot, q: np.ndarray, fps: float, cfg: IKConfig,
+                     kinematic: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
     """The control-rate array `cfg` exports for the source-rate trajectory q (T,n) at `fps`
     (`control.control_trajectory_checked`: resample, contact repair, and the torque and ZMP solve
-    when `cfg.dynamics_limits`), and whether MuJoCo found every sample of it clear."""
+    when `cfg.dynamics_limits`), and whether MuJoCo found every sample of it clear. `kinematic`:
+    q's control-rate array under `without_dynamics_limits(cfg)`, when a solve already made it."""
     return control_trajectory_checked(robot, q, fps, cfg.control_rate_hz, cfg.contact_repair,
-                                      DynamicsLimits.from_config(cfg))
+                                      DynamicsLimits.from_config(cfg), kinematic=kinematic)
 
 
 def control_counts(robot: Robot, q_control: np.ndarray, rate: float, clear: bool) -> dict[str, float]:
