@@ -56,7 +56,9 @@ def _cycle(store, keys: list[str], arrays: list[dict[str, np.ndarray]]) -> float
     return (time.perf_counter() - t0) * 1000 / len(keys)
 
 
-def _moto(port: int, log: Path) -> subprocess.Popen:
+def start_moto(port: int, log: Path, bucket: str = "bench") -> subprocess.Popen:
+    """A moto S3 server on 127.0.0.1:`port` logging to `log`, with `bucket` created; returns
+    once it answers (also `benchmarks/scale.py --full --store-url s3://...`)."""
     with open(log, "wb") as out:  # werkzeug logs one line per request: the request count
         proc = subprocess.Popen([sys.executable, "-m", "moto.server", "-H", "127.0.0.1", "-p",
                                  str(port)], stdout=out, stderr=subprocess.STDOUT)
@@ -64,13 +66,20 @@ def _moto(port: int, log: Path) -> subprocess.Popen:
     while True:
         try:
             urllib.request.urlopen(urllib.request.Request(
-                f"http://127.0.0.1:{port}/bench", method="PUT"), timeout=5)
+                f"http://127.0.0.1:{port}/{bucket}", method="PUT"), timeout=5)
             return proc
         except OSError:
             if proc.poll() is not None or time.monotonic() > deadline:
                 proc.kill()
                 raise SystemExit("moto's S3 server did not start (pip install 'moto[server]')")
             time.sleep(0.2)
+
+
+def served_requests(log: Path) -> int:
+    """HTTP requests the moto server logging to `log` has answered: its own access log, a count
+    independent of embody's code."""
+    return sum(1 for line in log.read_text(errors="replace").splitlines()
+               if " HTTP/1.1\" " in line)
 
 
 def _run_requests(sequences: int, work: Path, served) -> float:
@@ -106,11 +115,10 @@ def main() -> None:
                       AWS_SECRET_ACCESS_KEY="bench", AWS_REGION="us-east-1")
     work = Path(tempfile.mkdtemp(prefix="embody-objbench-"))
     log = work / "moto.log"
-    proc = _moto(port, log)
+    proc = start_moto(port, log)
 
     def served() -> int:
-        return sum(1 for line in log.read_text(errors="replace").splitlines()
-                   if " HTTP/1.1\" " in line)
+        return served_requests(log)
     try:
         from embody.store import ArtifactStore
 

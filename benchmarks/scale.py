@@ -314,7 +314,7 @@ def _cpu_tree(pid: int) -> float:
 
 class S3Counter:
     """`--store-url s3://bucket/...` without `AWS_ENDPOINT_URL`: a moto S3 server on localhost
-    (as the tests and `benchmarks/object_store.py` start one), the `AWS_*` variables pointing
+    (`benchmarks.object_store.start_moto`), the `AWS_*` variables pointing
     at it for this process and the ones it starts; `requests()` counts the HTTP requests the
     server has answered, from its own access log (one line per request): a count independent
     of embody's code. With `AWS_ENDPOINT_URL` set (a real bucket) nothing is counted."""
@@ -328,35 +328,24 @@ class S3Counter:
         if not self.store.startswith("s3://") or os.environ.get("AWS_ENDPOINT_URL"):
             return self
         import socket
-        import urllib.request
+
+        from benchmarks.object_store import start_moto
         with socket.socket() as s:
             s.bind(("127.0.0.1", 0))
             port = s.getsockname()[1]
-        with open(self.log, "wb") as out:
-            self.proc = subprocess.Popen([sys.executable, "-m", "moto.server", "-H", "127.0.0.1",
-                                          "-p", str(port)], stdout=out, stderr=subprocess.STDOUT)
+        bucket = self.store[len("s3://"):].split("/", 1)[0]
+        self.proc = start_moto(port, self.log, bucket)
         os.environ.update(AWS_ENDPOINT_URL=f"http://127.0.0.1:{port}", AWS_ACCESS_KEY_ID="bench",
                           AWS_SECRET_ACCESS_KEY="bench", AWS_REGION="us-east-1")
-        bucket = self.store[len("s3://"):].split("/", 1)[0]
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                urllib.request.urlopen(urllib.request.Request(
-                    f"http://127.0.0.1:{port}/{bucket}", method="PUT"), timeout=5)
-                break
-            except OSError:
-                if self.proc.poll() is not None or time.monotonic() > deadline:
-                    raise SystemExit("moto's S3 server did not start (pip install 'moto[server]')")
-                time.sleep(0.2)
         print(f"moto S3 server on 127.0.0.1:{port}, bucket {bucket}", flush=True)
         return self
 
     def requests(self) -> int | None:
         if self.proc is None:
             return None
+        from benchmarks.object_store import served_requests
         time.sleep(0.5)  # the last requests' log lines
-        return sum(1 for line in self.log.read_text(errors="replace").splitlines()
-                   if " HTTP/1.1\" " in line)
+        return served_requests(self.log)
 
     def __exit__(self, *exc: object) -> None:
         if self.proc is not None:
