@@ -69,7 +69,9 @@ def pair_depths(model: mujoco.MjModel, a: int, b: int, groups: list[int], sample
                 seed: int = 0) -> np.ndarray:
     """Deepest signed distance (m; ≥ 0: clear) between the collision geoms of bodies a and b at
     `samples` seeded uniform poses of the joints between them (the rest at qpos0)."""
-    m = model.__copy__()
+    from embody.robot.contacts import single_contact  # contacts → model → this module
+
+    m = single_contact(model.__copy__())  # the verdict's one contact a pair: same depths any MuJoCo
     geoms = np.flatnonzero(np.isin(m.geom_bodyid, [a, b]) & np.isin(m.geom_group, groups))
     m.geom_contype[:] = 0
     m.geom_conaffinity[:] = 0
@@ -77,8 +79,6 @@ def pair_depths(model: mujoco.MjModel, a: int, b: int, groups: list[int], sample
     m.geom_conaffinity[geoms] = 1
     m.geom_margin[geoms] = 0.0
     m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_FILTERPARENT
-    # one contact per pair, as the verdict's (`contacts.single_contact`): the same depths on every MuJoCo
-    m.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_MULTICCD
     m.exclude_signature[:] = 0  # the MJCF's own exclusions lifted (world-world: no geoms)
     d = mujoco.MjData(m)
     joints = path_joints(m, a, b)
