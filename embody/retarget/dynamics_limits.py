@@ -691,23 +691,24 @@ def _enforce_with(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimi
     """The solve with the start's low-pass on the whole upper body (`whole`) or on the joint
     groups at fault; the result, whether every limit holds, and its failing samples."""
     prob = _Problem(robot, q, rate, limits, box_margin, velocity_margin, whole)
-    x, ok = _solve(prob, robot, q, rate, limits, box_margin, velocity_margin, touching)
-    return x, ok, int(prob.failing(prob.evaluate(x)).sum())
+    x, failing = _solve(prob, robot, q, rate, limits, box_margin, velocity_margin, touching)
+    return x, failing == 0, failing
 
 
 def _solve(prob: "_Problem", robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits,
-           box_margin: float, velocity_margin: float, touching: np.ndarray | None) -> tuple[np.ndarray, bool]:
-    """One start and Gauss-Newton refinement on `prob`."""
+           box_margin: float, velocity_margin: float, touching: np.ndarray | None) -> tuple[np.ndarray, int]:
+    """One start and Gauss-Newton refinement on `prob`: the result and its failing samples."""
     ev = prob.evaluate(q)
-    if not prob.failing(ev).any():
-        return q, True
+    failing_q = int(prob.failing(ev).sum())
+    if not failing_q:
+        return q, 0
     reach = max(1, int(round(REACH_S * rate)))
     prior = np.zeros(len(q), dtype=bool) if touching is None else np.asarray(touching, dtype=bool)
     x, ev = _local_start(prob, q, ev, prior, rate, box_margin, velocity_margin)
     log.debug("start: %d changed, %d failing", int((np.abs(x - q).max(1) > 0).sum()),
               int(prob.failing(ev).sum()))
     if not prob.failing(ev).any():
-        return x, True
+        return x, 0
     start_x = x
     bad = prob.failing(ev) | (np.abs(x - q).max(1) > 0)
     free = _dilate(bad, reach)
@@ -761,14 +762,15 @@ def _solve(prob: "_Problem", robot: Robot, q: np.ndarray, rate: float, limits: D
         if (grown != free).any():
             prob.watch_near(x, grown & ~free)
         free = grown
-    if velocity_violations(x, robot.velocity_limits * (1.0 - velocity_margin), rate):
-        clamped = clamp_velocity(x, robot.velocity_limits * (1.0 - velocity_margin), rate)
+    vmax = robot.velocity_limits * (1.0 - velocity_margin)
+    if velocity_violations(x, vmax, rate):
+        clamped = clamp_velocity(x, vmax, rate)
         changed = np.flatnonzero(np.abs(clamped - x).max(1) > 0)
         if _touching(robot, clamped, changed, prior).any():
             # never a contact for a torque: the start if it keeps the velocity limits, else the
             # input, whose verdict is the caller's
-            if velocity_violations(start_x, robot.velocity_limits * (1.0 - velocity_margin), rate):
-                return q, False
-            return start_x, not prob.failing(prob.evaluate(start_x)).any()
+            if velocity_violations(start_x, vmax, rate):
+                return q, failing_q
+            return start_x, int(prob.failing(prob.evaluate(start_x)).sum())
         x, ev = clamped, prob.evaluate(clamped)
-    return x, not prob.failing(ev).any()
+    return x, int(prob.failing(ev).sum())
