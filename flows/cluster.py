@@ -40,7 +40,8 @@ def _thread_counts(dask_worker: Any) -> dict[str, Any]:
     return {"dask": dask_worker.state.nthreads, "torch": torch.get_num_threads(),
             "torch_interop": torch.get_num_interop_threads(), "numba": numba.get_num_threads(),
             "pools": sorted({f"{i['user_api']}:{i['num_threads']}" for i in threadpool_info()}),
-            "profiler": "profile" in dask_worker.periodic_callbacks}
+            "profiler": "profile" in dask_worker.periodic_callbacks,
+            "llvmpipe": os.environ.get("LP_NUM_THREADS")}
 
 
 class DaskProcesses(LocalService):
@@ -65,7 +66,9 @@ class DaskProcesses(LocalService):
     def _env(self, home: Path) -> dict[str, str]:
         """The parent's environment without its Prefect settings and temp folder: a worker
         gets its own `PREFECT_HOME` and `TMPDIR`; single-threaded BLAS, OpenMP and numba (one
-        task per worker, `--nthreads 1`; `embody.flows.preload` also holds torch to one thread)."""
+        task per worker, `--nthreads 1`; `embody.flows.preload` also holds torch to one thread);
+        the render's software GL (Mesa llvmpipe) rasterises on the task's own thread
+        (`LP_NUM_THREADS=0`) instead of one thread per core."""
         env = {k: v for k, v in os.environ.items()
                if not k.startswith(("PREFECT_", "DASK_")) and k not in ("TMPDIR", "TMP", "TEMP")}
         tmp = home / "tmp"
@@ -74,7 +77,7 @@ class DaskProcesses(LocalService):
                    PREFECT_SERVER_ANALYTICS_ENABLED="false", PREFECT_LOGGING_LEVEL="WARNING",
                    OMP_NUM_THREADS="1", MKL_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1",
                    NUMBA_NUM_THREADS="1", NUMEXPR_NUM_THREADS="1", VECLIB_MAXIMUM_THREADS="1",
-                   **self.extra_env)
+                   LP_NUM_THREADS="0", **self.extra_env)
         return env
 
     def _spawn(self, args: list[str], home: Path, name: str) -> subprocess.Popen:

@@ -314,8 +314,8 @@ def test_task_runs_per_flow_run_stay_under_the_bound(prefect_pg, tmp_path):
 def test_cluster_workers_are_single_threaded(tmp_path):
     """A `dask worker --nthreads 1 --preload embody.flows.preload` of `DaskProcesses` runs one
     task at a time and every pool its compute could use (torch intra- and inter-op, numba,
-    BLAS, OpenMP) has one thread: the benchmarks count one core per worker. Dask's profiler,
-    which samples the task's stack from a second thread, is off."""
+    BLAS, OpenMP, the render's software GL) has one thread: the benchmarks count one core per
+    worker. Dask's profiler, which samples the task's stack from a second thread, is off."""
     cluster = _cluster(tmp_path / "cluster", workers=1)
     with cluster:
         counts = cluster.thread_counts()
@@ -326,3 +326,4 @@ def test_cluster_workers_are_single_threaded(tmp_path):
     assert any(p.startswith("blas:") for p in worker["pools"])
     assert all(p.endswith(":1") for p in worker["pools"]), worker["pools"]
     assert worker["profiler"] is False  # the preload turns Dask's stack sampler off
+    assert worker["llvmpipe"] == "0"     # Mesa rasterises on the calling thread
