@@ -10,7 +10,12 @@ that computed it (recorded by `tasks.execute`; GL raster threads and the x264 ch
 and `outside_steps_s` the worker-seconds spent outside any step's computation (Prefect task
 runs, store reads/writes, the driver, workers idle at the tail). `cpu_s_per_seq` (this process, its finished
 children and its worker processes, `embody.tasks.workers`) and the load average at the end are printed too: on a shared machine compare runs made
-back to back or side by side, never against a figure from another day. The store is new, so
+back to back or side by side, never against a figure from another day. Where the CPU outside
+the steps goes: `driver_cpu_s_per_seq` (this process alone: Prefect, the flow's driver, the
+report's own work), `report_cpu_s_per_seq` (the report, its helper processes included),
+`worker_cpu_s_per_seq` (the worker processes, as they report at the run's end, their x264
+children and GL raster threads included) and `worker_outside_cpu_s_per_seq` (that less the
+steps' thread CPU: store reads and publishes, pickles, raster threads, x264). The store is new, so
 Prefect's database is too: it is copied from the machine's migrated template when there is one
 (`prefect_db=seeded`, `flows/ephemeral.py`), else migrated (`prefect_db=migrated`, ~4.8 s more).
 
@@ -34,6 +39,27 @@ STEPS = ("collide", "retarget", "refine", "render", "metrics", "physics")
 def _cpu() -> float:
     t = os.times()
     return t.user + t.system + t.children_user + t.children_system
+
+
+def _own_cpu() -> tuple[float, float]:
+    """(this process's CPU seconds, its finished children's)."""
+    t = os.times()
+    return t.user + t.system, t.children_user + t.children_system
+
+
+def _time_report(into: list[float]) -> None:
+    """Wrap the flow's report build so its CPU seconds (its helper processes' included) are
+    added to `into`: the run's CPU figure holds them, its wall figure does not."""
+    import embody.flows.dataset as dataset
+    build = dataset.build_report
+
+    def timed(*args, **kwargs):
+        c0 = sum(_own_cpu())
+        try:
+            return build(*args, **kwargs)
+        finally:
+            into.append(sum(_own_cpu()) - c0)
+    dataset.build_report = timed
 
 
 def _server_cpu() -> float:
@@ -74,6 +100,7 @@ def main() -> None:
     from embody.flows.dataset import run_flow
     from embody.flows.env import configure
     from embody.store import ArtifactStore
+    from embody.tasks import workers
     from embody.tasks.workers import cpu_seconds as worker_cpu
 
     configure(store_dir)
@@ -82,10 +109,15 @@ def main() -> None:
                                          "runner": args.runner, "limit": args.limit,
                                          "worker_processes": args.worker_processes == "on",
                                          "name": "bench-pipeline"}})
+    report_cpu: list[float] = []
+    _time_report(report_cpu)
+    own0, pool0 = _own_cpu()[0], workers._CPU[0]
     t0, c0, epoch0 = time.perf_counter(), _cpu() + worker_cpu(), time.time()
     summary = run_flow(data, cfg)
     wall = time.perf_counter() - t0 - summary["report_s"]
     cpu = _cpu() + worker_cpu() - c0  # the worker processes' CPU included
+    driver_cpu = _own_cpu()[0] - own0
+    pool_cpu = workers._CPU[0] - pool0  # the worker processes (the zygote's not included)
     server_cpu = _server_cpu()  # its boot included: it started inside run_flow
     n = summary["ok"] + summary["failed"]
     per_step: dict[str, float] = defaultdict(float)
@@ -101,6 +133,7 @@ def main() -> None:
     # writes, the driver, idle workers at the tail (all worker-seconds not in a compute_s)
     overhead = args.workers * wall - sum(per_step.values())
     m = max(n, 1)
+    step_cpu = sum(cpu_step.values())
     print(f"sequences={n} ok={summary['ok']} failed={summary['failed']} workers={args.workers} "
           f"flow_s={wall:.1f} report_s={summary['report_s']:.1f} prefect_db={_prefect_db()}")
     print("  step        wall s total  wall s/seq  worker-thread CPU s/seq")
@@ -115,6 +148,11 @@ def main() -> None:
                                   f"startup_s={startup:.1f}",
                                   f"cpu_s_per_seq={cpu / m:.2f}",
                                   f"server_cpu_s_per_seq={server_cpu / m:.2f}",
+                                  f"driver_cpu_s_per_seq={driver_cpu / m:.2f}",
+                                  f"report_cpu_s_per_seq={sum(report_cpu) / m:.2f}",
+                                  *([f"worker_cpu_s_per_seq={pool_cpu / m:.2f}",
+                                     f"worker_outside_cpu_s_per_seq={(pool_cpu - step_cpu) / m:.2f}"]
+                                    if pool_cpu > 0 else []),  # no worker processes: threads
                                   f"load1={os.getloadavg()[0]:.1f}"]))
 
 

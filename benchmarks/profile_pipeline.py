@@ -15,17 +15,20 @@ sequences of the default synthetic set, and prints
     self-collision proxies, the banded solve, MuJoCo verification/validation, offscreen rendering.
 
 `--store DIR` keeps the store between invocations; `--reuse collide` then profiles the later
-steps against the stored collision results (the collide step is another engineer's, and costs
-most), which is how the non-collision steps were tuned.
+steps against the stored collision results, which is how the non-collision steps were tuned.
+`--only STEP ...` profiles those steps alone on the store's results of the steps before them
+(which must be there: a copy of a finished run's store) and stops after the last of them, so
+one step's CPU can be compared before and after a change on the same stored inputs.
 
     python benchmarks/profile_pipeline.py [--n 3] [--top 25] [--pstats out.pstats]
-                                          [--store DIR --reuse collide]
+                                          [--store DIR --reuse collide | --only STEP ...]
 """
 
 from __future__ import annotations
 
 import argparse
 import cProfile
+import os
 import pstats
 import tempfile
 import time
@@ -74,9 +77,19 @@ def main() -> None:
     parser.add_argument("--top", type=int, default=25)
     parser.add_argument("--pstats", type=Path, default=None)
     parser.add_argument("--store", type=Path, default=None, help="Store folder (default: temp).")
-    parser.add_argument("--reuse", nargs="*", default=[], choices=["collide"],
+    names = ["collide", "retarget", "refine", "render", "metrics", "physics"]
+    parser.add_argument("--reuse", nargs="*", default=[], choices=names,
                         help="Steps read from --store when already there (not profiled).")
+    parser.add_argument("--only", nargs="*", default=[], choices=names,
+                        help="Profile only these steps; the earlier ones are read from --store.")
+    parser.add_argument("--offset", type=int, default=0, help="Skip the first N sequences.")
+    parser.add_argument("--no-profile", action="store_true",
+                        help="CPU seconds only, without cProfile's cost (before/after figures; "
+                             "repeat in fresh processes: the steps' memos would serve a rerun).")
     args = parser.parse_args()
+    if args.only:
+        last = max(names.index(s) for s in args.only)
+        args.reuse = [s for s in names[:last] if s not in args.only]
 
     from embody.config import Config
     from embody.flows.env import configure
@@ -93,7 +106,7 @@ def main() -> None:
     # only spins at the barriers of the steps' many small torch ops (the IK's chain FK: ~2x its CPU)
     cfg = Config.model_validate({"run": {"store": str(store), "name": "profile"}})
     data = default_dataset(store / "data")
-    refs = list(load_dataset(data))[: args.n]
+    refs = list(load_dataset(data))[args.offset: args.offset + args.n]
     ctx = Context(cfg=cfg, store_root=str(store), run="profile")
     pipeline = default_pipeline(critic=cfg.run.critic, render=cfg.run.render)
     ctx.body, ctx.robot, ctx.critic  # noqa: B018  (per-process resources, built before timing)
@@ -111,6 +124,8 @@ def main() -> None:
     prof = cProfile.Profile(time.process_time)
     records = [new_record(r) for r in refs]
     for step in pipeline.per_sequence:
+        if args.only and step.name not in ("source", *args.only, *args.reuse):
+            break  # past the last step asked for
         if step.name not in args.reuse:  # recompute: drop what a previous invocation stored
             for rec in records:
                 if rec["status"] != "ok" or step.name == "source":
@@ -119,7 +134,7 @@ def main() -> None:
                 key, _ = record_key(step, ctx, rec, shared)
                 ctx.store.remove(step.name, key)
         t, c = time.perf_counter(), time.process_time()
-        profiled = step.name not in args.reuse and step.name != "source"
+        profiled = step.name not in args.reuse and step.name != "source" and not args.no_profile
         if profiled:
             prof.enable()
         records = run_batch(step, ctx, records, shared)
@@ -138,6 +153,11 @@ def main() -> None:
     print(f"\nseconds per sequence (n={n}, one thread of steps): CPU, wall")
     for step, secs in cpu.items():
         print(f"  {step:10s} {secs / n:7.2f} {wall[step] / n:7.2f}")
+    if args.no_profile:
+        total = sum(cpu.values()) / n
+        print("RESULT " + " ".join([f"cpu_seconds_per_seq={total:.2f}", f"load1={os.getloadavg()[0]:.1f}"]
+                                   + [f"{k}_s={v / n:.2f}" for k, v in cpu.items()]))
+        return
     stats = pstats.Stats(prof)
     if args.pstats:
         stats.dump_stats(args.pstats)
@@ -155,7 +175,7 @@ def main() -> None:
     print(f"\ntop {args.top} functions by cumulative time:")
     stats.sort_stats("cumulative").print_stats(args.top)
     total = sum(cpu.values()) / n
-    print("RESULT " + " ".join([f"cpu_seconds_per_seq={total:.2f}"]
+    print("RESULT " + " ".join([f"cpu_seconds_per_seq={total:.2f}", f"load1={os.getloadavg()[0]:.1f}"]
                                + [f"{k}_s={v / n:.2f}" for k, v in cpu.items()]
                                + [f"{k}_s={v / n:.2f}" for k, v in cum.items()]))
 
