@@ -259,7 +259,6 @@ def _stretch(need: np.ndarray) -> np.ndarray:
     wide = maximum_filter1d(need - 1.0, size=2 * SMOOTH + 1, mode="constant")
     f = 1.0 + np.convolve(wide, _hann(SMOOTH), mode="same")
     f[np.abs(f - 1.0) < 1e-12] = 1.0
-    f[0] = f[-1] = 1.0 if len(f) > 2 else f[0]  # the ends keep their time
     for a, b in _regions(f):
         seg = f[a: b + 1] - 1.0
         extra = float(0.5 * (seg[:-1] + seg[1:]).sum())  # ∫(f − 1) du, f linear between knots
@@ -296,7 +295,7 @@ def _time_map(f: np.ndarray) -> np.ndarray:
 
 #: Retime-then-clear rounds at most: the samples a round's retiming puts between input samples
 #: are checked by MuJoCo, the touching ones pushed clear, and the pushed array retimed again.
-CONTACT_ROUNDS = 4
+CONTACT_ROUNDS = 6
 
 
 def retime_dynamics(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, *,
@@ -316,17 +315,19 @@ def retime_dynamics(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLi
     prob = _Problem(robot, rate, limits, velocity_margin)
     lower, upper = robot.lower + box_margin, robot.upper - box_margin
     x, source = q, uniform_time(len(q), rate)
+    fresh = np.zeros(len(q), dtype=bool)  # samples that are not input samples (MuJoCo checks them)
     ok, static, pushed = True, 0, 0
     for _round in range(CONTACT_ROUNDS):
         x_in = x
         x, u, ok, static = _retime(prob, x_in, lower, upper)
         source = np.interp(u, np.arange(len(x_in), dtype=np.float64), source)
-        if x is x_in:
-            break
-        new = np.flatnonzero(u != np.round(u))
+        whole = u == np.round(u)
+        fresh = ~whole | fresh[np.where(whole, u, 0).astype(np.int64)]
+        new = np.flatnonzero(fresh)
+        if not len(new):
+            break  # the input itself
         touch = np.zeros(len(x), dtype=bool)
-        if len(new):
-            touch[new] = near_contacts(robot, x[new], EXPORT_GAP) > 0
+        touch[new] = near_contacts(robot, x[new], EXPORT_GAP) > 0
         log.debug("contact round %d: %d samples, %d new, %d touching", _round, len(x), len(new), int(touch.sum()))
         if not touch.any():
             break
@@ -334,10 +335,13 @@ def retime_dynamics(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLi
         stretch = np.ones(len(x))
         stretch[1:] = np.maximum(stretch[1:], 1.0 / np.maximum(np.diff(u), 1e-9))
         x, _ = _push_clear(robot, x, touch, stretch, lower, upper)
-        ev = prob.evaluate(x)
-        ok = not prob.failing(ev).any()
-        if ok:
-            break
+        ok = False  # the pushed array is evaluated (and its contacts checked) by the next round
+    if pushed and not ok:
+        ok = not prob.failing(prob.evaluate(x)).any()
+    if pushed and (near_contacts(robot, x, 0.0) > 0).any():
+        # a push that left a sample penetrating: never a contact for a torque, the input stands
+        log.warning("the retimed samples' contacts could not all be pushed clear: the input is kept")
+        return Retimed(q, uniform_time(len(q), rate), False, static, pushed)
     if static:
         log.warning("%d samples are over a limit at rest (gravity and friction, or the CoM's "
                     "projection): no timing passes them", static)
@@ -388,6 +392,10 @@ def _retime(prob: _Problem, q: np.ndarray, lower: np.ndarray, upper: np.ndarray
 
 #: Trust radius (rad) of a contact push, and the pushes tried on what still touches.
 PUSH_TRUST = np.radians(10.0)
+
+
+#: Trust radius (rad) of a contact push, and the pushes tried on what still touches.
+PUSH_TRUST = np.radians(10.0)
 PUSH_PASSES = 4
 
 
@@ -400,7 +408,7 @@ def _push_clear(robot: Robot, x: np.ndarray, touch: np.ndarray, stretch: np.ndar
     acceleration falls with the stretch as the path's own does (a one-sample push is a spike
     the next retiming would chase). Also how many samples still touch."""
     from embody.retarget.control import _Separator
-    sep = _Separator(robot, gap=EXPORT_GAP)
+    sep = _Separator(robot, gap=EXPORT_GAP)  # pushed to the repair's own clearance
     x = x.copy()
     left = touch.copy()
     for _pass in range(PUSH_PASSES):
