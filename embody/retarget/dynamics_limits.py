@@ -334,7 +334,8 @@ def retime_dynamics(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLi
         pushed += int(touch.sum())
         stretch = np.ones(len(x))
         stretch[1:] = np.maximum(stretch[1:], 1.0 / np.maximum(np.diff(u), 1e-9))
-        x, _ = _push_clear(robot, x, touch, stretch, lower, upper)
+        x, left = _push_clear(robot, x, touch, stretch, lower, upper)
+        log.debug("pushed %d touching samples, %d left", int(touch.sum()), left)
         ok = False  # the pushed array is evaluated (and its contacts checked) by the next round
     if pushed and not ok:
         ok = not prob.failing(prob.evaluate(x)).any()
