@@ -173,7 +173,7 @@ def _retarget(ctx: Context, inputs: dict[str, Any]) -> Any:
 
 def _retarget_before_critic(ctx: Context, inputs: dict[str, Any]) -> Any:
     """The retarget step when the critic follows: the same solve, its control-rate array without
-    the torque and ZMP solve (`ik.without_dynamics_limits`), which the refine step runs once, on
+    the torque and ZMP retiming (`ik.without_dynamics_limits`), which the refine step runs once, on
     the round it chooses, the array exported (~2 s a call, on every round before)."""
     from embody.retarget.ik import without_dynamics_limits
     from embody.retarget.windows import solve_windowed
@@ -280,7 +280,7 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray, f
     rows["preserving" if cfg.ik.location_preserving else "ik"] = np.asarray(ik.q_control)
     if "refine" in inputs and cfg.ik.dynamics_limits:
         # the chosen round's kinematic array: against `preserving` (kinematic too) the critic's
-        # own effect; against `refined` what the torque and ZMP solve cost the sign
+        # own effect; against `refined` what the torque and ZMP retiming cost the sign
         final = inputs["refine"].final
         rows["refined_kinematic"] = (np.asarray(final.q_kinematic) if final.q_kinematic is not None else
                                      exported_control(ctx.robot, final.q, ik.fps, without_dynamics_limits(cfg.ik))[0])
@@ -436,11 +436,11 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 RETARGET = Step("retarget", "26", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # The same solve when the critic follows: its 50 Hz array kinematic only (contacts, joint box,
-# velocities; counted as such), the torque and ZMP solve left to the round the critic chooses.
+# velocities; counted as such), the torque and ZMP retiming left to the round the critic chooses.
 RETARGET_BEFORE_CRITIC = Step("retarget", "26+critic", ("body", "robot", "ik"), _retarget_before_critic,
                               _ik_solution, (COLLIDE, SHAPE_FIT), files=_robot_files)
 # Every critic round's IK solution, action and comparison sheet (the re-solves' 50 Hz arrays
-# kinematic only); the chosen round's exported control-rate array (torque and ZMP solve
+# kinematic only); the chosen round's exported control-rate array (torque and ZMP retiming
 # included, once) with its validation counts, the critic's verdict on that array, and the
 # rounds' wrist positions, which `metrics` reuses.
 REFINE = Step("refine", "28", ("body", "robot", "ik", "render", "critic"), _refine,

@@ -1,4 +1,4 @@
-"""The torque and ZMP solve runs once per sequence, on the array that is exported: the critic's
+"""The torque and ZMP retiming runs once per sequence, on the array that is exported: the critic's
 re-solves make kinematic control-rate arrays, the chosen round's exported array is limited and
 counted, and the critic's acceptance holds only if it also accepts that exported array."""
 
@@ -63,7 +63,7 @@ def test_chosen_rounds_export_is_limited_and_counted(robot):  # noqa: F811
     # the critic accepted the round and, judged again, its exported array
     assert final.accepted and result.export_accepted is True and result.accepted
     exported = result.export["metrics"]
-    # the two judgements differ by no more than the torque/ZMP solve moved the wrists at the
+    # the two judgements differ by no more than the torque/ZMP retiming moved the wrists at the
     # source frames (triangle inequality on the mean wrist error)
     from embody.critic.refine import robot_wrists
     moved = robot_wrists(robot, _at_frames(final.q_control, final.source_time, len(final.q), FPS))[0]

@@ -4,7 +4,7 @@ The critic always compares the robot against the *reference* (the human's target
 primitives offset the *working* IK targets; offsets accumulate there across rounds. So a robot
 that misses a target by 10 cm gets its target moved 10 cm further, not its reference.
 
-Each round's re-solve makes its control-rate array without the torque and ZMP solve
+Each round's re-solve makes its control-rate array without the torque and ZMP retiming
 (`retarget.dynamics_limits`, seconds per call): the critic judges a round's source-rate solve,
 which that solve never changes. It runs once, after the choice, on the chosen round: the array
 the pipeline exports (`RoundRecord.q_control`). When the critic had accepted the chosen round, it
@@ -90,7 +90,7 @@ class RoundRecord:
     #: chosen round, the exported one (torque and ZMP limits included), the only one stored.
     q_control: np.ndarray | None = None
     #: The chosen round's control-rate array as its solve made it (the re-solves' and the
-    #: pipeline's retarget step's: kinematic, before the torque and ZMP solve made `q_control`;
+    #: pipeline's retarget step's: kinematic, before the torque and ZMP retiming made `q_control`;
     #: round 0's is the given IK solution's), kept so the metrics step scores the solve apart.
     q_kinematic: np.ndarray | None = None
     #: (N,) each `q_control` sample's time (s) on the source's timeline (the chosen round's
@@ -239,7 +239,7 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
     `targets`; differs when resuming, or in tests that plant an offset). `critic` lets a run share
     one critic (and so one VLM request budget) across sequences. Renders are made only when the critic looks at images, plus the final round's sheet and
     preview when `out_dir` is given (paths in the record are relative to `out_dir`).
-    The re-solves make no torque and ZMP solve; the chosen round's exported array does
+    The re-solves make no torque and ZMP retiming; the chosen round's exported array does
     (`cfg_ik.dynamics_limits`), once, and an accepted round's export is judged again.
     `ik_kinematic`: `ik_solution`'s control-rate array was made `without_dynamics_limits(cfg_ik)`
     (the pipeline's retarget step before the critic), so the export of round 0 starts from it, as
@@ -325,7 +325,7 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
                 r.q_control = None
         final = rounds[chosen]
         final.q_kinematic = final.q_control
-        # the exported array: the chosen round's, with the torque and ZMP solve (once), from the
+        # the exported array: the chosen round's, with the torque and ZMP retiming (once), from the
         # kinematic array its solve made (every re-solve's; round 0's when the caller says so)
         known = final.q_kinematic is not None and (ik_kinematic or final.index in resolved)
         final.q_control, clear, final.source_time = exported_control(

@@ -597,7 +597,7 @@ def finish_solution(robot: Robot, q: np.ndarray, targets: Targets, cfg: IKConfig
 def without_dynamics_limits(cfg: IKConfig) -> IKConfig:
     """`cfg` for a solve whose control-rate array is not the one exported (a critic round before
     the choice, a comparison baseline): its array is the kinematic chain's alone (resample,
-    joint box, velocity limits, MuJoCo contacts), without the torque and ZMP solve
+    joint box, velocity limits, MuJoCo contacts), without the torque and ZMP retiming
     (`retarget.dynamics_limits`), which runs once, on the array that is exported
     (`exported_control`). The source-rate solve `q` is the same either way."""
     return cfg.model_copy(update={"dynamics_limits": False}) if cfg.dynamics_limits else cfg
