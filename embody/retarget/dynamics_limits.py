@@ -35,8 +35,9 @@ static part alone is over (gravity and friction past the limit, the CoM's projec
 the margin) is a robot limit no timing fixes: it is counted (`Retimed.static_infeasible`) and
 logged, and its sample stays refused. Between input samples the path is the spline, which MuJoCo
 checks on the new samples (`near_contacts` at the export's gap); a touching one is pushed clear
-by the contact repair on those samples alone (`control.separate_checked`) and the result
-evaluated again.
+by the contact repair's least-weighted push (`control._Separator.frame`), spread over the local
+stretch so that its acceleration falls with the stretch as the path's own does, and the pushed
+array retimed again (`CONTACT_ROUNDS`); where a push leaves a penetration, the input is kept.
 """
 
 from __future__ import annotations
