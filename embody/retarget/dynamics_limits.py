@@ -253,12 +253,21 @@ def _hann(half: int) -> np.ndarray:
     return w / w.sum()
 
 
+def _smooth(a: np.ndarray, half: int) -> np.ndarray:
+    """a (T,) or (T,n) convolved along its first axis with the Hann window of half-width `half`,
+    zero outside, the same length whatever T (`np.convolve`'s "same" is not, under the window)."""
+    kernel = _hann(half)
+    flat = a.reshape(len(a), -1)
+    out = np.stack([np.convolve(c, kernel, mode="full")[half: half + len(a)] for c in flat.T], axis=1)
+    return out.reshape(a.shape)
+
+
 def _stretch(need: np.ndarray) -> np.ndarray:
     """(S,) the stretch at the knots from the per-knot need: widened (max filter) and smoothed
     (Hann) so that its full value covers every needing knot, each connected stretched region
     then scaled to add a whole number of control periods (`_regions`)."""
     wide = maximum_filter1d(need - 1.0, size=2 * SMOOTH + 1, mode="constant")
-    f = 1.0 + np.convolve(wide, _hann(SMOOTH), mode="same")
+    f = 1.0 + _smooth(wide, SMOOTH)
     f[np.abs(f - 1.0) < 1e-12] = 1.0
     for a, b in _regions(f):
         seg = f[a: b + 1] - 1.0
@@ -427,8 +436,7 @@ def _push_clear(robot: Robot, x: np.ndarray, touch: np.ndarray, stretch: np.ndar
         sign = np.sign(maximum_filter1d(np.where(np.abs(delta) > 0, delta, -np.inf), size=2 * half + 1,
                                         axis=0, mode="constant"))
         sign = np.where(np.isfinite(sign), sign, 0.0)
-        kernel = _hann(half)
-        spread = np.apply_along_axis(lambda c: np.convolve(c, kernel, mode="same"), 0, big * sign)
+        spread = _smooth(big * sign, half)
         x = np.clip(x + spread, lower, upper)
         moved = np.flatnonzero(np.abs(spread).max(1) > 0)
         left = np.zeros(len(x), dtype=bool)
