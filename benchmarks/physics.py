@@ -2,7 +2,11 @@
 
 For every finished sequence of each `--run` in `--store`, the exported 50 Hz array the metrics
 step stored (`q_control`) is replayed with `embody.physics.evaluate` (fixed base and standing,
-the robot's gains and effort limits), scored against the same human track as the metrics step.
+the robot's gains and effort limits), scored against the same human track as the metrics step
+(at the exported samples' source times, `source_time`, where the torque and ZMP limits retimed
+the array). Per sequence and over the run: how much the retiming slowed the motion down
+(`time_stretch_max`, the largest local slowdown; `duration_ratio`, the exported duration over
+the source's).
 Runs made before the physics step existed work too (this reads only `metrics` and `collide`).
 `seconds_per_seq` is the CPU time of `evaluate` per sequence (`time.process_time`; the human
 track is built outside it, as the pipeline's metrics step has built it when the physics step
@@ -17,7 +21,8 @@ those gaps (exported distance minus simulated distance, of the pairs within 10 m
 simulated self-contact needs a pair whose exported clearance is smaller than the closure.
 
 RESULT physics_valid_pct=… palm_p95_mm=… torque_over_samples=… saturated_step_pct=… sim_contacts=…
-zmp_margin_min_mm=… fidelity_loss_pct=… standing_ok_pct=… seconds_per_seq=…
+zmp_margin_min_mm=… fidelity_loss_pct=… standing_ok_pct=… seconds_per_seq=… retimed_pct=…
+time_stretch_max=… duration_ratio_mean=… duration_ratio_max=…
 export_clearance_min_mm=… replay_closure_p99_mm=… replay_closure_max_mm=…
 """
 
@@ -63,6 +68,7 @@ def main() -> None:
     from embody.physics import evaluate
     from embody.physics.evaluate import sim_contacts
     from embody.report.reader import open_run, run_config
+    from embody.retarget.dynamics_limits import duration_ratio, time_stretch, uniform_time
     from embody.robot import load_robot
     from embody.verdicts import physics_valid
 
@@ -82,7 +88,10 @@ def main() -> None:
             stored = seq["metrics"]["metrics"]
             q = np.asarray(art.arrays["q_control"], dtype=np.float64)
             rate = float(stored["validation_rate_hz"])
-            human = resample_track(human_track(load_result(store, seq, "collide").motion, body), rate)
+            times = art.arrays.get("source_time")
+            times = None if times is None else np.asarray(times, dtype=np.float64)
+            human = resample_track(human_track(load_result(store, seq, "collide").motion, body), rate, times)
+            st = uniform_time(len(q), rate) if times is None else times
             if not warmed:
                 evaluate(robot, q, rate, human, cfg.fidelity)
                 warmed = True
@@ -93,6 +102,7 @@ def main() -> None:
             final = stored.get("fidelity.final", "ik")
             kin = float(stored.get(f"fidelity.{final}.location_err_mm", np.nan))
             rows.append({"run": run, "id": sid, "valid": physics_valid(m), "kin_loc_mm": kin,
+                         "stretch": time_stretch(st, rate), "duration": duration_ratio(st, rate),
                          "sim_loc_mm": float(m.get("fidelity.location_err_mm", np.nan)), **m})
             palm.append(res.arrays["palm_err_mm"])
             kin_d, sim_d = pair_distances(robot, q), pair_distances(robot, res.arrays["q_sim"])
@@ -111,7 +121,8 @@ def main() -> None:
                   f"(tilt {m['standing_pelvis_tilt_max_deg']:.1f}°, CoM off {m['standing_com_offset_max_mm']:.0f} mm, "
                   f"foot slip {m['standing_foot_slip_max_mm']:.0f} mm, lift {m['standing_foot_lift_max_mm']:.1f} mm) "
                   f"loc {rows[-1]['kin_loc_mm']:.1f}->{rows[-1]['sim_loc_mm']:.1f} mm "
-                  f"clearance min {clear_min:.2f} mm, closure max {max(closure, default=0.0):.2f} mm cpu={cpu[-1]:.2f}s",
+                  f"clearance min {clear_min:.2f} mm, closure max {max(closure, default=0.0):.2f} mm "
+                  f"stretch {rows[-1]['stretch']:.2f} duration x{rows[-1]['duration']:.2f} cpu={cpu[-1]:.2f}s",
                   flush=True)
     if not rows:
         raise SystemExit("no finished sequences")
@@ -133,7 +144,11 @@ def main() -> None:
           f"seconds_per_seq={np.mean(cpu):.2f} "
           f"export_clearance_min_mm={min(r['clear_min_mm'] for r in rows):.2f} "
           f"replay_closure_p99_mm={np.percentile(closures, 99) if closures else 0.0:.2f} "
-          f"replay_closure_max_mm={max(closures, default=0.0):.2f}")
+          f"replay_closure_max_mm={max(closures, default=0.0):.2f} "
+          f"retimed_pct={100.0 * np.mean([r['stretch'] > 1.0 + 1e-9 for r in rows]):.1f} "
+          f"time_stretch_max={max(r['stretch'] for r in rows):.2f} "
+          f"duration_ratio_mean={np.mean([r['duration'] for r in rows]):.2f} "
+          f"duration_ratio_max={max(r['duration'] for r in rows):.2f}")
 
 
 if __name__ == "__main__":

@@ -52,7 +52,7 @@ KERNELS = [
     ("mujoco.counted_contacts", "embody/robot/contacts.py", "counted_contacts"),
     ("ik.control_trajectory", "embody/retarget/control.py", "control_trajectory_checked"),
     ("ik.kinematic_control", "embody/retarget/control.py", "_kinematic_control"),
-    ("ik.dynamics_limits", "embody/retarget/dynamics_limits.py", "enforce_dynamics"),
+    ("ik.dynamics_limits", "embody/retarget/dynamics_limits.py", "retime_dynamics"),
     ("mujoco.validation_counts", "embody/retarget/validation.py", "validation_counts"),
     ("critic.refine", "embody/critic/refine.py", "refine"),
     ("critic.judge", "embody/critic/refine.py", "__call__"),

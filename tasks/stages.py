@@ -105,20 +105,22 @@ def _targets(ctx: Context, motion: Motion, fit: Any, ik: Any, remember: bool = T
 _HUMANS: OrderedDict[bytes, Any] = OrderedDict()
 
 
-def _human_track(ctx: Context, motion: Motion, rate: float) -> Any:
-    """The human's fidelity track resampled to `rate` Hz, built once per process for the same
-    motion and body: the metrics step builds it, the physics step scores its simulated motion
-    against the same one (~half of a sequence's fidelity cost is building it)."""
+def _human_track(ctx: Context, motion: Motion, rate: float, times: np.ndarray | None = None) -> Any:
+    """The human's fidelity track resampled to `rate` Hz, or at `times` (s: a retimed export's
+    source times, `IKSolution.source_time`), built once per process for the same motion, body
+    and times: the metrics step builds it, the physics step scores its simulated motion against
+    the same one (~half of a sequence's fidelity cost is building it)."""
     from embody.metrics.embodiments import human_track
     from embody.metrics.fidelity import resample_track
     transl = np.zeros(0) if motion.transl is None else motion.transl
     key = _digest(motion.pose, transl, motion.betas, np.asarray([motion.fps, rate]),
+                  *(() if times is None else (np.asarray(times, dtype=np.float64),)),
                   text=ctx.cfg.section_json("body"))
     with _TARGETS_LOCK:
         if key in _HUMANS:
             _HUMANS.move_to_end(key)
             return _HUMANS[key]
-    human = resample_track(human_track(motion, ctx.body), rate)
+    human = resample_track(human_track(motion, ctx.body), rate, times)
     with _TARGETS_LOCK:
         _HUMANS[key] = human
         while len(_HUMANS) > _targets_size(ctx.cfg):
@@ -171,7 +173,7 @@ def _retarget(ctx: Context, inputs: dict[str, Any]) -> Any:
 
 def _retarget_before_critic(ctx: Context, inputs: dict[str, Any]) -> Any:
     """The retarget step when the critic follows: the same solve, its control-rate array without
-    the torque and ZMP solve (`ik.without_dynamics_limits`), which the refine step runs once, on
+    the torque and ZMP retiming (`ik.without_dynamics_limits`), which the refine step runs once, on
     the round it chooses, the array exported (~2 s a call, on every round before)."""
     from embody.retarget.ik import without_dynamics_limits
     from embody.retarget.windows import solve_windowed
@@ -237,7 +239,7 @@ def _render_metrics(result: Any) -> dict[str, Any]:
     return {"keyframes": int(len(result.keyframes)), "preview": result.preview_suffix or ""}
 
 
-def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
+def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray, final_time: np.ndarray
               ) -> tuple[dict[str, Any], dict[str, np.ndarray], list[str]]:
     """Sign fidelity against the human that IK retargets (after collision mitigation), per row of
     Table III: `ik` (shape-fit targets only; solved here as the baseline when the run used
@@ -246,7 +248,9 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     Each row is measured on its control-rate array (`q_control`; the final row's is
     `final_control`, the array stored and exported), against the human track resampled to the same
     times (`resample_track`): the robot a user receives, not the source-rate solve. Only the final
-    row's array went through the torque and ZMP solve: with the critic, the `preserving` row is the
+    row's array went through the torque and ZMP retiming, so it is scored against the human at
+    its samples' source times (`final_time`): the same instant of the sign, whatever the
+    slowdown. With the critic, the `preserving` row is the
     retarget step's kinematic array (`RETARGET_BEFORE_CRITIC`), as the `ik` baseline's is, and
     `refined_kinematic` the chosen round's kinematic array (the same chain without the solve), so
     the critic's effect (`preserving` → `refined_kinematic`) and the solve's (→ `refined`) are
@@ -276,25 +280,30 @@ def _fidelity(ctx: Context, inputs: dict[str, Any], final_control: np.ndarray
     rows["preserving" if cfg.ik.location_preserving else "ik"] = np.asarray(ik.q_control)
     if "refine" in inputs and cfg.ik.dynamics_limits:
         # the chosen round's kinematic array: against `preserving` (kinematic too) the critic's
-        # own effect; against `refined` what the torque and ZMP solve cost the sign
+        # own effect; against `refined` what the torque and ZMP retiming cost the sign
         final = inputs["refine"].final
         rows["refined_kinematic"] = (np.asarray(final.q_kinematic) if final.q_kinematic is not None else
                                      exported_control(ctx.robot, final.q, ik.fps, without_dynamics_limits(cfg.ik))[0])
     # the final row is the array stored and exported
-    rows["refined" if "refine" in inputs else list(rows)[-1]] = final_control
+    final_row = "refined" if "refine" in inputs else list(rows)[-1]
+    rows[final_row] = final_control
+    uniform = len(final_time) == len(final_control) and np.allclose(
+        final_time, np.arange(len(final_control)) / ik.control_rate_hz, rtol=0.0, atol=1e-9)
+    final_human = human if uniform else _human_track(ctx, motion, ik.control_rate_hz, final_time)
     frames: dict[str, np.ndarray] = {}
     scored: list[tuple[np.ndarray, Any]] = []
     for row, q in rows.items():
+        against = final_human if row == final_row else human
         # a row equal to an earlier one (the critic kept the IK solution) is not scored twice
         same = next((r for p, r in scored if p.shape == q.shape and np.array_equal(p, q)), None)
         if same is None:
-            robot = scored_robot_track(ctx.robot, q, ik.control_rate_hz, human, cfg.fidelity)
-            same = compare_with(human, robot, cfg.fidelity)
+            robot = scored_robot_track(ctx.robot, q, ik.control_rate_hz, against, cfg.fidelity)
+            same = compare_with(against, robot, cfg.fidelity)
         per_frame, metrics = same
         scored.append((q, same))
         out.update({f"fidelity.{row}.{k}": v for k, v in metrics.items()})
         frames = {"location_err": per_frame["location_err"], "location_landmark": per_frame["location_landmark"]}
-        names = [n for n in LOCATION_LANDMARKS if human.has(n) and robot.has(n)]  # what it indexes
+        names = [n for n in LOCATION_LANDMARKS if against.has(n) and robot.has(n)]  # what it indexes
     out["fidelity.final"] = list(rows)[-1]
     out["fidelity.rate_hz"] = float(ik.control_rate_hz)  # per-frame fidelity arrays are at this rate
     return out, frames, names
@@ -351,6 +360,7 @@ def _trajectory_metrics(ctx: Context, inputs: dict[str, Any]) -> Metrics:
 def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     """`_trajectory_metrics`' work."""
     from embody.metrics import mean_jerk
+    from embody.retarget.dynamics_limits import duration_ratio, time_stretch
     from embody.retarget.ik import exported_control
     from embody.retarget.validation import validation_counts
     ik = inputs["retarget"]
@@ -358,12 +368,14 @@ def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     if "refine" in inputs:
         final = owner = inputs["refine"].final
         q = np.asarray(final.q, dtype=np.float64)
-        if final.q_control is not None:  # the refine step's export, dynamics solve included
+        if final.q_control is not None and final.source_time is not None:  # the refine step's export
             q_control = np.asarray(final.q_control, dtype=np.float64)
+            source_time = np.asarray(final.source_time, dtype=np.float64)
         else:
-            q_control = exported_control(ctx.robot, q, ik.fps, ctx.cfg.ik)[0]
+            q_control, _, source_time = exported_control(ctx.robot, q, ik.fps, ctx.cfg.ik)
     else:
         q, q_control = np.asarray(ik.q, dtype=np.float64), np.asarray(ik.q_control, np.float64)
+        source_time = np.asarray(ik.source_time, dtype=np.float64)
     # the IK's solve already counted MuJoCo contacts of its own arrays: not counted twice
     ik_contacts = ik.frame_metrics.get("self_contacts")
     source = validation_counts(ctx.robot, q, ik.fps, ik_contacts
@@ -371,16 +383,19 @@ def _measure(ctx: Context, inputs: dict[str, Any]) -> Metrics:
     control = _control_counts(owner, q_control)
     if control is None:
         control = validation_counts(ctx.robot, q_control, ik.control_rate_hz)
-    fidelity, frames, names = _fidelity(ctx, inputs, q_control)
+    fidelity, frames, names = _fidelity(ctx, inputs, q_control, source_time)
     tracked, tracks = _report_tracks(ctx, inputs)
+    rate = float(ik.control_rate_hz)
     return Metrics({"frames": int(q.shape[0]), "joints": int(q.shape[-1]),
                     "duration_s": float(q.shape[0] / ik.fps), "mean_jerk": mean_jerk(q, ik.fps),
                     "final": "refine" if "refine" in inputs else "retarget",
                     "control_frames": int(q_control.shape[0]),
                     "validation_rate_hz": float(ik.control_rate_hz),
+                    "time_stretch_max": time_stretch(source_time, rate),
+                    "duration_ratio": duration_ratio(source_time, rate),
                     **control,
                     **{f"source_{k}": v for k, v in source.items()}, **fidelity, **tracked},
-                   {"q_control": q_control, **frames, **tracks},
+                   {"q_control": q_control, "source_time": source_time, **frames, **tracks},
                    {"location_landmark": names})
 
 
@@ -395,8 +410,9 @@ def _physics(ctx: Context, inputs: dict[str, Any]) -> Any:
     metrics = inputs["metrics"]
     q = np.asarray(metrics.arrays["q_control"], dtype=np.float64)
     rate = float(metrics.metrics.get("validation_rate_hz", metrics.metrics.get("fidelity.rate_hz", 50.0)))
+    times = metrics.arrays.get("source_time")  # the retimed export's samples' source times
     with torch_threads(1):
-        human = _human_track(ctx, inputs["collide"].motion, rate)
+        human = _human_track(ctx, inputs["collide"].motion, rate, times)
         return evaluate(ctx.robot, q, rate, human, ctx.cfg.fidelity)
 
 
@@ -414,19 +430,20 @@ COLLIDE = Step("collide", "14", ("body", "collision"), _collide, _collision_resu
 # Betas and scale fitted to the robot's proportions, once per robot and body (shared).
 SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_fit_result,
                  shared=True, files=_robot_files)
-# The whole-sequence IK on location-preserving targets; its 50 Hz array clear of contacts and inside
-# the effort limits and ZMP margin (`retarget.control`, `retarget.dynamics_limits`), with its counts.
-RETARGET = Step("retarget", "25", ("body", "robot", "ik"), _retarget, _ik_solution,
+# The whole-sequence IK on location-preserving targets; its 50 Hz array clear of contacts and, retimed
+# where needed, inside the effort limits and ZMP margin (`retarget.control`,
+# `retarget.dynamics_limits`), with its counts and its samples' source times.
+RETARGET = Step("retarget", "26", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # The same solve when the critic follows: its 50 Hz array kinematic only (contacts, joint box,
-# velocities; counted as such), the torque and ZMP solve left to the round the critic chooses.
-RETARGET_BEFORE_CRITIC = Step("retarget", "25+critic", ("body", "robot", "ik"), _retarget_before_critic,
+# velocities; counted as such), the torque and ZMP retiming left to the round the critic chooses.
+RETARGET_BEFORE_CRITIC = Step("retarget", "26+critic", ("body", "robot", "ik"), _retarget_before_critic,
                               _ik_solution, (COLLIDE, SHAPE_FIT), files=_robot_files)
 # Every critic round's IK solution, action and comparison sheet (the re-solves' 50 Hz arrays
-# kinematic only); the chosen round's exported control-rate array (torque and ZMP solve
+# kinematic only); the chosen round's exported control-rate array (torque and ZMP retiming
 # included, once) with its validation counts, the critic's verdict on that array, and the
 # rounds' wrist positions, which `metrics` reuses.
-REFINE = Step("refine", "27", ("body", "robot", "ik", "render", "critic"), _refine,
+REFINE = Step("refine", "28", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC), metrics=_refine_metrics,
               files=_robot_files)
 # The comparison sheet and the 15 fps preview of the reference (a MuJoCo skin) and the robot.
@@ -437,16 +454,16 @@ RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _rend
                       files=_robot_files)
 # The exported control-rate array, its validation counts (torque included) and jerk, Table III's
 # sign fidelity on it against the mitigated human, and the report's wrist tracks.
-METRICS = Step("metrics", "15", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS = Step("metrics", "16", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "15", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "16", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC, REFINE),
                        files=_robot_files)
 
 # The exported array replayed in MuJoCo with the robot's actuation, fixed base and standing.
-PHYSICS = Step("physics", "3", ("body", "robot", "fidelity"), _physics, _physics_result,
+PHYSICS = Step("physics", "4", ("body", "robot", "fidelity"), _physics, _physics_result,
                (COLLIDE, METRICS), files=_robot_files)
-PHYSICS_REFINED = Step("physics", "3", ("body", "robot", "fidelity"), _physics, _physics_result,
+PHYSICS_REFINED = Step("physics", "4", ("body", "robot", "fidelity"), _physics, _physics_result,
                        (COLLIDE, METRICS_REFINED), files=_robot_files)
 
 

@@ -1,6 +1,6 @@
 """The control-rate dynamics limits: a trajectory over a motor's effort limit or out of the feet's
-support polygon is repaired by the solve, a feasible one is left as it is, and validation counts
-what is left over (`torque_viol`), which the export refuses."""
+support polygon is retimed (slowed down where it fails, its path kept), a feasible one is left as
+it is, and validation counts what is left over (`torque_viol`), which the export refuses."""
 
 from __future__ import annotations
 
@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 from embody.config import Config
-from embody.retarget.dynamics_limits import DynamicsLimits, enforce_dynamics
+from embody.retarget.dynamics_limits import DynamicsLimits, duration_ratio, retime_dynamics, time_stretch
 from embody.retarget.limits import limit_violations, velocity_violations
 from embody.retarget.validation import validation_counts
 from embody.robot import load_robot
 from embody.robot.contacts import self_collision_contacts
 from embody.robot.dynamics import effort_limits, inverse_dynamics, zmp
+from scipy.interpolate import CubicSpline
 from embody.verdicts import export_valid, violations
 
 RATE = 50.0
@@ -40,6 +41,21 @@ def _planted(robot, scale: float = 1.0) -> np.ndarray:
     return q
 
 
+def _on_path(q: np.ndarray, out: np.ndarray, source_time: np.ndarray) -> float:
+    """Largest distance (rad) of the retimed samples from the input's path: the natural cubic
+    spline through the input samples, read at each sample's source time."""
+    path = CubicSpline(np.arange(len(q), dtype=np.float64), q, bc_type="natural")
+    return float(np.abs(path(source_time * RATE) - out).max())
+
+
+def _timing_checks(q: np.ndarray, timed) -> None:
+    st = timed.source_time
+    assert len(st) == len(timed.q) and st[0] == 0.0
+    assert (np.diff(st) > 0).all()  # monotone: the motion never runs backwards in the source's time
+    assert abs(st[-1] - (len(q) - 1) / RATE) < 1e-9  # the whole source, to its last sample
+    assert np.diff(st).max() <= 1.0 / RATE + 1e-9  # slowed down, never sped up
+
+
 def test_wrist_over_its_effort_limit_is_repaired(robot):
     q = _planted(robot)
     limit = effort_limits(robot)
@@ -48,10 +64,12 @@ def test_wrist_over_its_effort_limit_is_repaired(robot):
     assert before[:, wrist].max() > 1.2  # the plant really asks the wrist for more than it has
     assert validation_counts(robot, q, RATE)["torque_viol"] > 0
     limits = DynamicsLimits(torque_fraction=0.9, zmp_margin=0.02)
-    out, ok = enforce_dynamics(robot, q, RATE, limits)
+    timed = retime_dynamics(robot, q, RATE, limits)
+    out = timed.q
     ratio = np.abs(inverse_dynamics(robot, out, 1 / RATE)) / limit
-    assert ok
+    assert timed.ok
     assert ratio.max() <= 1.0  # every joint, fingers included, within its limit
+    assert _need(robot, out).max() <= 1.0
     _, _, margin = zmp(robot, out, 1 / RATE)
     assert margin.min() >= 0.02 - 1e-6
     assert velocity_violations(out, robot.velocity_limits, RATE) == 0
@@ -59,9 +77,13 @@ def test_wrist_over_its_effort_limit_is_repaired(robot):
     assert (self_collision_contacts(robot, out) == 0).all()
     counts = validation_counts(robot, out, RATE)
     assert counts["torque_viol"] == 0 and export_valid(counts)
-    # the correction is local: samples over a second from the reversal are untouched
-    assert np.abs(out[:10] - q[:10]).max() == 0.0 and np.abs(out[-10:] - q[-10:]).max() == 0.0
-    assert np.abs(out - q).max() < np.radians(30)
+    # the path is kept: every sample lies on the input's spline at its source time
+    _timing_checks(q, timed)
+    assert timed.contact_samples == 0 and _on_path(q, out, timed.source_time) < 1e-9
+    # the slowdown is local: samples over a second from the reversal are the input's own
+    assert np.array_equal(out[:10], q[:10]) and np.array_equal(out[-10:], q[-10:])
+    assert time_stretch(timed.source_time, RATE) > 1.5  # the reversal really was slowed down
+    assert 1.0 < duration_ratio(timed.source_time, RATE) < 2.0
 
 
 def test_solved_trajectory_replays_without_saturating(robot):
@@ -77,9 +99,9 @@ def test_solved_trajectory_replays_without_saturating(robot):
 
     q = _planted(robot)
     assert saturated(q) > 0
-    out, ok = enforce_dynamics(robot, q, RATE, DynamicsLimits())
-    assert ok
-    assert saturated(out) == 0
+    timed = retime_dynamics(robot, q, RATE, DynamicsLimits())
+    assert timed.ok
+    assert saturated(timed.q) == 0
 
 
 def test_feasible_motion_is_unchanged(robot):
@@ -90,9 +112,10 @@ def test_feasible_motion_is_unchanged(robot):
     ratio = np.abs(inverse_dynamics(robot, q, 1 / RATE)) / effort_limits(robot)
     assert ratio.max() < 0.9
     assert zmp(robot, q, 1 / RATE)[2].min() > 0.02
-    out, ok = enforce_dynamics(robot, q, RATE, DynamicsLimits())
-    assert ok
-    assert np.abs(out - q).max() <= 1e-12
+    timed = retime_dynamics(robot, q, RATE, DynamicsLimits())
+    assert timed.ok
+    assert np.array_equal(timed.q, q)
+    np.testing.assert_array_equal(timed.source_time, np.arange(len(q)) / RATE)
 
 
 def _need(robot, q: np.ndarray) -> np.ndarray:
@@ -125,9 +148,9 @@ def test_motion_inside_the_limits_but_not_the_margin_is_unchanged(robot):
     r = replay_fixed(robot, commands(robot, q, RATE)).rollout
     assert not (np.abs(r.demand) >= r.limit * (1 - 1e-9)).any()
     assert zmp(robot, q, 1 / RATE)[2].min() > 0.0  # inside the feet (this test's ZMP margin: 0)
-    out, ok = enforce_dynamics(robot, q, RATE, DynamicsLimits(torque_fraction=0.9, zmp_margin=0.0))
-    assert ok
-    assert np.abs(out - q).max() == 0.0
+    timed = retime_dynamics(robot, q, RATE, DynamicsLimits(torque_fraction=0.9, zmp_margin=0.0))
+    assert timed.ok
+    assert np.array_equal(timed.q, q) and len(timed.source_time) == len(q)
 
 
 def test_zmp_out_of_the_feet_is_brought_back(robot):
@@ -140,11 +163,13 @@ def test_zmp_out_of_the_feet_is_brought_back(robot):
         q[:, j] += 0.9 * robot.velocity_limits[j] / (2 * np.pi * 2.0) * np.sin(2 * np.pi * 2.0 * t)
     _, _, before = zmp(robot, q, 1 / RATE)
     assert before.min() < 0.0
-    out, ok = enforce_dynamics(robot, q, RATE, DynamicsLimits(zmp_margin=0.02))
-    _, _, after = zmp(robot, out, 1 / RATE)
-    assert ok
+    timed = retime_dynamics(robot, q, RATE, DynamicsLimits(zmp_margin=0.02))
+    _, _, after = zmp(robot, timed.q, 1 / RATE)
+    assert timed.ok
     assert after.min() >= 0.02 - 1e-6
-    assert velocity_violations(out, robot.velocity_limits, RATE) == 0
+    assert velocity_violations(timed.q, robot.velocity_limits, RATE) == 0
+    _timing_checks(q, timed)
+    assert _on_path(q, timed.q, timed.source_time) < 1e-9
 
 
 def test_export_refuses_torque_violations():
@@ -158,13 +183,13 @@ def test_export_refuses_torque_violations():
 def test_two_handed_excerpt_is_repaired_without_contacts(robot):
     """1.4 s of a retargeted two-handed sign's kinematic 50 Hz export (synth seq 0, samples
     100-169: the contact repair keeps the hands 2 mm apart while the arms zig-zag): its motors
-    are asked for more than their limits, and low-passing the limb at fault alone makes the
-    hands touch, so that start is capped and samples stay over. The solve low-passes the whole
-    upper body and repairs it: every sample's need within its limit, the ZMP inside its margin,
-    no counted pair closer than the export's gap, the velocity limits kept."""
+    are asked for more than their limits, and between its samples the spline the robot plays
+    passes through the other hand. Retimed, every sample's need is within its limit, the ZMP
+    inside its margin, no counted pair closer than the export's gap (the samples the slowdown
+    puts between the input's, pushed clear where they touched), the velocity limits kept, and
+    the path is the input's but for those pushes."""
     from pathlib import Path
 
-    from embody.retarget.dynamics_limits import _enforce_with
     from embody.retarget.limits import EXPORT_GAP
     from embody.robot.contacts import near_contacts
 
@@ -173,14 +198,15 @@ def test_two_handed_excerpt_is_repaired_without_contacts(robot):
     q = data["q"]
     assert (near_contacts(robot, q, EXPORT_GAP) == 0).all()
     assert _need(robot, q).max() > 2.0
-    limits = DynamicsLimits()
-    _, by_group, left = _enforce_with(robot, q, RATE, limits, 0.0, 0.0, None, False)
-    assert not by_group and left > 0
-    out, ok = enforce_dynamics(robot, q, RATE, limits)
-    assert ok
+    timed = retime_dynamics(robot, q, RATE, DynamicsLimits())
+    out = timed.q
+    assert timed.ok
     assert _need(robot, out).max() <= 1.0
     assert zmp(robot, out, 1 / RATE)[2].min() >= 0.02 - 1e-6
     assert (near_contacts(robot, out, EXPORT_GAP) == 0).all()
     assert velocity_violations(out, robot.velocity_limits, RATE) == 0
     assert limit_violations(out, robot.lower, robot.upper) == 0
-    assert np.abs(out - q).max() < np.radians(30)          # 24.1° here: a zig-zag at 8.9× the limit
+    _timing_checks(q, timed)
+    assert timed.contact_samples > 0  # the spline between the input's samples did touch
+    assert _on_path(q, out, timed.source_time) < np.radians(10)  # pushes within their trust radius
+    assert duration_ratio(timed.source_time, RATE) < 4.0

@@ -322,7 +322,7 @@ def test_export_repair_is_local_where_the_bridge_fails(robot):
     assert len(bad) >= 3 and np.all(np.diff(bad) == 1)  # one run
     run = int(np.ceil(BRIDGE_FRAMES * RATE / fps))
     np.testing.assert_array_equal(bridge_contacts(robot, plain, max_run=run, fps=RATE), plain)  # no bridge
-    qc, clear = control_trajectory_checked(robot, q, fps, RATE, limits=None)  # the contact repair alone
+    qc, clear, _ = control_trajectory_checked(robot, q, fps, RATE, limits=None)  # the contact repair alone
     assert clear
     assert self_collision_contacts(robot, qc).sum() == 0 and _independent_contacts(robot, qc).sum() == 0
     assert all(validation_counts(robot, qc, RATE)[k] == 0 for k in KINEMATIC)

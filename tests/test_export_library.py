@@ -74,3 +74,14 @@ def test_bad_inputs(tmp_path) -> None:
         Trajectory.load(tmp_path / "junk.npz")
     with pytest.raises(InputError, match="npz"):
         Trajectory.load(tmp_path / "a.csv")
+
+
+def test_npz_carries_the_samples_source_times(tmp_path) -> None:
+    """A retimed trajectory (slowed down three times over its middle) keeps each sample's time on
+    the source's timeline in its npz, read back as written; one without them has none."""
+    slow = np.r_[np.arange(10) * 0.02, 0.2 + np.arange(1, 11) * 0.02 / 3, 0.2 + 0.2 / 3 + np.arange(1, 11) * 0.02]
+    traj = _traj("a")
+    timed = Trajectory(id="t", robot=traj.robot, joint_names=NAMES, q=traj.q, dt=0.02, source_time=slow[:30])
+    back = Trajectory.load(timed.save(tmp_path / "t", "npz"))
+    np.testing.assert_array_equal(back.source_time, slow[:30])
+    assert Trajectory.load(traj.save(tmp_path / "a", "npz")).source_time is None

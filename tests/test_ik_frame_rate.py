@@ -63,7 +63,7 @@ def test_same_motion_at_any_rate(solved):
 
     def chain(sol) -> float:
         """Mean jerk of sol's 50 Hz array from the kinematic chain alone (resample, contacts,
-        limits), without the torque/ZMP solve's low-pass."""
+        limits), without the torque/ZMP retiming."""
         q = exported_control(robot, sol.q, sol.fps, kinematic)[0]
         return mean_jerk(q[:, robot.ik_mask], sol.control_rate_hz)
 
@@ -80,9 +80,8 @@ def test_same_motion_at_any_rate(solved):
         at30 = mean_jerk(sol.q[::k, robot.ik_mask], 30.0)
         assert at30 <= 1.2 * jerk30, (k, at30, jerk30)
         # what the robot receives: the 50 Hz export. Its kinematic chain matches the 30 fps
-        # clip's; the torque/ZMP solve after it low-passes only where a motor's limit is passed,
-        # which the 30 fps clip's coarser resample does more (this clip: 3256 -> 579 at 30 fps,
-        # 1493 -> 881 at 60), so each solved array is held to its own chain: never rougher
+        # clip's; the torque/ZMP retiming after it slows the motion down only where a motor's
+        # limit is passed, so each solved array is held to its own chain: never rougher
         # (benchmarks/frame_rate.py has the solved arrays' ratio on clips no test uses: 0.80)
         export = mean_jerk(sol.q_control[:, robot.ik_mask], sol.control_rate_hz)
         kin = chain(sol)

@@ -1,4 +1,4 @@
-"""The torque and ZMP solve runs once per sequence, on the array that is exported: the critic's
+"""The torque and ZMP retiming runs once per sequence, on the array that is exported: the critic's
 re-solves make kinematic control-rate arrays, the chosen round's exported array is limited and
 counted, and the critic's acceptance holds only if it also accepts that exported array."""
 
@@ -32,7 +32,7 @@ def test_without_dynamics_limits_changes_only_the_control_array(robot):  # noqa:
     np.testing.assert_allclose(kinematic.q, solve(robot, targets, IK).q, atol=1e-9)
     expected = control_trajectory(robot, kinematic.q, FPS, IK.control_rate_hz, IK.contact_repair, limits=None)
     np.testing.assert_allclose(kinematic.q_control, expected, atol=1e-12)
-    limited, _ = exported_control(robot, kinematic.q, FPS, IK)
+    limited, _, _ = exported_control(robot, kinematic.q, FPS, IK)
     np.testing.assert_allclose(limited, control_trajectory(robot, kinematic.q, FPS, IK.control_rate_hz,
                                                            IK.contact_repair), atol=1e-12)
 
@@ -53,16 +53,20 @@ def test_chosen_rounds_export_is_limited_and_counted(robot):  # noqa: F811
     np.testing.assert_allclose(final.q_kinematic, kinematic, atol=1e-12)
     back = RefineResult.from_arrays(result.to_arrays(), json.loads(json.dumps(result.to_attrs())))
     np.testing.assert_array_equal(back.final.q_kinematic, final.q_kinematic)
+    # each exported sample's source time: increasing, one per sample, spanning the source
+    assert len(final.source_time) == len(final.q_control)
+    assert (np.diff(final.source_time) > 0).all() and final.source_time[0] == 0.0
+    np.testing.assert_array_equal(back.final.source_time, final.source_time)
     counts = validation_counts(robot, final.q_control, IK.control_rate_hz)
     assert {k: final.metrics[f"control_{k}"] for k in counts} == counts
     assert all(r.q_control is None for r in result.rounds if r is not final)
     # the critic accepted the round and, judged again, its exported array
     assert final.accepted and result.export_accepted is True and result.accepted
     exported = result.export["metrics"]
-    # the two judgements differ by no more than the torque/ZMP solve moved the wrists at the
+    # the two judgements differ by no more than the torque/ZMP retiming moved the wrists at the
     # source frames (triangle inequality on the mean wrist error)
     from embody.critic.refine import robot_wrists
-    moved = robot_wrists(robot, _at_frames(final.q_control, IK.control_rate_hz, len(final.q), FPS))[0]
+    moved = robot_wrists(robot, _at_frames(final.q_control, final.source_time, len(final.q), FPS))[0]
     moved_mm = 1000.0 * np.linalg.norm(moved - robot_wrists(robot, final.q)[0], axis=-1)
     gap = abs(exported["wrist_mm_mean"] - final.metrics["wrist_mm_mean"])
     assert gap <= moved_mm.mean() + 1e-6
@@ -128,11 +132,26 @@ def test_exported_array_read_at_the_source_frames():
     n = int(np.floor((t - 1) / fps * rate + 1e-9)) + 1
     times = np.arange(n) / rate
     ramp = np.stack([times, 2.0 * times + 1.0], axis=1)
-    view = _at_frames(ramp, rate, t, fps)
+    view = _at_frames(ramp, times, t, fps)
     frames = np.minimum(np.arange(t) / fps, times[-1])
     np.testing.assert_allclose(view, np.stack([frames, 2.0 * frames + 1.0], axis=1), atol=1e-12)
     same = np.random.default_rng(0).normal(size=(t, 3))
-    np.testing.assert_allclose(_at_frames(same, fps, t, fps), same, atol=1e-12)
+    np.testing.assert_allclose(_at_frames(same, np.arange(t) / fps, t, fps), same, atol=1e-12)
+
+
+def test_retimed_array_read_at_its_source_times():
+    """A retimed export (three times slower over its middle): read at the source frames through
+    its samples' source times, it gives the source's values, not the slowed array's."""
+    rate, fps, t = 50.0, 25.0, 26
+    source = np.r_[np.arange(0, 20) / rate, 20 / rate + np.arange(0, 60) / (3 * rate),
+                   40 / rate + np.arange(0, 11) / rate]
+    line = np.stack([source, 1.0 - source], axis=1)  # the path at those source times
+    view = _at_frames(line, source, t, fps)
+    frames = np.minimum(np.arange(t) / fps, source[-1])
+    np.testing.assert_allclose(view, np.stack([frames, 1.0 - frames], axis=1), atol=1e-12)
+    # read on the uniform grid instead, the slowed array lags the source
+    lagging = _at_frames(line, np.arange(len(line)) / rate, t, fps)
+    assert np.abs(lagging[:, 0] - frames).max() > 0.1
 
 
 def test_pipeline_limits_the_exported_array_once(tmp_path):
@@ -165,6 +184,8 @@ def test_pipeline_limits_the_exported_array_once(tmp_path):
         ctx.robot, final.q, ik.fps, ik.control_rate_hz, True), atol=1e-12)
     out = METRICS_REFINED.compute(ctx, inputs)
     np.testing.assert_array_equal(out.arrays["q_control"], final.q_control)
+    np.testing.assert_array_equal(out.arrays["source_time"], final.source_time)
+    assert out.metrics["time_stretch_max"] >= 1.0 and out.metrics["duration_ratio"] >= 1.0
     fresh = validation_counts(ctx.robot, out.arrays["q_control"], ik.control_rate_hz)
     assert {k: out.metrics[k] for k in fresh} == fresh
     assert out.metrics["fidelity.final"] == "refined"

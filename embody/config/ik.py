@@ -200,10 +200,10 @@ class IKConfig(Section):
     contact_repair: bool = True
     control_rate_hz: float = Field(50.0, gt=0, le=2000)
     #: The exported control-rate array honours the motors' effort limits and keeps the standing
-    #: robot's ZMP inside its feet (`retarget.dynamics_limits`: one solve that also owns the joint
-    #: box, the velocity limits and the contacts, so none of them is traded for another). A
-    #: trajectory already inside every limit is left exactly as it is. Off only to study the
-    #: kinematic chain alone.
+    #: robot's ZMP inside its feet (`retarget.dynamics_limits`: the kinematic chain's path is
+    #: kept and retimed, slowed down locally where a sample asks too much; each sample's source
+    #: time is stored beside it). A trajectory already inside every limit is left exactly as it
+    #: is. Off only to study the kinematic chain alone.
     dynamics_limits: bool = True
     #: Share (dimensionless, of N·m) of each joint's effort limit (the MJCF's `actuatorfrcrange`,
     #: fingers included) the inverse-dynamics torque of every exported sample may use: fixed base,

@@ -4,7 +4,7 @@ The critic always compares the robot against the *reference* (the human's target
 primitives offset the *working* IK targets; offsets accumulate there across rounds. So a robot
 that misses a target by 10 cm gets its target moved 10 cm further, not its reference.
 
-Each round's re-solve makes its control-rate array without the torque and ZMP solve
+Each round's re-solve makes its control-rate array without the torque and ZMP retiming
 (`retarget.dynamics_limits`, seconds per call): the critic judges a round's source-rate solve,
 which that solve never changes. It runs once, after the choice, on the chosen round: the array
 the pipeline exports (`RoundRecord.q_control`). When the critic had accepted the chosen round, it
@@ -90,9 +90,12 @@ class RoundRecord:
     #: chosen round, the exported one (torque and ZMP limits included), the only one stored.
     q_control: np.ndarray | None = None
     #: The chosen round's control-rate array as its solve made it (the re-solves' and the
-    #: pipeline's retarget step's: kinematic, before the torque and ZMP solve made `q_control`;
+    #: pipeline's retarget step's: kinematic, before the torque and ZMP retiming made `q_control`;
     #: round 0's is the given IK solution's), kept so the metrics step scores the solve apart.
     q_kinematic: np.ndarray | None = None
+    #: (N,) each `q_control` sample's time (s) on the source's timeline (the chosen round's
+    #: export: the torque and ZMP limits may have slowed it down, `dynamics_limits.retime_dynamics`).
+    source_time: np.ndarray | None = None
     #: The robot's wrist positions (T,2,3, torso frame) of `q`, as the critic measured them
     #: (stored, so the metrics step's report tracks need no second FK pass).
     wrist_pos: np.ndarray | None = None
@@ -145,6 +148,8 @@ class RefineResult:
                   "keyframes": np.asarray(self.keyframes, dtype=np.int64)}
         if self.final.q_control is not None:
             arrays["final_q_control"] = np.asarray(self.final.q_control, dtype=np.float64)
+        if self.final.source_time is not None:
+            arrays["final_source_time"] = np.asarray(self.final.source_time, dtype=np.float64)
         if self.final.q_kinematic is not None:
             arrays["final_q_kinematic"] = np.asarray(self.final.q_kinematic, dtype=np.float64)
         if all(r.wrist_pos is not None for r in self.rounds):
@@ -171,6 +176,8 @@ class RefineResult:
                      attrs["critic"], int(attrs.get("chosen", -1)), dict(attrs.get("export") or {}))
         if "final_q_control" in arrays:
             result.final.q_control = np.asarray(arrays["final_q_control"])
+        if "final_source_time" in arrays:
+            result.final.source_time = np.asarray(arrays["final_source_time"])
         if "final_q_kinematic" in arrays:
             result.final.q_kinematic = np.asarray(arrays["final_q_kinematic"])
         if "wrist_pos" in arrays:
@@ -232,7 +239,7 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
     `targets`; differs when resuming, or in tests that plant an offset). `critic` lets a run share
     one critic (and so one VLM request budget) across sequences. Renders are made only when the critic looks at images, plus the final round's sheet and
     preview when `out_dir` is given (paths in the record are relative to `out_dir`).
-    The re-solves make no torque and ZMP solve; the chosen round's exported array does
+    The re-solves make no torque and ZMP retiming; the chosen round's exported array does
     (`cfg_ik.dynamics_limits`), once, and an accepted round's export is judged again.
     `ik_kinematic`: `ik_solution`'s control-rate array was made `without_dynamics_limits(cfg_ik)`
     (the pipeline's retarget step before the critic), so the export of round 0 starts from it, as
@@ -318,15 +325,15 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
                 r.q_control = None
         final = rounds[chosen]
         final.q_kinematic = final.q_control
-        # the exported array: the chosen round's, with the torque and ZMP solve (once), from the
+        # the exported array: the chosen round's, with the torque and ZMP retiming (once), from the
         # kinematic array its solve made (every re-solve's; round 0's when the caller says so)
         known = final.q_kinematic is not None and (ik_kinematic or final.index in resolved)
-        final.q_control, clear = exported_control(robot, final.q, targets.fps, cfg_ik,
-                                                  kinematic=final.q_kinematic if known else None)
+        final.q_control, clear, final.source_time = exported_control(
+            robot, final.q, targets.fps, cfg_ik, kinematic=final.q_kinematic if known else None)
         final.metrics.update(control_counts(robot, final.q_control, cfg_ik.control_rate_hz, clear))
         export: dict[str, Any] = {}
         if final.accepted:  # the critic's acceptance must hold for the array a user receives
-            q = _at_frames(final.q_control, cfg_ik.control_rate_hz, targets.num_frames, targets.fps)
+            q = _at_frames(final.q_control, final.source_time, targets.num_frames, targets.fps)
             pos, rot = robot_wrists(robot, q)
             metrics = wrist_metrics(ref_pos, ref_rot, pos, rot, targets.arm_length)
             location_offset, fidelity = judge(q) if judge is not None else (None, {})
@@ -354,16 +361,18 @@ def refine(motion, body, fit, robot, targets, ik_solution, cfg_critic: CriticCon
     return RefineResult(rounds, list(robot.joint_names), keyframes, cfg_critic.kind, chosen, export)
 
 
-def _at_frames(q_control: np.ndarray, rate: float, num_frames: int, fps: float) -> np.ndarray:
-    """The control-rate array (S,n) at `rate` Hz read at `num_frames` source frames' times
-    (i / fps): linear between its samples, the last sample held past its end (the control grid
+def _at_frames(q_control: np.ndarray, source_time: np.ndarray, num_frames: int, fps: float) -> np.ndarray:
+    """The control-rate array (S,n) read at `num_frames` source frames' times (i / fps), its
+    samples placed at their own source times (`source_time`, s: k / rate unless the export was
+    retimed): linear between its samples, the last sample held past its end (the control grid
     stops at or before the last frame). What the critic judges of an exported array."""
     q_control = np.asarray(q_control, dtype=np.float64)
-    s = np.clip(np.arange(num_frames) / fps * rate, 0.0, len(q_control) - 1)
-    i = np.minimum(np.floor(s).astype(np.int64), max(len(q_control) - 2, 0))
-    a = (s - i)[:, None]
     if len(q_control) < 2:
         return np.repeat(q_control[:1], num_frames, axis=0)
+    st = np.asarray(source_time, dtype=np.float64)
+    s = np.interp(np.arange(num_frames) / fps, st, np.arange(len(q_control), dtype=np.float64))
+    i = np.minimum(np.floor(s).astype(np.int64), len(q_control) - 2)
+    a = (s - i)[:, None]
     return (1.0 - a) * q_control[i] + a * q_control[i + 1]
 
 

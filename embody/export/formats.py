@@ -1,6 +1,8 @@
 """Writers and readers of the exported trajectory formats, one per consumer.
 
-* `npz`: embody's own (q float64, joint names, dt, source id, robot, text, validation JSON), plus
+* `npz`: embody's own (q float64, joint names, dt, source id, robot, text, validation JSON,
+  `source_time` (T,): each sample's time (s) on the source motion's timeline, which differs from
+  k·dt where the torque and ZMP limits slowed the motion down, `retarget.dynamics_limits`), plus
   the low-level command fields when written for a robot (`embody.export.control`): `qd`, `tau_ff`
   (T,n) and `kp`, `kd` (n,) per joint, `control_rate_hz`: what a Unitree `LowCmd` takes per motor.
 * `csv`: a `time` column then one column per joint (radians), exact float64 text (`%.17g`).
@@ -119,6 +121,8 @@ def _npz_data(q: np.ndarray, lay: Layout) -> bytes:
               "validation": np.array(json.dumps(lay.meta.get("validation", {}), sort_keys=True,
                                                 default=float)),
               **{k: np.asarray(v, dtype=np.float64) for k, v in lay.control.items()}}
+    if lay.meta.get("source_time") is not None:
+        arrays["source_time"] = np.asarray(lay.meta["source_time"], dtype=np.float64)
     return _npz_bytes(arrays)
 
 

@@ -64,6 +64,9 @@ class Trajectory:
     dt: float
     text: str = ""
     validation: dict[str, Any] = field(default_factory=dict)
+    #: (T,) each sample's time (s) on the source motion's timeline: k·dt unless the torque and
+    #: ZMP limits slowed the motion down (`retarget.dynamics_limits.retime_dynamics`); None: k·dt.
+    source_time: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         q = np.asarray(self.q, dtype=np.float64)
@@ -91,9 +94,10 @@ class Trajectory:
                 control = control_fields(robot, self.q, self.dt)
         else:
             pos, quat = np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])
-        return Layout(self.joint_names, self.dt, pos, quat,
-                      {"id": self.id, "robot": self.robot, "text": self.text,
-                       "validation": self.validation}, control)
+        meta = {"id": self.id, "robot": self.robot, "text": self.text, "validation": self.validation}
+        if self.source_time is not None:
+            meta["source_time"] = np.asarray(self.source_time, dtype=np.float64)
+        return Layout(self.joint_names, self.dt, pos, quat, meta, control)
 
     def save(self, path_stem: Path, fmt: ExportFormat = "npz", robot: Any | None = None) -> Path:
         """Write in `fmt` at `path_stem` + the format's suffix."""
@@ -132,7 +136,8 @@ class Trajectory:
         return cls(id=str(data.get("source_id", path.stem)), robot=str(data.get("robot", "")),
                    joint_names=tuple(str(n) for n in data["joint_names"]), q=data["q"],
                    dt=float(data["dt"]), text=str(data.get("text", "")),
-                   validation=json.loads(str(data.get("validation", "{}"))))
+                   validation=json.loads(str(data.get("validation", "{}"))),
+                   source_time=np.asarray(data["source_time"], dtype=np.float64) if "source_time" in data else None)
 
 
 def _previous_files(out_dir: Path) -> list[Path]:

@@ -1,7 +1,8 @@
 """A stored run's trajectories as `embody export` writes them (the run's robot loaded here).
 
 The exported array of each sequence is the one the metrics step stored (`q_control`) with its
-validation counters; runs made before the metrics step stored them get it built now with the
+validation counters and its samples' source times (`source_time`: the array may be retimed,
+`retarget.dynamics_limits`; written into the npz); runs made before the metrics step stored them get it built now with the
 same function (`retarget.control.control_trajectory`) and validated here.
 """
 
@@ -27,19 +28,23 @@ def load_result(store: Any, seq: dict[str, Any], step: str) -> Any:
 
 
 def exported_trajectory(store: Any, robot: Any, seq: dict[str, Any], ik: Any,
-                        q: np.ndarray) -> tuple[np.ndarray, dict[str, float]]:
-    """The control-rate array `embody export` writes for a sequence and its validation counters."""
-    from embody.retarget.control import control_trajectory
+                        q: np.ndarray) -> tuple[np.ndarray, dict[str, float], np.ndarray]:
+    """The control-rate array `embody export` writes for a sequence, its validation counters
+    and each sample's source time (s; `retarget.dynamics_limits`: the array may be retimed)."""
+    from embody.retarget.control import control_trajectory_checked
+    from embody.retarget.dynamics_limits import uniform_time
     from embody.retarget.validation import VALIDATION_KEYS, validation_counts
 
     stored = seq.get("metrics", {}).get(METRICS, {})
     if METRICS in seq.get("steps", {}) and "validation_rate_hz" in stored:
         art = store.read(METRICS, seq["steps"][METRICS])
         if "q_control" in art.arrays:
-            return (np.asarray(art.arrays["q_control"]),
-                    {k: float(stored[k]) for k in VALIDATION_KEYS})
-    q_control = control_trajectory(robot, q, ik.fps, ik.control_rate_hz)
-    return q_control, validation_counts(robot, q_control, ik.control_rate_hz)
+            q_control = np.asarray(art.arrays["q_control"])
+            times = art.arrays.get("source_time")
+            return (q_control, {k: float(stored[k]) for k in VALIDATION_KEYS},
+                    uniform_time(len(q_control), ik.control_rate_hz) if times is None else np.asarray(times))
+    q_control, _, times = control_trajectory_checked(robot, q, ik.fps, ik.control_rate_hz)
+    return q_control, validation_counts(robot, q_control, ik.control_rate_hz), times
 
 
 def run_robot(store_root: Any, run: str) -> Any:
@@ -80,9 +85,10 @@ def run_trajectories(store_root: Any, run: str, robot_name: str
         stored = seq.get("metrics", {}).get(METRICS, {})
         if robot is None and "validation_rate_hz" not in stored:  # an old run: build it here
             robot = load_robot(cfg.robot)
-        q_control, counts = exported_trajectory(store, robot, seq, ik, q)
-        validation = {**scores, **counts, "fps": ik.fps, "control_rate_hz": ik.control_rate_hz}
+        q_control, counts, times = exported_trajectory(store, robot, seq, ik, q)
+        validation = {**scores, **counts, "fps": ik.fps, "control_rate_hz": ik.control_rate_hz,
+                      **{k: stored[k] for k in ("time_stretch_max", "duration_ratio") if k in stored}}
         out.append(Trajectory(id=sid, robot=robot_name, joint_names=tuple(ik.joint_names),
                               q=q_control, dt=1.0 / ik.control_rate_hz, text=sequence_text(store, seq),
-                              validation=validation))
+                              validation=validation, source_time=times))
     return out, failed

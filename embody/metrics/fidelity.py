@@ -331,14 +331,19 @@ def compare_with(human: Track, robot: Track, cfg) -> tuple[dict[str, np.ndarray]
                    penetration=cfg.penetration_tol, robot_eps=cfg.robot_contact_eps, tie=cfg.location_tie)
 
 
-def resample_track(track: Track, rate: float) -> Track:
+def resample_track(track: Track, rate: float, times: np.ndarray | None = None) -> Track:
     """`track` at `rate` Hz on the exported control-rate grid (`embody.retarget.limits.resample`:
-    t = k / rate over the same duration): the human side of a comparison with the exported array.
+    t = k / rate over the same duration), or at `times` (s, the source times of a retimed
+    array's samples: `retarget.dynamics_limits.Retimed.source_time`): the human side of a
+    comparison with the exported array.
     Landmarks, palm normals (renormalised), contact distances and per-frame extras are linearly
     interpolated; torso rotations too, then projected back onto SO(3) (SVD): frames are close."""
     t_src = np.arange(len(track.points)) / track.fps
-    n = int(np.floor(t_src[-1] * rate + 1e-9)) + 1
-    t_dst = np.arange(n) / rate
+    if times is None:
+        t_dst = np.arange(int(np.floor(t_src[-1] * rate + 1e-9)) + 1) / rate
+    else:
+        t_dst = np.clip(np.asarray(times, dtype=np.float64), 0.0, t_src[-1])
+    n = len(t_dst)
 
     def lerp(a: np.ndarray) -> np.ndarray:
         a = np.asarray(a, dtype=np.float64)

@@ -27,7 +27,7 @@ from __future__ import annotations
 import mujoco
 import numpy as np
 
-from embody.retarget.dynamics_limits import DEFAULT_LIMITS, DynamicsLimits, enforce_dynamics
+from embody.retarget.dynamics_limits import DEFAULT_LIMITS, DynamicsLimits, retime_dynamics, uniform_time
 from embody.retarget.limits import EXPORT_GAP, EXPORT_GAP_PUSH, clamp_velocity, resample, velocity_violations
 from embody.robot import Robot
 from embody.robot.contacts import collision_model, near_contacts
@@ -358,33 +358,33 @@ def control_trajectory(robot: Robot, q: np.ndarray, fps: float, rate: float,
                        repair: bool = True, limits: DynamicsLimits | None = DEFAULT_LIMITS) -> np.ndarray:
     """The exported control-rate trajectory (float64): q resampled to `rate` Hz, then every
     sample made collision-free and kept strictly inside the joint and velocity limits, and
-    inside the motors' torque and the standing robot's balance (`limits`, the `ik` defaults
-    unless given; None: the kinematic limits only)."""
+    (`limits`, the `ik` defaults unless given; None: the kinematic limits only) retimed where
+    it asks more than the motors' torque or the standing robot's balance allow
+    (`control_trajectory_checked` also gives each sample's source time)."""
     return control_trajectory_checked(robot, q, fps, rate, repair, limits)[0]
 
 
 def control_trajectory_checked(robot: Robot, q: np.ndarray, fps: float, rate: float,
                                repair: bool = True, limits: DynamicsLimits | None = DEFAULT_LIMITS,
-                               kinematic: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
-    """`control_trajectory`, and whether MuJoCo found every returned sample clear. `kinematic`:
-    this very call's array with `limits=None` (same q, fps, rate and repair), when the caller
-    already has it (a solve without the dynamics limits made it): its resample and contact
-    repair are not run again, only MuJoCo's verdict on its samples (the contact repair of a
-    critic's chosen round cost as much as its solve)."""
+                               kinematic: np.ndarray | None = None) -> tuple[np.ndarray, bool, np.ndarray]:
+    """`control_trajectory`, whether MuJoCo found every returned sample clear, and each
+    sample's time (s) on the source's timeline (`dynamics_limits.Retimed.source_time`: k / rate
+    where the array was not retimed). `kinematic`: this very call's array with `limits=None`
+    (same q, fps, rate and repair), when the caller already has it (a solve without the
+    dynamics limits made it): its resample and contact repair are not run again, only MuJoCo's
+    verdict on its samples (the contact repair of a critic's chosen round cost as much as its
+    solve)."""
     if kinematic is None:
         out, clear = _kinematic_control(robot, q, fps, rate, repair)
-        touching = None if clear else near_contacts(robot, out, EXPORT_GAP) > 0
     else:
         out = np.array(kinematic, dtype=np.float64)
-        touching = near_contacts(robot, out, EXPORT_GAP) > 0
-        clear = not touching.any()
+        clear = not (near_contacts(robot, out, EXPORT_GAP) > 0).any()
     if limits is None:
-        return out, clear
-    # the dynamics solve moves no sample into a contact, so MuJoCo's verdict carries over
-    touching = None if touching is None or not touching.any() else touching
-    out, _ = enforce_dynamics(robot, out, rate, limits, box_margin=BOX_MARGIN,
-                              velocity_margin=VELOCITY_MARGIN, touching=touching)
-    return out, clear
+        return out, clear, uniform_time(len(out), rate)
+    # the retiming keeps the path: every input sample it keeps is itself, and the new samples
+    # between them it checks (and clears) at the same gap, so MuJoCo's verdict carries over
+    timed = retime_dynamics(robot, out, rate, limits, box_margin=BOX_MARGIN, velocity_margin=VELOCITY_MARGIN)
+    return timed.q, clear, timed.source_time
 
 
 def _kinematic_control(robot: Robot, q: np.ndarray, fps: float, rate: float,

@@ -36,7 +36,7 @@ from embody.motion import WEIGHT_FPS, smoothness_scale
 from embody.retarget.banded import block_banded_solve
 from embody.retarget.costs import WRIST_ELBOW, Residuals
 from embody.retarget.control import bridge_contacts_checked, control_trajectory_checked, separate_checked
-from embody.retarget.dynamics_limits import DynamicsLimits
+from embody.retarget.dynamics_limits import DynamicsLimits, uniform_time
 from embody.retarget.exact_contacts import ExactContacts
 from embody.retarget.limits import clamp_velocity, limit_violations, velocity_violations
 from embody.retarget.targets import _ARRAYS, Targets
@@ -56,9 +56,16 @@ class IKSolution:
     control_rate_hz: float
     frame_metrics: dict[str, np.ndarray]
     metrics: dict[str, float] = field(default_factory=dict)
+    #: (N,) each `q_control` sample's time (s) on the source's timeline: k / rate unless the
+    #: torque and ZMP limits slowed the motion down there (`dynamics_limits.retime_dynamics`).
+    source_time: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.source_time is None:
+            self.source_time = uniform_time(len(self.q_control), self.control_rate_hz)
 
     def to_arrays(self) -> dict[str, np.ndarray]:
-        return {"q": self.q, "q_control": self.q_control,
+        return {"q": self.q, "q_control": self.q_control, "source_time": np.asarray(self.source_time),
                 **{f"frame_{k}": v for k, v in self.frame_metrics.items()}}
 
     def to_attrs(self) -> dict[str, Any]:
@@ -70,7 +77,8 @@ class IKSolution:
         frames = {k[len("frame_"):]: np.asarray(v) for k, v in arrays.items() if k.startswith("frame_")}
         return cls(q=np.asarray(arrays["q"]), joint_names=list(attrs["joint_names"]), fps=float(attrs["fps"]),
                    q_control=np.asarray(arrays["q_control"]), control_rate_hz=float(attrs["control_rate_hz"]),
-                   frame_metrics=frames, metrics=dict(attrs["metrics"]))
+                   frame_metrics=frames, metrics=dict(attrs["metrics"]),
+                   source_time=np.asarray(arrays["source_time"]) if "source_time" in arrays else None)
 
 
 def _difference_normal(t: int, order: int = 2) -> np.ndarray:
@@ -579,26 +587,28 @@ def finish_solution(robot: Robot, q: np.ndarray, targets: Targets, cfg: IKConfig
                                     touching=touching)
     frames, metrics = evaluate(robot, q, targets, np.zeros(len(q), np.int64) if clear else None)
     metrics.update(extra or {})
-    q_control, clear = exported_control(robot, q, targets.fps, cfg)
+    q_control, clear, source_time = exported_control(robot, q, targets.fps, cfg)
     metrics.update(control_counts(robot, q_control, cfg.control_rate_hz, clear))
     return IKSolution(q=q, joint_names=list(robot.joint_names), fps=targets.fps, q_control=q_control,
-                      control_rate_hz=cfg.control_rate_hz, frame_metrics=frames, metrics=metrics)
+                      control_rate_hz=cfg.control_rate_hz, frame_metrics=frames, metrics=metrics,
+                      source_time=source_time)
 
 
 def without_dynamics_limits(cfg: IKConfig) -> IKConfig:
     """`cfg` for a solve whose control-rate array is not the one exported (a critic round before
     the choice, a comparison baseline): its array is the kinematic chain's alone (resample,
-    joint box, velocity limits, MuJoCo contacts), without the torque and ZMP solve
+    joint box, velocity limits, MuJoCo contacts), without the torque and ZMP retiming
     (`retarget.dynamics_limits`), which runs once, on the array that is exported
     (`exported_control`). The source-rate solve `q` is the same either way."""
     return cfg.model_copy(update={"dynamics_limits": False}) if cfg.dynamics_limits else cfg
 
 
 def exported_control(robot: Robot, q: np.ndarray, fps: float, cfg: IKConfig,
-                     kinematic: np.ndarray | None = None) -> tuple[np.ndarray, bool]:
+                     kinematic: np.ndarray | None = None) -> tuple[np.ndarray, bool, np.ndarray]:
     """The control-rate array `cfg` exports for the source-rate trajectory q (T,n) at `fps`
-    (`control.control_trajectory_checked`: resample, contact repair, and the torque and ZMP solve
-    when `cfg.dynamics_limits`), and whether MuJoCo found every sample of it clear. `kinematic`:
+    (`control.control_trajectory_checked`: resample, contact repair, and the torque and ZMP
+    retiming when `cfg.dynamics_limits`), whether MuJoCo found every sample of it clear, and each
+    sample's time (s) on the source's timeline. `kinematic`:
     q's control-rate array under `without_dynamics_limits(cfg)`, when a solve already made it."""
     return control_trajectory_checked(robot, q, fps, cfg.control_rate_hz, cfg.contact_repair,
                                       DynamicsLimits.from_config(cfg), kinematic=kinematic)

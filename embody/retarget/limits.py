@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 #: Distance (m) the exported control-rate array keeps between every counted pair of bodies (its
-#: contact repair pushes closer pairs apart, the torque/ZMP solve moves no sample closer): the
+#: contact repair pushes closer pairs apart, the torque/ZMP retiming checks and clears the samples it adds): the
 #: physics replay at the robot's real gains tracks each joint to ~1°, which closed the gap of a
 #: counted pair by up to 1.87 mm on the default G1 run (`benchmarks/physics.py`,
 #: `replay_closure_max_mm`), so a narrower exported gap touches on the robot.
