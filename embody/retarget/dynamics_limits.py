@@ -403,10 +403,6 @@ def _retime(prob: _Problem, q: np.ndarray, lower: np.ndarray, upper: np.ndarray
 
 #: Trust radius (rad) of a contact push, and the pushes tried on what still touches.
 PUSH_TRUST = np.radians(10.0)
-
-
-#: Trust radius (rad) of a contact push, and the pushes tried on what still touches.
-PUSH_TRUST = np.radians(10.0)
 PUSH_PASSES = 4
 
 
