@@ -327,3 +327,5 @@ def test_cluster_workers_are_single_threaded(tmp_path):
     assert all(p.endswith(":1") for p in worker["pools"]), worker["pools"]
     assert worker["profiler"] is False  # the preload turns Dask's stack sampler off
     assert worker["llvmpipe"] == "0"     # Mesa rasterises on the calling thread
+    assert worker["tick_ms"] == 1000     # Dask's housekeeping at batch-cluster intervals
+    assert worker["monitor_ms"] == 5000
