@@ -11,12 +11,15 @@ side on one thread, as the pipeline's workers run it):
 - `mitigate`: `collision.mitigate` of `--n` default sequences with `device: cpu` and
   `device: cuda` (the same configuration otherwise): the optimiser's seconds per 150 frames
   (the mesh judge, CPU-only in both, kept apart as `judge`), and what each gives (Pose MSE,
-  mesh depth after) so the two can be compared for quality, not only speed.
+  mesh depth after) so the two can be compared for quality, not only speed. Before each
+  device's timed sequences, `mitigate` runs once untimed on a short colliding window
+  (`benchmarks/collision.py`'s `warm_up`): a fresh process compiles or loads the CPU kernels
+  (numba) and CUDA's first-call kernels there, a start-up cost, not a per-150-frame one.
 
 Prints one row per item and ends with `RESULT gpu=<name> ...` (speedups are CPU time / CUDA
 time). Without a CUDA device it says so and exits 2. Run:
 
-    python benchmarks/gpu.py [--n 4] [--frames 150] [--data DIR]
+    PYTHONPATH=. python benchmarks/gpu.py [--n 4] [--frames 150] [--data DIR]
 """
 
 from __future__ import annotations
@@ -37,6 +40,8 @@ from embody.config import load_config
 from embody.io import load
 from embody.robot import load_robot
 from embody.synth import default_dataset
+
+from benchmarks.collision import warm_up
 
 ROOT = Path(__file__).resolve().parents[1]
 REPEATS = 3
@@ -97,6 +102,7 @@ def fk_row(robot, n: int, dev: torch.device) -> float:
 
 def mitigate_row(paths: list[Path], body: MannequinBody, device: str) -> dict[str, float]:
     cfg = load_config().collision.model_copy(update={"device": device})
+    warm_up(paths[0], body, cfg)
     opt_s = judge_s = frames = 0.0
     mse, depth = [], []
     for p in paths:
