@@ -46,6 +46,10 @@ workers, their steps, the driver, the scheduler and the Prefect server, so a loa
 can be told apart from a serial part:
 
     python benchmarks/scale.py --full --compare-workers --chunk 8 --rounds 2 --batch-size 2
+
+`--database sqlite` puts the `--full` runs' Prefect server on its own SQLite file (for a
+machine where no PostgreSQL runs; the RESULT line says which); `--set KEY=VALUE` (repeatable)
+is passed to every `embody run` and listed in the RESULT line's `configs=`.
 """
 
 from __future__ import annotations
@@ -427,17 +431,50 @@ def drive(label: str, cmd: list[str], env: dict[str, str], work: Path, cluster: 
 
 def _full_env(api: str, work: Path) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("PREFECT_")}
+    # this checkout first, then the caller's path (packages installed with `pip --target`)
+    path = os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH", "")]))
     env.update(PREFECT_API_URL=api, PREFECT_HOME=str(work / "driver-prefect"),
-               PYTHONPATH=str(ROOT), DO_NOT_TRACK="1", PREFECT_SERVER_ANALYTICS_ENABLED="false")
+               PYTHONPATH=path, DO_NOT_TRACK="1", PREFECT_SERVER_ANALYTICS_ENABLED="false")
     return env
 
 
+def _render(args: argparse.Namespace) -> str:
+    return "off" if "run.render=false" in args.sets else "on"
+
+
+def _configs(args: argparse.Namespace) -> str:
+    """The RESULT line's `configs=`: `default`, or the `--set` overrides on top of it."""
+    return "default" + "".join(f"+{s}" for s in args.sets)
+
+
+class _ServerSQLite:
+    """`--database sqlite`: no database process; the Prefect server keeps its SQLite file in
+    its PREFECT_HOME (`LocalServer` with no URL)."""
+
+    def __enter__(self) -> None:
+        return None
+
+    def __exit__(self, *exc: object) -> None:
+        pass
+
+    def pid(self) -> int:
+        return -1
+
+
+def _database(args: argparse.Namespace) -> Any:
+    """`--database`: a throwaway PostgreSQL (`LocalPostgres`: `with` gives its URL), or the
+    server's own SQLite."""
+    from embody.flows.postgres import LocalPostgres
+
+    return _ServerSQLite() if args.database == "sqlite" else LocalPostgres()
+
+
 def _full_cmd(data: Path, store: str, name: str, address: str, workers: int, batch: int,
-              extra: list[str] = ()) -> list[str]:
+              extra: list[str] = (), sets: list[str] = ()) -> list[str]:
     return [*EMBODY, "run", str(data), "--store", store, "--name", name,
             "--runner", "dask", "--dask-address", address, "--workers", str(workers),
             "--batch-size", str(batch), "--set", "run.report=false", "--no-progress", "--json",
-            *extra]
+            *[a for s in sets for a in ("--set", s)], *extra]
 
 
 def full_run(args: argparse.Namespace, work: Path) -> None:
@@ -445,7 +482,6 @@ def full_run(args: argparse.Namespace, work: Path) -> None:
     import httpx
 
     from embody.flows.cluster import DaskProcesses
-    from embody.flows.postgres import LocalPostgres
     from embody.flows.server import LocalServer
     from embody.store import ArtifactStore
     from embody.synth import default_dataset
@@ -455,18 +491,19 @@ def full_run(args: argparse.Namespace, work: Path) -> None:
     print(f"dataset: {args.n} default synthetic sequences in {time.perf_counter() - t_data:.0f} s "
           f"({data})", flush=True)
     store = args.store_url or str(work / "store-full")
-    pg = LocalPostgres()
+    pg = _database(args)
     with S3Counter(store, work) as s3, pg as db_url:
         server = LocalServer(work / "prefect-home", database_url=db_url)
         with server as api:
-            print(f"prefect server {api} on PostgreSQL ({db_url})", flush=True)
+            print(f"prefect server {api} on {args.database} ({db_url or 'PREFECT_HOME'})",
+                  flush=True)
             cluster = DaskProcesses(work / "cluster", args.workers)
             with cluster as address:
                 print(f"dask scheduler {address}, {args.workers} workers; worker threads: "
                       f"{json.dumps(cluster.thread_counts())}", flush=True)
                 requests0 = s3.requests()
                 r = drive("full", _full_cmd(data, store, "full", address, args.workers,
-                                            args.batch_size),
+                                            args.batch_size, sets=args.sets),
                           _full_env(api, work), work, cluster, server.proc.pid, pg.pid())
                 requests = s3.requests()
             errors = r["errors"] + _log_errors(work / "prefect-home" / "server.log")
@@ -506,9 +543,10 @@ def full_run(args: argparse.Namespace, work: Path) -> None:
           f"max_task_runs_per_flow_run={max(per_run, default=0)} flow_runs={len(flow_runs)} "
           f"warm_compute_s_per_seq={median_s:.2f} projected_h_1000={hours[1000]:.1f} "
           f"projected_h_20k={hours[20000]:.1f} "
-          f"workers={args.workers} batch={args.batch_size} database=postgresql "
+          f"workers={args.workers} batch={args.batch_size} database={args.database} "
           f"store={'local' if '://' not in store else store.split('://')[0]} "
-          f"render=on configs=default load_avg={r['load_avg']:.1f}", flush=True)
+          f"render={_render(args)} configs={_configs(args)} load_avg={r['load_avg']:.1f}",
+          flush=True)
 
 
 def _log_errors(path: Path) -> int:
@@ -528,7 +566,6 @@ def compare_workers(args: argparse.Namespace, work: Path) -> None:
     metrics); the per-sequence CPU seconds of the workers, the driver, the scheduler and the
     Prefect server say where time went whatever the machine's load."""
     from embody.flows.cluster import DaskProcesses
-    from embody.flows.postgres import LocalPostgres
     from embody.flows.server import LocalServer
     from embody.store import ArtifactStore
     from embody.synth import default_dataset
@@ -537,20 +574,20 @@ def compare_workers(args: argparse.Namespace, work: Path) -> None:
     data = default_dataset(work / "data", n=size, seed=0)
     order = [w for r in range(args.rounds) for w in ((2, 1) if r % 2 == 0 else (1, 2))]
     runs: list[dict[str, Any]] = []
-    pg = LocalPostgres()
+    pg = _database(args)
     with pg as db_url:
         server = LocalServer(work / "prefect-home", database_url=db_url)
         with server as api:
             env = _full_env(api, work)
-            print(f"prefect server {api} on PostgreSQL; {size} sequences per chunk, batch "
+            print(f"prefect server {api} on {args.database}; {size} sequences per chunk, batch "
                   f"{args.batch_size}, order {order}", flush=True)
             warm_store = work / "store-warm"
             cluster = DaskProcesses(work / "cluster-warm", 1)
             with cluster as address:
                 print(f"worker threads: {json.dumps(cluster.thread_counts())}", flush=True)
                 warm = drive("warmup", _full_cmd(data, str(warm_store), "warm", address, 1, 1,
-                                                 ["--limit", "1"]), env, work, cluster,
-                             server.proc.pid, pg.pid())
+                                                 ["--limit", "1"], args.sets),
+                             env, work, cluster, server.proc.pid, pg.pid())
             print(f"warm-up (shape fit, kernel caches): {warm['wall_s']:.0f} s", flush=True)
             for i, workers in enumerate(order):
                 store = work / f"store-c{i}"
@@ -559,7 +596,8 @@ def compare_workers(args: argparse.Namespace, work: Path) -> None:
                 cluster = DaskProcesses(work / f"cluster-c{i}", workers)
                 with cluster as address:
                     r = drive(f"chunk{i}_{workers}w", _full_cmd(
-                        data, str(store), f"c{i}", address, workers, args.batch_size),
+                        data, str(store), f"c{i}", address, workers, args.batch_size,
+                        sets=args.sets),
                         env, work, cluster, server.proc.pid, pg.pid())
                 rows = ArtifactStore(store).computations()
                 done = [x["time"] for x in rows if x["step"] == "metrics"]
@@ -615,7 +653,8 @@ def compare_workers(args: argparse.Namespace, work: Path) -> None:
           f"driver_cpu_s_per_seq={(one['driver_cpu'] + two['driver_cpu']) / 2:.2f} "
           f"busy_1w={one['busy']:.2f} busy_2w={two['busy']:.2f} "
           f"load_1w={one['load']:.1f} load_2w={two['load']:.1f} api_errors={errors} "
-          f"batch={args.batch_size} database=postgresql store=local render=on configs=default",
+          f"batch={args.batch_size} database={args.database} store=local render={_render(args)} "
+          f"configs={_configs(args)}",
           flush=True)
 
 
@@ -689,6 +728,12 @@ def main() -> None:
                              "--full --compare-workers: 8).")
     parser.add_argument("--rounds", type=int, default=2,
                         help="Rounds of the interleaved phase (each: one 1- and one 2-worker chunk).")
+    parser.add_argument("--database", choices=("postgresql", "sqlite"), default="postgresql",
+                        help="--full: the Prefect server's database (sqlite: its own file, where "
+                             "no PostgreSQL can run).")
+    parser.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=VALUE",
+                        help="--full: a config override for every `embody run` (repeatable); "
+                             "the RESULT line's configs= lists it.")
     parser.add_argument("--skip", default="", help="Comma-separated phases to skip: "
                         "warm,dask,ratio,kill (development only).")
     parser.add_argument("--out", type=Path, default=None, help="Work folder (default: a temp dir).")
