@@ -35,9 +35,13 @@ static part alone is over (gravity and friction past the limit, the CoM's projec
 the margin) is a robot limit no timing fixes: it is counted (`Retimed.static_infeasible`) and
 logged, and its sample stays refused. Between input samples the path is the spline, which MuJoCo
 checks on the new samples (`near_contacts` at the export's gap); a touching one is pushed clear
-by the contact repair's least-weighted push (`control._Separator.frame`), spread over the local
-stretch so that its acceleration falls with the stretch as the path's own does, and the pushed
-array retimed again (`CONTACT_ROUNDS`); where a push leaves a penetration, the input is kept.
+by the contact repair's least-weighted push (`control._Separator.frame`), and the push is added
+to the path itself, as a displacement of the spline over the source's time (ramped down over a
+few knots and smoothed, so its acceleration falls with the stretch as the path's own does);
+the pushed path is retimed again from the stretch reached (`CONTACT_ROUNDS`). Where the hands
+pass through each other between two samples (synth seq 15: a wrist 45 mm inside the other hand)
+the outcome is chaotic in the push's shape, so a few ramp widths are tried (`PUSH_RAMPS`);
+where none leaves every sample clear, the input is kept.
 """
 
 from __future__ import annotations
@@ -313,8 +317,9 @@ PUSH_GRID = 16
 #: samples (a raised cosine), tried in turn until one clears every sample: a wide ramp keeps the
 #: push's acceleration low, a narrower one leaves more of the clear path beyond as it was. Why a
 #: ladder: where the hands pass close the outcome is chaotic in the shape (over the 24 default
-#: G1 inputs, synth seq 15 clears with 3 knots only, seq 17 with 5 only; 2, 2.5 and 4 lose both).
-PUSH_RAMPS = (3.0, 5.0)
+#: G1 inputs, synth seq 15 clears with 3 knots only, seq 17 with 5 only; 2, 2.5 and 4 lose both;
+#: tests/data's seq 0 excerpt clears with 1.5-2.5 and 4, not with 3 or 5).
+PUSH_RAMPS = (3.0, 5.0, 2.0)
 #: Half-width (knots) of the Hann window that smooths each round's pushes (the linear pieces
 #: between a run's pushes would be kinks, whose acceleration no stretch brings down).
 PUSH_SMOOTH = 0.5
