@@ -433,7 +433,7 @@ SHAPE_FIT = Step("shape_fit", "1", ("body", "robot", "ik"), _shape_fit, _shape_f
 # The whole-sequence IK on location-preserving targets; its 50 Hz array clear of contacts and, retimed
 # where needed, inside the effort limits and ZMP margin (`retarget.control`,
 # `retarget.dynamics_limits`), with its counts and its samples' source times.
-RETARGET = Step("retarget", "26", ("body", "robot", "ik"), _retarget, _ik_solution,
+RETARGET = Step("retarget", "27", ("body", "robot", "ik"), _retarget, _ik_solution,
                 (COLLIDE, SHAPE_FIT), files=_robot_files)
 # The same solve when the critic follows: its 50 Hz array kinematic only (contacts, joint box,
 # velocities; counted as such), the torque and ZMP retiming left to the round the critic chooses.
@@ -443,7 +443,7 @@ RETARGET_BEFORE_CRITIC = Step("retarget", "26+critic", ("body", "robot", "ik"), 
 # kinematic only); the chosen round's exported control-rate array (torque and ZMP retiming
 # included, once) with its validation counts, the critic's verdict on that array, and the
 # rounds' wrist positions, which `metrics` reuses.
-REFINE = Step("refine", "28", ("body", "robot", "ik", "render", "critic"), _refine,
+REFINE = Step("refine", "29", ("body", "robot", "ik", "render", "critic"), _refine,
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC), metrics=_refine_metrics,
               files=_robot_files)
 # The comparison sheet and the 15 fps preview of the reference (a MuJoCo skin) and the robot.
@@ -454,9 +454,9 @@ RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _rend
                       files=_robot_files)
 # The exported control-rate array, its validation counts (torque included) and jerk, Table III's
 # sign fidelity on it against the mitigated human, and the report's wrist tracks.
-METRICS = Step("metrics", "16", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS = Step("metrics", "17", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET), files=_robot_files)
-METRICS_REFINED = Step("metrics", "16", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
+METRICS_REFINED = Step("metrics", "17", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,
                        Metrics.from_arrays, (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC, REFINE),
                        files=_robot_files)
 

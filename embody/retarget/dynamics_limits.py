@@ -35,9 +35,13 @@ static part alone is over (gravity and friction past the limit, the CoM's projec
 the margin) is a robot limit no timing fixes: it is counted (`Retimed.static_infeasible`) and
 logged, and its sample stays refused. Between input samples the path is the spline, which MuJoCo
 checks on the new samples (`near_contacts` at the export's gap); a touching one is pushed clear
-by the contact repair's least-weighted push (`control._Separator.frame`), spread over the local
-stretch so that its acceleration falls with the stretch as the path's own does, and the pushed
-array retimed again (`CONTACT_ROUNDS`); where a push leaves a penetration, the input is kept.
+by the contact repair's least-weighted push (`control._Separator.frame`), and the push is added
+to the path itself, as a displacement of the spline over the source's time (ramped down over a
+few knots and smoothed, so its acceleration falls with the stretch as the path's own does);
+the pushed path is retimed again from the stretch reached (`CONTACT_ROUNDS`). Where the hands
+pass through each other between two samples (synth seq 15: a wrist 45 mm inside the other hand)
+the outcome is chaotic in the push's shape, so a few ramp widths are tried (`PUSH_RAMPS`);
+where none leaves every sample clear, the input is kept.
 """
 
 from __future__ import annotations
@@ -303,9 +307,79 @@ def _time_map(f: np.ndarray) -> np.ndarray:
     return u
 
 
-#: Retime-then-clear rounds at most: the samples a round's retiming puts between input samples
-#: are checked by MuJoCo, the touching ones pushed clear, and the pushed array retimed again.
-CONTACT_ROUNDS = 6
+#: Retime-then-clear rounds at most, per push shape: the samples a round's retiming puts between
+#: input samples (and those a push moved) are checked by MuJoCo, the touching ones pushed clear,
+#: the pushes added to the path, and the path retimed again.
+CONTACT_ROUNDS = 8
+#: Points of the push displacement's grid per knot (the displacement is linear between them).
+PUSH_GRID = 16
+#: Knots (the input's samples) over which a push ramps down to zero on each side of its touching
+#: samples (a raised cosine), tried in turn until one clears every sample: a wide ramp keeps the
+#: push's acceleration low, a narrower one leaves more of the clear path beyond as it was. Why a
+#: ladder: where the hands pass close the outcome is chaotic in the shape (over the 24 default
+#: G1 inputs, synth seq 15 clears with 3 knots only, seq 17 with 5 only; 2, 2.5 and 4 lose both;
+#: tests/data's seq 0 excerpt clears with 1.5-2.5 and 4, not with 3 or 5).
+PUSH_RAMPS = (3.0, 5.0, 2.0)
+#: Half-width (knots) of the Hann window that smooths each round's pushes (the linear pieces
+#: between a run's pushes would be kinks, whose acceleration no stretch brings down).
+PUSH_SMOOTH = 0.5
+
+
+class _Path:
+    """The path the retiming plays: the natural cubic spline through the input samples (knot
+    u = sample index) plus a displacement D(u), zero but where a contact push moved it, inside
+    the joint box. Why a displacement of the path rather than of the retimed samples: each round
+    then retimes the same u, so a sample's source time is its u / rate exactly, and a push is
+    retimed from the input's own timing (pushing retimed samples, then re-splining and retiming
+    those, compounds the stretch and the pushes round after round: synth seq 15 grew to 4.9×
+    its samples over six rounds without clearing)."""
+
+    def __init__(self, q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
+        self.q, self.lower, self.upper = q, lower, upper
+        self.spline = CubicSpline(np.arange(len(q), dtype=np.float64), q, bc_type="natural")
+        self.grid = np.linspace(0.0, len(q) - 1.0, (len(q) - 1) * PUSH_GRID + 1)
+        self.d = np.zeros((len(self.grid), q.shape[1]))
+
+    def displacement(self, u: np.ndarray) -> np.ndarray:
+        """(N,n) D at the knots u (N,), linear between its grid points."""
+        pos = np.clip(np.asarray(u, dtype=np.float64) * PUSH_GRID, 0.0, len(self.grid) - 1.0)
+        i = np.minimum(np.floor(pos).astype(np.int64), len(self.grid) - 2)
+        w = (pos - i)[:, None]
+        return (1.0 - w) * self.d[i] + w * self.d[i + 1]
+
+    def __call__(self, u: np.ndarray) -> np.ndarray:
+        """(N,n) the path at u (N,): an input sample exactly where u is whole and nothing pushed it."""
+        x = self.spline(u)
+        exact = u == np.round(u)
+        x[exact] = self.q[u[exact].astype(np.int64)]
+        if self.d.any():
+            x = x + self.displacement(u)
+        return np.clip(x, self.lower, self.upper)
+
+    def moved(self, u: np.ndarray) -> np.ndarray:
+        """(N,) bool: the samples at u (N,) that are not input samples (MuJoCo checks them)."""
+        off = u != np.round(u)
+        if self.d.any():
+            off |= np.abs(self.displacement(u)).max(1) > 0
+        return off
+
+    def push(self, u: np.ndarray, delta: np.ndarray, ramp: float) -> None:
+        """Add the pushes delta (K,n) found at the knots u (K,) to D: per run of touching samples
+        (less than `ramp` knots apart) the pushes, linear between them, ramped down to zero over
+        `ramp` knots on each side (a raised cosine), per joint the largest where two runs' ramps
+        meet, smoothed (Hann, `PUSH_SMOOTH`)."""
+        g = self.grid
+        add = np.zeros_like(self.d)
+        splits = np.flatnonzero(np.diff(u) >= ramp) + 1
+        for run_u, run_d in zip(np.split(u, splits), np.split(delta, splits)):
+            near = (g > run_u[0] - ramp) & (g < run_u[-1] + ramp)
+            gn = g[near]
+            held = np.stack([np.interp(gn, run_u, run_d[:, j]) for j in range(self.d.shape[1])], axis=1)
+            out = np.maximum(run_u[0] - gn, gn - run_u[-1]).clip(0.0) / ramp
+            held *= (0.5 * (1.0 + np.cos(np.pi * out)))[:, None]
+            cur = add[near]
+            add[near] = np.where(np.abs(held) > np.abs(cur), held, cur)
+        self.d += _smooth(add, int(round(PUSH_SMOOTH * PUSH_GRID)))
 
 
 def retime_dynamics(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLimits, *,
@@ -317,65 +391,73 @@ def retime_dynamics(robot: Robot, q: np.ndarray, rate: float, limits: DynamicsLi
     `box_margin`) and MuJoCo-clear at the export's gap. An input with nothing refused comes back
     as is (the same values, uniform `source_time`).
 
-    Each round retimes its input's spline (`_retime`); the new samples between input samples
-    are checked by MuJoCo, and the touching ones pushed clear by the contact repair
-    (`_push_clear`); a pushed array that is refused again is retimed again, its samples' source
-    times composed through the rounds."""
+    Each round retimes the path (`_retime`); the samples that are not input samples are checked
+    by MuJoCo, the touching ones pushed clear (`_push_clear`) and the pushes added to the path
+    (`_Path.push`), which the next round retimes again from the stretch the last one reached.
+    A push shape (`PUSH_RAMPS`) that leaves a sample penetrating is given up for the next; where
+    none clears, the input is kept."""
     q = np.array(q, dtype=np.float64)
     prob = _Problem(robot, rate, limits, velocity_margin)
     lower, upper = robot.lower + box_margin, robot.upper - box_margin
-    x, source = q, uniform_time(len(q), rate)
-    fresh = np.zeros(len(q), dtype=bool)  # samples that are not input samples (MuJoCo checks them)
-    ok, static, pushed = True, 0, 0
-    for _round in range(CONTACT_ROUNDS):
-        x_in = x
-        x, u, ok, static = _retime(prob, x_in, lower, upper)
-        source = np.interp(u, np.arange(len(x_in), dtype=np.float64), source)
-        whole = u == np.round(u)
-        fresh = ~whole | fresh[np.where(whole, u, 0).astype(np.int64)]
-        new = np.flatnonzero(fresh)
-        if not len(new):
-            break  # the input itself
-        touch = np.zeros(len(x), dtype=bool)
-        touch[new] = near_contacts(robot, x[new], EXPORT_GAP) > 0
-        log.debug("contact round %d: %d samples, %d new, %d touching", _round, len(x), len(new), int(touch.sum()))
-        if not touch.any():
+    pushed = 0
+    for ramp in PUSH_RAMPS:
+        x, u, ok, static, touching, n = _retime_clear(robot, prob, q, lower, upper, ramp)
+        pushed += n
+        if not touching.any() or not (near_contacts(robot, x[touching], 0.0) > 0).any():
             break
-        pushed += int(touch.sum())
-        stretch = np.ones(len(x))
-        stretch[1:] = np.maximum(stretch[1:], 1.0 / np.maximum(np.diff(u), 1e-9))
-        x, left = _push_clear(robot, x, touch, stretch, lower, upper)
-        log.debug("pushed %d touching samples, %d left", int(touch.sum()), left)
-        ok = False  # the pushed array is evaluated (and its contacts checked) by the next round
-    if pushed and not ok:
-        ok = not prob.failing(prob.evaluate(x)).any()
-    if pushed and (near_contacts(robot, x, 0.0) > 0).any():
-        # a push that left a sample penetrating: never a contact for a torque, the input stands
+        log.debug("pushes ramped over %.1f knots left a sample penetrating", ramp)
+    else:
+        # no push shape cleared the retimed samples: never a contact for a torque, the input stands
         log.warning("the retimed samples' contacts could not all be pushed clear: the input is kept")
         return Retimed(q, uniform_time(len(q), rate), False, static, pushed)
     if static:
         log.warning("%d samples are over a limit at rest (gravity and friction, or the CoM's "
                     "projection): no timing passes them", static)
-    return Retimed(x, source, ok, static, pushed)
+    return Retimed(x, u / rate, ok, static, pushed)
 
 
-def _retime(prob: _Problem, q: np.ndarray, lower: np.ndarray, upper: np.ndarray
-            ) -> tuple[np.ndarray, np.ndarray, bool, int]:
-    """q retimed along its spline until nothing is refused (`ITERATIONS` rounds at most): the
-    samples, their knots u on q (input samples where u is whole), whether nothing is refused,
-    and how many refused samples are over at rest. Nothing refused: q itself."""
-    knots = np.arange(len(q), dtype=np.float64)
-    if len(q) < 3:
-        return q, knots, True, 0
-    ev = prob.evaluate(q)
-    bad = prob.failing(ev)
-    if not bad.any():
-        return q, knots, True, 0
-    path = CubicSpline(knots, q, bc_type="natural")
+def _retime_clear(robot: Robot, prob: _Problem, q: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                  ramp: float) -> tuple[np.ndarray, np.ndarray, bool, int, np.ndarray, int]:
+    """The contact rounds with pushes ramped over `ramp` knots: the samples, their knots u,
+    whether nothing is refused, the samples over at rest, (N,) the samples still touching at
+    the export's gap, and how many samples were pushed."""
+    path = _Path(q, lower, upper)
     need = np.ones(len(q))
-    f = np.ones(len(q))
-    u, x = knots, q
+    pushed = 0
+    for _round in range(CONTACT_ROUNDS + 1):
+        x, u, ok, static, need = _retime(prob, path, need)
+        new = np.flatnonzero(path.moved(u))
+        touch = np.zeros(len(x), dtype=bool)
+        touch[new] = near_contacts(robot, x[new], EXPORT_GAP) > 0
+        log.debug("contact round %d: %d samples, %d new, %d touching", _round, len(x), len(new), int(touch.sum()))
+        if not touch.any() or _round == CONTACT_ROUNDS:
+            break
+        rows = np.flatnonzero(touch)
+        pushed += len(rows)
+        path.push(u[rows], _push_clear(robot, x, rows, lower, upper), ramp)
+    return x, u, ok, static, touch, pushed
+
+
+def _retime(prob: _Problem, path: _Path, need: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray, bool, int, np.ndarray]:
+    """The path retimed until nothing is refused (`ITERATIONS` rounds at most), starting from
+    the per-knot `need` (S,) (the stretch never falls below it): the samples, their knots u
+    (input samples where u is whole and the path not pushed), whether nothing is refused, how
+    many refused samples are over at rest, and the per-knot need reached. Nothing refused at
+    the starting stretch: those samples (the input itself when nothing was needed or pushed)."""
+    s = len(path.q)
+    knots = np.arange(s, dtype=np.float64)
+    need = need.copy()
+    f = _stretch(need) if (need > 1.0).any() else np.ones(s)
+    u = _time_map(f) if (f > 1.0).any() else knots
+    x = path(u)
+    if s < 3:
+        return x, u, True, 0, need
+    ev = prob.evaluate(x)
+    bad = prob.failing(ev)
     for _round in range(ITERATIONS):
+        if not bad.any():
+            break
         k, stuck = prob.slowdown(ev)
         if not (bad & ~stuck).any():
             break
@@ -383,58 +465,35 @@ def _retime(prob: _Problem, q: np.ndarray, lower: np.ndarray, upper: np.ndarray
         k = np.where(bad & ~stuck, np.clip(k * 1.02, 1.05, ROUND_CAP), 1.0)
         raised = np.interp(u, knots, f) * k
         for offset in range(-REACH, REACH + 2):
-            idx = np.clip(np.floor(u[bad]).astype(np.int64) + offset, 0, len(q) - 1)
+            idx = np.clip(np.floor(u[bad]).astype(np.int64) + offset, 0, s - 1)
             np.maximum.at(need, idx, raised[bad])
         need = np.minimum(need, STRETCH_MAX)
         f = _stretch(need)
         u = _time_map(f)
-        x = np.clip(path(u), lower, upper)
-        exact = u == np.round(u)
-        x[exact] = q[u[exact].astype(np.int64)]
+        x = path(u)
         ev = prob.evaluate(x)
         bad = prob.failing(ev)
         log.debug("retime round %d: %d samples, stretch max %.2f, %d refused", _round, len(x), f.max(),
                   int(bad.sum()))
-        if not bad.any():
-            break
     static = int((bad & prob.slowdown(ev)[1]).sum()) if bad.any() else 0
-    return x, u, not bad.any(), static
+    return x, u, not bad.any(), static, need
 
 
-#: Trust radius (rad) of a contact push, and the pushes tried on what still touches.
+#: Trust radius (rad) of a contact push.
 PUSH_TRUST = np.radians(10.0)
-PUSH_PASSES = 4
 
 
-def _push_clear(robot: Robot, x: np.ndarray, touch: np.ndarray, stretch: np.ndarray,
-                lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, int]:
-    """x with its `touch` samples pushed clear (the contact repair's least weighted push,
-    `control._Separator.frame`, at the export's gap, within `PUSH_TRUST`), each push spread as a
-    plateau over ±2 × the local stretch samples (`stretch` (N,): control periods per input
-    period) and smoothed (Hann): a push as wide, in the source's time, wherever it is, so its
-    acceleration falls with the stretch as the path's own does (a one-sample push is a spike
-    the next retiming would chase). Also how many samples still touch."""
+def _push_clear(robot: Robot, x: np.ndarray, rows: np.ndarray, lower: np.ndarray,
+                upper: np.ndarray) -> np.ndarray:
+    """(K,n) the pushes that clear the samples `rows` (K,) of x: the contact repair's least
+    weighted push (`control._Separator.frame`, at the export's gap) within `PUSH_TRUST` of the
+    sample, each started from the push of the touching sample before it in the same run (the
+    run's samples pushed the same way round, rather than each its own way)."""
     from embody.retarget.control import _Separator
     sep = _Separator(robot, gap=EXPORT_GAP)  # pushed to the repair's own clearance
-    x = x.copy()
-    left = touch.copy()
-    for _pass in range(PUSH_PASSES):
-        rows = np.flatnonzero(left)
-        if not len(rows):
-            break
-        delta = np.zeros_like(x)
-        for t in rows:
-            lo, hi = np.maximum(lower, x[t] - PUSH_TRUST), np.minimum(upper, x[t] + PUSH_TRUST)
-            delta[t] = sep.frame(x[t], lo, hi) - x[t]
-        half = int(np.ceil(2.0 * stretch[rows].max()))
-        # per joint the push of largest magnitude within ±half, then smoothed over ±half
-        big = maximum_filter1d(np.abs(delta), size=2 * half + 1, axis=0, mode="constant")
-        sign = np.sign(maximum_filter1d(np.where(np.abs(delta) > 0, delta, -np.inf), size=2 * half + 1,
-                                        axis=0, mode="constant"))
-        sign = np.where(np.isfinite(sign), sign, 0.0)
-        spread = _smooth(big * sign, half)
-        x = np.clip(x + spread, lower, upper)
-        moved = np.flatnonzero(np.abs(spread).max(1) > 0)
-        left = np.zeros(len(x), dtype=bool)
-        left[moved] = near_contacts(robot, x[moved], EXPORT_GAP) > 0
-    return x, int(left.sum())
+    delta = np.zeros((len(rows), x.shape[1]))
+    for i, t in enumerate(rows):
+        lo, hi = np.maximum(lower, x[t] - PUSH_TRUST), np.minimum(upper, x[t] + PUSH_TRUST)
+        start = x[t] + delta[i - 1] if i and rows[i - 1] == t - 1 else x[t]
+        delta[i] = sep.frame(np.clip(start, lo, hi), lo, hi) - x[t]
+    return delta
