@@ -158,6 +158,10 @@ def _build(robot: Robot, drop: np.ndarray, fixed: bool, floor: float | None,
     kept = [j for j in range(robot.n_joints) if not drop[j]]
     model.opt.timestep = 1.0 / act.control_rate_hz
     model.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    # no constraint islands: MuJoCo's per-step island search (~5 % of a step) splits the
+    # replay's joints by constraint, and one solve of them all converges to the same motion
+    # (24 G1 sequences: joints within 5e-7 rad, palms within 3e-6 mm, every count the same)
+    model.opt.disableflags |= int(getattr(mujoco.mjtDisableBit, "mjDSBL_ISLAND", 0))
     if floor is None:
         model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     jid = np.array([model.joint(robot.joint_names[j]).id for j in kept])
