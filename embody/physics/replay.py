@@ -125,7 +125,7 @@ def _replay_geoms(spec: mujoco.MjSpec, model: mujoco.MjModel, keep: np.ndarray) 
     MJCF gives them, none inferred from a geom); else `model`. Why: a replay collides only the
     feet with the floor (standing) or nothing (fixed base), yet MuJoCo places every geom at every
     step and `mj_inverse` (the G1 with Dex3 hands: 100 geoms, 49 meshes, a 120 MB model); without
-    the others the same dynamics run ~10 % faster."""
+    the others the same dynamics run 5-10 % faster."""
     for g in [g for g in spec.geoms if not keep[g.id]]:  # ids before any deletion renumbers them
         spec.delete(g)
     used = {g.meshname for g in spec.geoms}
