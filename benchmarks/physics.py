@@ -9,9 +9,16 @@ the array). Per sequence and over the run: how much the retiming slowed the moti
 the source's).
 Runs made before the physics step existed work too (this reads only `metrics` and `collide`).
 `seconds_per_seq` is the CPU time of `evaluate` per sequence (`time.process_time`; the human
-track is built outside it, as the pipeline's metrics step has built it when the physics step
-runs), after one untimed warm-up call per robot (its replay and collision models are built
-once per process, as the run's `warm` builds them). Without --run: every run in the store.
+track is built outside it), after one untimed warm-up call per robot (its replay and collision
+models are built once per process, as the run's `warm` builds them), with BLAS and torch held to
+one thread as a pipeline worker holds them (`flows.threads`): with their default two threads
+the process's CPU time also counts OpenBLAS's second thread, and the step's own thread runs
+slower (on 6 sequences, back to back at load 4: 0.40-0.48 CPU-s against 0.36-0.39 pinned).
+`thread_seconds_per_seq` is the calling thread's alone (`time.thread_time`, the clock of
+`pipeline.py`'s `physics_cpu_s`, which also builds the human track). `load1` is the machine's
+load average at the end: on a shared machine CPU seconds grow with it (the same code measured
+0.47 CPU-s a sequence at load 3-4 and 0.70 on a busier machine), so compare figures taken back
+to back. Without --run: every run in the store.
 
     python benchmarks/physics.py --store DIR [--run RUN ...] [--limit N]
 
@@ -21,14 +28,15 @@ those gaps (exported distance minus simulated distance, of the pairs within 10 m
 simulated self-contact needs a pair whose exported clearance is smaller than the closure.
 
 RESULT physics_valid_pct=… palm_p95_mm=… torque_over_samples=… saturated_step_pct=… sim_contacts=…
-zmp_margin_min_mm=… fidelity_loss_pct=… standing_ok_pct=… seconds_per_seq=… retimed_pct=…
+zmp_margin_min_mm=… fidelity_loss_pct=… standing_ok_pct=… seconds_per_seq=… thread_seconds_per_seq=… retimed_pct=…
 time_stretch_max=… duration_ratio_mean=… duration_ratio_max=…
-export_clearance_min_mm=… replay_closure_p99_mm=… replay_closure_max_mm=…
+export_clearance_min_mm=… replay_closure_p99_mm=… replay_closure_max_mm=… load1=…
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 from pathlib import Path
 
@@ -59,7 +67,10 @@ def main() -> None:
     ap.add_argument("--limit", type=int, default=0)
     args = ap.parse_args()
 
+    from threadpoolctl import threadpool_limits
+
     from embody.body import load_body_model
+    from embody.device import torch_threads
     from embody.export.runs import load_result
     from embody.metrics.embodiments import human_track
     from embody.metrics.fidelity import resample_track
@@ -73,7 +84,7 @@ def main() -> None:
     from embody.verdicts import physics_valid
 
     runs = args.run or sorted(p.parent.name for p in (Path(args.store) / "runs").glob("*/manifest.json"))
-    rows, palm, cpu, closures = [], [], [], []
+    rows, palm, cpu, thread_cpu, closures = [], [], [], [], []
     pairs: Counter = Counter()
     steps = saturated = 0
     for run in runs:
@@ -92,12 +103,14 @@ def main() -> None:
             times = None if times is None else np.asarray(times, dtype=np.float64)
             human = resample_track(human_track(load_result(store, seq, "collide").motion, body), rate, times)
             st = uniform_time(len(q), rate) if times is None else times
-            if not warmed:
-                evaluate(robot, q, rate, human, cfg.fidelity)
-                warmed = True
-            t0 = time.process_time()
-            res = evaluate(robot, q, rate, human, cfg.fidelity)
-            cpu.append(time.process_time() - t0)
+            with threadpool_limits(limits=1, user_api="blas"), torch_threads(1):
+                if not warmed:
+                    evaluate(robot, q, rate, human, cfg.fidelity)
+                    warmed = True
+                t0, c0 = time.process_time(), time.thread_time()
+                res = evaluate(robot, q, rate, human, cfg.fidelity)
+                cpu.append(time.process_time() - t0)
+                thread_cpu.append(time.thread_time() - c0)
             m = res.metrics
             final = stored.get("fidelity.final", "ik")
             kin = float(stored.get(f"fidelity.{final}.location_err_mm", np.nan))
@@ -141,14 +154,14 @@ def main() -> None:
           f"zmp_margin_min_mm={min(r['zmp_margin_min_mm'] for r in rows):.0f} "
           f"fidelity_loss_pct={100.0 * (sim - kin) / kin:.1f} "
           f"standing_ok_pct={100.0 * np.mean([r['standing_holds'] for r in rows]):.1f} "
-          f"seconds_per_seq={np.mean(cpu):.2f} "
+          f"seconds_per_seq={np.mean(cpu):.2f} thread_seconds_per_seq={np.mean(thread_cpu):.2f} "
           f"export_clearance_min_mm={min(r['clear_min_mm'] for r in rows):.2f} "
           f"replay_closure_p99_mm={np.percentile(closures, 99) if closures else 0.0:.2f} "
           f"replay_closure_max_mm={max(closures, default=0.0):.2f} "
           f"retimed_pct={100.0 * np.mean([r['stretch'] > 1.0 + 1e-9 for r in rows]):.1f} "
           f"time_stretch_max={max(r['stretch'] for r in rows):.2f} "
           f"duration_ratio_mean={np.mean([r['duration'] for r in rows]):.2f} "
-          f"duration_ratio_max={max(r['duration'] for r in rows):.2f}")
+          f"duration_ratio_max={max(r['duration'] for r in rows):.2f} load1={os.getloadavg()[0]:.1f}")
 
 
 if __name__ == "__main__":

@@ -6,6 +6,7 @@ counted by the kinematic check's own rule (pairs, documented exclusions, depth).
 
 from __future__ import annotations
 
+import mujoco
 import numpy as np
 import pytest
 
@@ -158,3 +159,50 @@ def test_the_standing_model_collides_only_feet_and_floor(g1):
     bodies = np.flatnonzero(m.body_contype | m.body_conaffinity)
     assert sorted(bodies.tolist()) == sorted({0, *m.geom_bodyid[feet].tolist()})
     assert len(bodies) == 3  # world and two feet
+
+
+def test_the_replay_models_drop_geoms_but_keep_the_robots_dynamics(g1):
+    """The fixed-base model keeps no geom and the standing one only the feet and the floor, yet
+    both move like the robot's own model: the same joint-space inertia and bias forces (gravity,
+    Coriolis) on their joints, against plain MuJoCo on the robot's MJCF."""
+    from embody.physics.replay import fixed_model, standing_model
+    fixed = fixed_model(g1)
+    standing, qpos0, feet = standing_model(g1)
+    assert fixed.model.ngeom == 0
+    assert standing.model.ngeom == len(feet) + 1  # and the floor
+    rng = np.random.default_rng(3)
+    full = g1.model
+    data = mujoco.MjData(full)
+    for rm, legs in ((fixed, np.zeros(g1.n_joints)), (standing, stance_pose(g1))):
+        m = rm.model
+        d = mujoco.MjData(m)
+        d.qpos[:] = m.qpos0 if rm is fixed else qpos0
+        q = legs.copy()
+        q[rm.joints] = rng.uniform(-0.3, 0.3, len(rm.joints))
+        q[rm.joints[np.isin(rm.joints, np.flatnonzero(legs))]] = legs[rm.joints[np.isin(rm.joints, np.flatnonzero(legs))]]
+        qd = rng.normal(0.0, 0.5, len(rm.joints))
+        d.qpos[rm.qpos_adr] = q[rm.joints]
+        d.qvel[rm.dof_adr] = qd
+        data.qpos[:] = full.qpos0
+        data.qpos[g1.qpos_adr] = q
+        if rm is standing:  # the same base pose
+            data.qpos[:7] = d.qpos[:7]
+        data.qvel[:] = 0.0
+        data.qvel[[full.jnt_dofadr[full.joint(g1.joint_names[j]).id] for j in rm.joints]] = qd
+        for mm, dd in ((m, d), (full, data)):
+            mujoco.mj_forward(mm, dd)
+        dof_full = np.array([full.jnt_dofadr[full.joint(g1.joint_names[j]).id] for j in rm.joints])
+        np.testing.assert_allclose(_mass(m, d)[np.ix_(rm.dof_adr, rm.dof_adr)],
+                                   _mass(full, data)[np.ix_(dof_full, dof_full)], atol=1e-9)
+        np.testing.assert_allclose(d.qfrc_bias[rm.dof_adr], data.qfrc_bias[dof_full], atol=1e-7)
+
+
+def _mass(m: mujoco.MjModel, d: mujoco.MjData) -> np.ndarray:
+    """The joint-space inertia matrix (nv,nv) at d's configuration (columns by `mj_mulM`)."""
+    out, column, unit = np.zeros((m.nv, m.nv)), np.zeros(m.nv), np.zeros(m.nv)
+    for k in range(m.nv):
+        unit[:] = 0.0
+        unit[k] = 1.0
+        mujoco.mj_mulM(m, d, column, unit)
+        out[:, k] = column
+    return out

@@ -208,8 +208,8 @@ def evaluate(robot: Robot, q: np.ndarray, fps: float, human: Any = None, fidelit
     out["energy_j_per_s"] = float(np.abs(r.torque * r.qd).sum() * r.dt / duration)
     # tracking: simulated vs reference landmarks (palms, fingertips), torso frame
     names = [n for n in robot.spec.landmarks if n.endswith("_palm") or n.endswith("_tip")]
-    ref_pts, _, _ = robot.landmark_points(q, names)
-    sim_pts, _, _ = robot.landmark_points(fixed.q50, names)
+    pts, _, _ = robot.landmark_points(np.concatenate([q, fixed.q50]), names)  # one FK for both
+    ref_pts, sim_pts = pts[: len(q)], pts[len(q):]
     err = np.linalg.norm(sim_pts - ref_pts, axis=-1) * 1000.0  # (T,K) mm
     palm = np.array([n.endswith("_palm") for n in names])
     out.update(_stats(err[:, palm], "palm_err"))

@@ -69,13 +69,14 @@ def _compiled(robot: Robot, drop: np.ndarray, fixed: bool, floor: float | None,
 
 
 #: Bump when `_edit` builds another model from the same inputs.
-_EDIT_VERSION = 1
+_EDIT_VERSION = 2
 
 
 def _edit(robot: Robot, drop: np.ndarray, fixed: bool, floor: float | None,
           kp: np.ndarray, kd: np.ndarray, limit: np.ndarray) -> mujoco.MjModel:
     """The robot's MJCF with the free joint (`fixed`) and the `drop` joints removed, its
-    actuators replaced by one PD motor per remaining joint, and a floor plane at `floor`."""
+    actuators replaced by one PD motor per remaining joint, and a floor plane at `floor`; of the
+    robot's geoms only those a replay collides are kept (`_replay_geoms`)."""
     spec = mujoco.MjSpec.from_file(str(robot.mjcf_path))
     for a in list(spec.actuators):
         spec.delete(a)
@@ -110,7 +111,44 @@ def _edit(robot: Robot, drop: np.ndarray, fixed: bool, floor: float | None,
         plane.type = mujoco.mjtGeom.mjGEOM_PLANE
         plane.size = [0.0, 0.0, 0.05]
         plane.pos = [0.0, 0.0, floor]
-    return spec.compile()
+    model = spec.compile()
+    keep = np.zeros(model.ngeom, dtype=bool)
+    if floor is not None:
+        keep[model.geom("physics_floor").id] = True
+        keep[_foot_geoms(robot, model, _stance_qpos(robot, model))] = True
+    return _replay_geoms(spec, model, keep)
+
+
+def _replay_geoms(spec: mujoco.MjSpec, model: mujoco.MjModel, keep: np.ndarray) -> mujoco.MjModel:
+    """`spec` (compiled as `model`) recompiled with only the geoms `keep` (bool per geom of
+    `model`) and the meshes they use, when every body's mass and inertia stay as they are (the
+    MJCF gives them, none inferred from a geom); else `model`. Why: a replay collides only the
+    feet with the floor (standing) or nothing (fixed base), yet MuJoCo places every geom at every
+    step and `mj_inverse` (the G1 with Dex3 hands: 100 geoms, 49 meshes, a 120 MB model); without
+    the others the same dynamics run 5-10 % faster."""
+    for g in [g for g in spec.geoms if not keep[g.id]]:  # ids before any deletion renumbers them
+        spec.delete(g)
+    used = {g.meshname for g in spec.geoms}
+    for mesh in list(spec.meshes):
+        if mesh.name not in used:
+            spec.delete(mesh)
+    try:
+        slim = spec.compile()
+    except ValueError:  # a body's inertia came from its geoms alone
+        return model
+    inertia = ("body_mass", "body_inertia", "body_ipos", "body_iquat")
+    return slim if all(np.array_equal(getattr(slim, k), getattr(model, k)) for k in inertia) else model
+
+
+def _stance_qpos(robot: Robot, model: mujoco.MjModel) -> np.ndarray:
+    """`model`'s qpos0 with the robot's joints in it at the stance (`stance_pose`)."""
+    stand = stance_pose(robot)
+    qpos = model.qpos0.copy()
+    for j, name in enumerate(robot.joint_names):
+        jid = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+        if jid >= 0:
+            qpos[model.jnt_qposadr[jid]] = stand[j]
+    return qpos
 
 
 def _build(robot: Robot, drop: np.ndarray, fixed: bool, floor: float | None,
@@ -120,6 +158,10 @@ def _build(robot: Robot, drop: np.ndarray, fixed: bool, floor: float | None,
     kept = [j for j in range(robot.n_joints) if not drop[j]]
     model.opt.timestep = 1.0 / act.control_rate_hz
     model.opt.integrator = mujoco.mjtIntegrator.mjINT_IMPLICITFAST
+    # no constraint islands: MuJoCo's per-step island search (~5 % of a step) splits the
+    # replay's joints by constraint, and one solve of them all converges to the same motion
+    # (24 G1 sequences: joints within 5e-7 rad, palms within 3e-6 mm, every count the same)
+    model.opt.disableflags |= int(getattr(mujoco.mjtDisableBit, "mjDSBL_ISLAND", 0))
     if floor is None:
         model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_CONTACT)
     jid = np.array([model.joint(robot.joint_names[j]).id for j in kept])
@@ -198,8 +240,7 @@ def standing_model(robot: Robot) -> tuple[ReplayModel, np.ndarray, np.ndarray]:
         kp[legs], kd[legs] = stance.kp, stance.kd
     rm = _build(robot, _hand_joints(robot), fixed=False, floor=floor, kp=kp, kd=kd)
     model = rm.model
-    qpos0 = model.qpos0.copy()
-    qpos0[rm.qpos_adr] = stand[rm.joints]
+    qpos0 = _stance_qpos(robot, model)
     feet = _foot_geoms(robot, model, qpos0)
     floor_geom = model.geom("physics_floor").id
     contype = np.zeros(model.ngeom, dtype=np.int32)
@@ -213,6 +254,9 @@ def standing_model(robot: Robot) -> tuple[ReplayModel, np.ndarray, np.ndarray]:
     model.body_contype[:] = model.body_conaffinity[:] = body
     model.opt.cone = mujoco.mjtCone.mjCONE_ELLIPTIC
     model.opt.impratio = FOOT_IMPRATIO
+    # sparse constraint Jacobians: the feet's contact rows touch only the base and one leg, so
+    # the solver's products skip the arms (the same motion to 1e-14; the rollout ~6 % faster)
+    model.opt.jacobian = mujoco.mjtJacobian.mjJAC_SPARSE
     model.geom_solref[feet, 0] = model.geom_solref[floor_geom, 0] = FOOT_TIMECONST_STEPS * model.opt.timestep
     robot.derived[key] = (rm, qpos0, feet)
     return robot.derived[key]
