@@ -461,9 +461,9 @@ METRICS_REFINED = Step("metrics", "17", ("body", "robot", "ik", "fidelity"), _tr
                        files=_robot_files)
 
 # The exported array replayed in MuJoCo with the robot's actuation, fixed base and standing.
-PHYSICS = Step("physics", "4", ("body", "robot", "fidelity"), _physics, _physics_result,
+PHYSICS = Step("physics", "5", ("body", "robot", "fidelity"), _physics, _physics_result,
                (COLLIDE, METRICS), files=_robot_files)
-PHYSICS_REFINED = Step("physics", "4", ("body", "robot", "fidelity"), _physics, _physics_result,
+PHYSICS_REFINED = Step("physics", "5", ("body", "robot", "fidelity"), _physics, _physics_result,
                        (COLLIDE, METRICS_REFINED), files=_robot_files)
 
 
