@@ -337,9 +337,10 @@ class _Pool:
             self._last.update(dict.fromkeys(ids, w.pid))
             self._cond.notify_all()
 
-    def call(self, kind: str, name: str, records: Any, shared_keys: dict[str, str]
-             ) -> tuple[bool, Any]:
-        """(True, result) from a worker, or (False, None): compute in-thread."""
+    def call(self, kind: str, name: str, records: Any, shared_keys: dict[str, str],
+             affinity: bool = True) -> tuple[bool, Any]:
+        """(True, result) from a worker, or (False, None): compute in-thread. `affinity`
+        False: the worker is not remembered for these sequences (`Step.affinity`)."""
         ids = [r["id"] for r in records] if records else []
         w = self._take(ids)
         if w is None:
@@ -353,7 +354,7 @@ class _Pool:
             raise WorkerLost(f"worker process {w.pid} exited while computing step "
                              f"{name!r} ({type(exc).__name__})") from None
         finally:
-            self._give(w, ids)
+            self._give(w, ids if affinity else [])
         if status != "ok":
             raise RuntimeError(f"worker process {w.pid}: {value}")
         return True, value
@@ -462,7 +463,7 @@ def batch(step: Step, ctx: Context, records: list[dict[str, Any]],
     """`run_batch`, in this thread's worker process when the run has them."""
     pool = _POOLS.get(ctx.session)
     if pool is not None:
-        done, out = pool.call("batch", step.name, records, shared_keys)
+        done, out = pool.call("batch", step.name, records, shared_keys, step.affinity)
         if done:
             return out
     with _in_thread(ctx):

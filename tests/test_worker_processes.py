@@ -192,6 +192,35 @@ def test_a_call_waits_for_the_worker_that_had_its_sequences_unless_a_free_one_is
     assert pool._take(["s1"]) is None  # none alive: the caller computes itself
 
 
+def test_a_step_without_affinity_leaves_its_sequences_with_the_worker_they_had():
+    import threading
+    from multiprocessing import Pipe
+
+    from embody.tasks.stages import COLLIDE as REAL_COLLIDE, RENDER, RENDER_REFINED
+    from embody.tasks.workers import _Pool, _Worker
+    assert not RENDER.affinity and not RENDER_REFINED.affinity and REAL_COLLIDE.affinity
+    ends = [Pipe() for _ in range(2)]
+
+    def answer(conn) -> None:  # the worker's side of the pipe: each batch answered at once
+        while (msg := conn.recv()) is not None:
+            conn.send(("ok", msg[2]))
+
+    for _, theirs in ends:
+        threading.Thread(target=answer, args=(theirs,), daemon=True).start()
+    a, b = _Worker(101, ends[0][0]), _Worker(102, ends[1][0])
+    pool = _Pool([a, b])
+    records = [{"id": "s1"}]
+    assert pool.call("batch", "collide", records, {}) == (True, records)
+    assert pool._last["s1"] == 101
+    pool._busy.add(101)  # a busy: the render call takes b, which is not remembered
+    assert pool.call("batch", "render", records, {}, affinity=False) == (True, records)
+    assert pool._last["s1"] == 101
+    pool._busy.discard(101)
+    assert pool._take(["s1"]) is a
+    for ours, _ in ends:
+        ours.send(None)
+
+
 def test_the_thread_runner_has_a_thread_per_batch_in_flight_only_with_worker_processes():
     from embody.tasks.workers import task_threads
     assert task_threads(Config.model_validate({"run": {"workers": 3}})) == 6
