@@ -18,10 +18,10 @@ importable there (the driver's `sys.path`, working directory and environment go 
 Where they are not, or the zygote fails, the worker threads compute as before. A worker keeps
 one renderer open for the run's render steps (`render.record.kept_renderer`: the same
 pictures, without building the scene and its GL context per sequence). A call goes to
-a free worker, preferably the one that computed the same sequences' previous step (whose
-in-memory results and memos it reuses). A process that dies (a crash, the OOM killer) fails the
-batch it held ("task crashed"); from then on a thread that finds no free worker computes
-in-thread. A run with the VLM critic computes in the threads: its request budget caps the whole
+the worker that computed the same sequences' previous step (whose in-memory results and memos
+it reuses), waiting for it unless a free worker is wanted by no other waiting call (`_Pool`).
+A process that dies (a crash, the OOM killer) fails the batch it held ("task crashed"); with
+every worker dead the threads compute in-thread, `run.workers` at a time. A run with the VLM critic computes in the threads: its request budget caps the whole
 run, and one client in one process counts it.
 
 Pickles travel only over socket pairs this process creates and hands to its own children (no
