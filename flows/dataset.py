@@ -31,6 +31,7 @@ from embody.store import ArtifactStore, Manifest, check_run_name
 from embody.tasks.execute import cached, new_record
 from embody.tasks.pipeline import Context, Pipeline
 from embody.tasks.stages import default_pipeline
+from embody.tasks.workers import task_threads
 
 __all__ = ["check_run_reuse", "dataset_flow", "default_run_name", "resolve_dataset", "run_dataset",
            "run_flow", "write_tables"]
@@ -438,7 +439,7 @@ def run_dataset(dataset: str | Path, *, cfg: Config, split: str | None = None,
                 driver.run(batches, bound)
             else:  # at most `bound` task runs per flow run: one subflow run per chunk
                 run_chunks(run, chunks, lambda chunk: driver.run(chunk, bound),
-                           lambda: make_task_runner(cfg.run))
+                           lambda: make_task_runner(cfg.run, task_threads(cfg)))
         except Exception as exc:  # Prefect's API failed (its database's disk full, ...)
             failure = orchestration_failure(exc, store.root, "not finished: Prefect failed")
             driver.abandon(failure)
@@ -515,7 +516,7 @@ def run_flow(dataset: str | Path, cfg: Config, *, split: str | None = None,
     from embody.flows.runners import local_dask_cluster
     try:
         with prefect_api(warm=warm), _quiet_prefect(), local_dask_cluster(cfg) as cfg:
-            return prefect_flow().with_options(task_runner=make_task_runner(cfg.run))(
+            return prefect_flow().with_options(task_runner=make_task_runner(cfg.run, task_threads(cfg)))(
                 str(dataset), split, cfg.model_dump(mode="json"), pipeline, progress)
     except Exception as exc:  # Prefect itself failed: its server, its database, its API
         summary = _SUMMARIES.pop(run, None)

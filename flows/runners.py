@@ -19,8 +19,9 @@ def _local_cluster_kwargs(run: RunConfig) -> dict[str, Any]:
             "dashboard_address": ":0", "preload": ["embody.flows.preload"]}
 
 
-def make_task_runner(run: RunConfig) -> Any:
-    """A bounded task runner: Prefect's thread pool is unbounded unless told otherwise."""
+def make_task_runner(run: RunConfig, threads: int | None = None) -> Any:
+    """A bounded task runner: Prefect's thread pool is unbounded unless told otherwise;
+    `threads` (default `run.workers`) sizes the thread runner's pool (`tasks.workers.task_threads`)."""
     if run.runner == "processes":
         from prefect.task_runners import ProcessPoolTaskRunner
         return ProcessPoolTaskRunner(max_workers=run.workers)
@@ -30,7 +31,7 @@ def make_task_runner(run: RunConfig) -> Any:
             return DaskTaskRunner(address=run.dask_address)
         return DaskTaskRunner(cluster_kwargs=_local_cluster_kwargs(run))
     from prefect.task_runners import ThreadPoolTaskRunner
-    return ThreadPoolTaskRunner(max_workers=run.workers)
+    return ThreadPoolTaskRunner(max_workers=threads or run.workers)
 
 
 @contextmanager

@@ -63,6 +63,10 @@ class Step:
     metrics: Callable[[Any], dict[str, Any]] = field(default=_default_metrics, repr=False)
     #: Files the config points at whose bytes matter too (e.g. the robot definition YAML).
     files: Callable[[Config], list[Path]] | None = field(default=None, repr=False)
+    #: The process that computed it keeps what the same sequences' later steps reuse (its
+    #: memos, its recent arrays), so worker processes route those steps back to it
+    #: (`tasks.workers`); False for a step whose process keeps nothing they read.
+    affinity: bool = True
 
     def key(self, cfg: Config, input_keys: Mapping[str, str]) -> str:
         return content_key(self.name, self.version, self.config(cfg), input_keys)

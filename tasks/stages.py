@@ -447,11 +447,13 @@ REFINE = Step("refine", "29", ("body", "robot", "ik", "render", "critic"), _refi
               _refine_result, (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC), metrics=_refine_metrics,
               files=_robot_files)
 # The comparison sheet and the 15 fps preview of the reference (a MuJoCo skin) and the robot.
+# Later steps read only its stored result (the report), none of its process's memos.
 RENDER = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
-              (COLLIDE, SHAPE_FIT, RETARGET), metrics=_render_metrics, files=_robot_files)
+              (COLLIDE, SHAPE_FIT, RETARGET), metrics=_render_metrics, files=_robot_files,
+              affinity=False)
 RENDER_REFINED = Step("render", "4", ("body", "robot", "render"), _render, _render_result,
                       (COLLIDE, SHAPE_FIT, RETARGET_BEFORE_CRITIC, REFINE), metrics=_render_metrics,
-                      files=_robot_files)
+                      files=_robot_files, affinity=False)
 # The exported control-rate array, its validation counts (torque included) and jerk, Table III's
 # sign fidelity on it against the mitigated human, and the report's wrist tracks.
 METRICS = Step("metrics", "17", ("body", "robot", "ik", "fidelity"), _trajectory_metrics,

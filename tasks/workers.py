@@ -18,10 +18,10 @@ importable there (the driver's `sys.path`, working directory and environment go 
 Where they are not, or the zygote fails, the worker threads compute as before. A worker keeps
 one renderer open for the run's render steps (`render.record.kept_renderer`: the same
 pictures, without building the scene and its GL context per sequence). A call goes to
-a free worker, preferably the one that computed the same sequences' previous step (whose
-in-memory results and memos it reuses). A process that dies (a crash, the OOM killer) fails the
-batch it held ("task crashed"); from then on a thread that finds no free worker computes
-in-thread. A run with the VLM critic computes in the threads: its request budget caps the whole
+the worker that computed the same sequences' previous step (whose in-memory results and memos
+it reuses), waiting for it unless a free worker is wanted by no other waiting call (`_Pool`).
+A process that dies (a crash, the OOM killer) fails the batch it held ("task crashed"); with
+every worker dead the threads compute in-thread, `run.workers` at a time. A run with the VLM critic computes in the threads: its request budget caps the whole
 run, and one client in one process counts it.
 
 Pickles travel only over socket pairs this process creates and hands to its own children (no
@@ -39,7 +39,7 @@ import subprocess
 import sys
 import threading
 from collections.abc import Iterator
-from contextlib import ExitStack, contextmanager
+from contextlib import ExitStack, contextmanager, nullcontext
 from dataclasses import dataclass, field
 from multiprocessing.connection import Connection
 from typing import Any
@@ -49,7 +49,7 @@ from embody.tasks.execute import run_batch, run_shared
 from embody.tasks.pipeline import Context, Pipeline, Step
 
 __all__ = ["WorkerLost", "batch", "cpu_seconds", "prewarm", "process_cpu_seconds", "shared",
-           "usable", "worker_pool"]
+           "task_threads", "usable", "worker_pool"]
 
 #: How long the driver waits for a worker's CPU report when a run closes its pool (s).
 _CLOSE_WAIT_S = 10.0
@@ -276,38 +276,71 @@ class _Worker:
 
 
 class _Pool:
-    """One run's worker processes. A call takes a free worker, preferring the one that computed
-    the same sequences' previous step (its `tasks.recent` arrays and memos hold them); with no
-    free worker (one died) the calling thread computes itself."""
+    """One run's worker processes. A call goes to the worker that computed the same sequences'
+    previous step (its `tasks.recent` arrays and its memos hold them: the targets, the human
+    tracks, the finger-clearance frames), waiting for it while it is busy, unless no waiting
+    call wants a free worker, which then takes that call: no worker idles while a call waits.
+    The run gives its pool a thread per batch in flight (`task_threads`), so calls wait here
+    instead of in Prefect's queue, and a freed worker can choose among them. With every worker
+    dead the calling thread computes itself."""
 
     def __init__(self, workers: list[_Worker]) -> None:
         self.workers = workers
         self._busy: set[int] = set()
         self._last: dict[str, int] = {}  # sequence id → pid of the worker that last had it
-        self._lock = threading.Lock()
+        self._cond = threading.Condition()
+        self._waiting: list[int | None] = []  # the preferred worker of each waiting call
+
+    def _preferred(self, ids: list[str]) -> int | None:
+        """The live worker that last had most of `ids` (None: none of them yet)."""
+        live = {w.pid for w in self.workers if not w.dead}
+        votes: dict[int, int] = {}
+        for i in ids:
+            pid = self._last.get(i)
+            if pid in live:
+                votes[pid] = votes.get(pid, 0) + 1
+        return max(votes, key=lambda pid: votes[pid]) if votes else None  # ties: the first
+
+    def _pick(self, prefer: int | None) -> _Worker | None:
+        """The free worker a call preferring `prefer` takes now, or None (it waits): its own
+        one, else the first free one that no other waiting call prefers. Called with the
+        call's own preference not in `_waiting`."""
+        free = [w for w in self.workers if not w.dead and w.pid not in self._busy]
+        for w in free:
+            if w.pid == prefer:
+                return w
+        wanted = set(self._waiting)
+        return next((w for w in free if w.pid not in wanted), None)
 
     def _take(self, ids: list[str]) -> _Worker | None:
-        with self._lock:
-            free = [w for w in self.workers if not w.dead and w.pid not in self._busy]
-            if not free:
-                return None
-            votes: dict[int, int] = {}
-            for i in ids:
-                pid = self._last.get(i)
-                if pid is not None:
-                    votes[pid] = votes.get(pid, 0) + 1
-            w = max(free, key=lambda w: votes.get(w.pid, 0))  # ties: the first free one
-            self._busy.add(w.pid)
-            return w
+        """A worker for a call on `ids` (see the class), marked busy; None when all are dead."""
+        with self._cond:
+            prefer = self._preferred(ids)
+            while True:
+                if all(w.dead for w in self.workers):
+                    return None
+                w = self._pick(prefer)
+                if w is not None:
+                    self._busy.add(w.pid)
+                    return w
+                self._waiting.append(prefer)
+                try:
+                    self._cond.wait()
+                finally:
+                    self._waiting.remove(prefer)
+                if prefer is not None and not any(x.pid == prefer and not x.dead for x in self.workers):
+                    prefer = None  # it died meanwhile
 
     def _give(self, w: _Worker, ids: list[str]) -> None:
-        with self._lock:
+        with self._cond:
             self._busy.discard(w.pid)
             self._last.update(dict.fromkeys(ids, w.pid))
+            self._cond.notify_all()
 
-    def call(self, kind: str, name: str, records: Any, shared_keys: dict[str, str]
-             ) -> tuple[bool, Any]:
-        """(True, result) from a worker, or (False, None): compute in-thread."""
+    def call(self, kind: str, name: str, records: Any, shared_keys: dict[str, str],
+             affinity: bool = True) -> tuple[bool, Any]:
+        """(True, result) from a worker, or (False, None): compute in-thread. `affinity`
+        False: the worker is not remembered for these sequences (`Step.affinity`)."""
         ids = [r["id"] for r in records] if records else []
         w = self._take(ids)
         if w is None:
@@ -321,7 +354,7 @@ class _Pool:
             raise WorkerLost(f"worker process {w.pid} exited while computing step "
                              f"{name!r} ({type(exc).__name__})") from None
         finally:
-            self._give(w, ids)
+            self._give(w, ids if affinity else [])
         if status != "ok":
             raise RuntimeError(f"worker process {w.pid}: {value}")
         return True, value
@@ -344,7 +377,17 @@ class _Pool:
 
 
 _POOLS: dict[str, _Pool] = {}
+#: Per run session: at most `run.workers` batches compute in the threads at once (the run has
+#: more threads than workers when its workers are processes, `task_threads`).
+_IN_THREAD: dict[str, threading.Semaphore] = {}
 _CPU = [0.0]
+
+
+def task_threads(cfg: Config) -> int:
+    """Threads of the run's task runner: one per batch the driver keeps in flight (2 ×
+    workers) when the workers are processes (`usable`), so each batch's call waits in its
+    pool for the worker that has its sequences (`_Pool`); else one per worker, each computing."""
+    return 2 * cfg.run.workers if usable(cfg) else cfg.run.workers
 
 
 def _fork(n: int, ctx: Context, pipeline: Pipeline) -> _Pool | None:
@@ -381,14 +424,19 @@ def worker_pool(ctx: Context, pipeline: Pipeline) -> Iterator[bool]:
     block when the run can use them (`usable`); yields whether there are any (else the worker
     threads compute, as with one worker)."""
     pool = _fork(ctx.cfg.run.workers, ctx, pipeline) if usable(ctx.cfg) else None
+    _IN_THREAD[ctx.session] = threading.Semaphore(max(1, ctx.cfg.run.workers))
     if pool is None:
-        yield False
+        try:
+            yield False
+        finally:
+            _IN_THREAD.pop(ctx.session, None)
         return
     _POOLS[ctx.session] = pool
     try:
         yield True
     finally:
         del _POOLS[ctx.session]
+        _IN_THREAD.pop(ctx.session, None)
         _CPU[0] += pool.close()
 
 
@@ -415,10 +463,11 @@ def batch(step: Step, ctx: Context, records: list[dict[str, Any]],
     """`run_batch`, in this thread's worker process when the run has them."""
     pool = _POOLS.get(ctx.session)
     if pool is not None:
-        done, out = pool.call("batch", step.name, records, shared_keys)
+        done, out = pool.call("batch", step.name, records, shared_keys, step.affinity)
         if done:
             return out
-    return run_batch(step, ctx, records, shared_keys)
+    with _in_thread(ctx):
+        return run_batch(step, ctx, records, shared_keys)
 
 
 def shared(step: Step, ctx: Context, shared_keys: dict[str, str]) -> dict[str, Any]:
@@ -428,4 +477,10 @@ def shared(step: Step, ctx: Context, shared_keys: dict[str, str]) -> dict[str, A
         done, out = pool.call("shared", step.name, None, shared_keys)
         if done:
             return out
-    return run_shared(step, ctx, shared_keys)
+    with _in_thread(ctx):
+        return run_shared(step, ctx, shared_keys)
+
+
+def _in_thread(ctx: Context) -> Any:
+    """The slot a thread computes in (at most `run.workers` at once in a run session)."""
+    return _IN_THREAD.get(ctx.session) or nullcontext()

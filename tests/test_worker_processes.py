@@ -140,7 +140,10 @@ def test_a_pipeline_that_does_not_pickle_is_computed_in_the_threads(
         os.getpid()}
 
 
-def test_a_call_prefers_the_free_worker_that_had_the_same_sequences():
+def test_a_call_waits_for_the_worker_that_had_its_sequences_unless_a_free_one_is_unwanted():
+    import threading
+    import time
+
     from embody.tasks.workers import _Pool, _Worker
     a, b = _Worker(101, None), _Worker(102, None)
     pool = _Pool([a, b])
@@ -149,15 +152,80 @@ def test_a_call_prefers_the_free_worker_that_had_the_same_sequences():
     assert pool._take(["s3"]) is a
     pool._give(a, ["s3"])
     pool._last.update(s4=102, s5=102)
-    w = pool._take(["s4", "s5", "s1"])  # two of three were last on b
-    assert w is b
-    assert pool._take(["s4"]) is a  # b is busy: the free one, not a wait
-    assert pool._take(["s1"]) is None  # none free: the caller computes itself
+    assert pool._take(["s4", "s5", "s1"]) is b  # two of three were last on b
+    # b is busy and no waiting call wants a: a takes the call (no worker idles)
+    assert pool._take(["s4"]) is a
+    pool._give(a, ["s3"])
+    assert pool._take(["s6"]) is a  # a call of new sequences: the free worker
+    got: dict[str, object] = {}
+
+    def call(name: str, ids: list[str]) -> None:
+        got[name] = pool._take(ids)
+
+    def waiting(n: int) -> None:
+        deadline = time.monotonic() + 10
+        while len(pool._waiting) < n and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(pool._waiting) == n
+
+    # both busy: a call of b's sequences waits for b, one of a's for a
+    for_b = threading.Thread(target=call, args=("b", ["s5"]))
+    for_b.start()
+    waiting(1)
+    for_a = threading.Thread(target=call, args=("a", ["s3"]))
+    for_a.start()
+    waiting(2)
+    pool._give(a, ["s6"])  # a is free: the call that wants it takes it, the other waits on
+    for_a.join(10)
+    assert got["a"] is a and for_b.is_alive()
+    b.dead = True  # b's call now wants no worker in particular: the next free one
     pool._give(b, ["s4", "s5", "s1"])
+    waiting(1)
+    assert for_b.is_alive()
+    pool._give(a, ["s3"])
+    for_b.join(10)
+    assert got["b"] is a
     assert pool._last["s1"] == 102
-    b.dead = True
-    pool._give(a, ["s4"])
+    pool._give(a, ["s5"])
     assert pool._take(["s1"]) is a  # a dead worker is never chosen
+    a.dead = True
+    assert pool._take(["s1"]) is None  # none alive: the caller computes itself
+
+
+def test_a_step_without_affinity_leaves_its_sequences_with_the_worker_they_had():
+    import threading
+    from multiprocessing import Pipe
+
+    from embody.tasks.stages import COLLIDE as REAL_COLLIDE, RENDER, RENDER_REFINED
+    from embody.tasks.workers import _Pool, _Worker
+    assert not RENDER.affinity and not RENDER_REFINED.affinity and REAL_COLLIDE.affinity
+    ends = [Pipe() for _ in range(2)]
+
+    def answer(conn) -> None:  # the worker's side of the pipe: each batch answered at once
+        while (msg := conn.recv()) is not None:
+            conn.send(("ok", msg[2]))
+
+    for _, theirs in ends:
+        threading.Thread(target=answer, args=(theirs,), daemon=True).start()
+    a, b = _Worker(101, ends[0][0]), _Worker(102, ends[1][0])
+    pool = _Pool([a, b])
+    records = [{"id": "s1"}]
+    assert pool.call("batch", "collide", records, {}) == (True, records)
+    assert pool._last["s1"] == 101
+    pool._busy.add(101)  # a busy: the render call takes b, which is not remembered
+    assert pool.call("batch", "render", records, {}, affinity=False) == (True, records)
+    assert pool._last["s1"] == 101
+    pool._busy.discard(101)
+    assert pool._take(["s1"]) is a
+    for ours, _ in ends:
+        ours.send(None)
+
+
+def test_the_thread_runner_has_a_thread_per_batch_in_flight_only_with_worker_processes():
+    from embody.tasks.workers import task_threads
+    assert task_threads(Config.model_validate({"run": {"workers": 3}})) == 6
+    assert task_threads(Config.model_validate({"run": {"workers": 3, "worker_processes": False}})) == 3
+    assert task_threads(Config.model_validate({"run": {"workers": 1}})) == 1
 
 
 def test_process_cpu_seconds_reads_a_running_process_and_zero_for_a_gone_one():

@@ -21,6 +21,10 @@ _AXES = ("x", "y", "z")
 
 def _save(fig: plt.Figure, path: Path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
+    # `tight_layout` leaves a placeholder layout engine, for which `savefig` draws the whole
+    # figure once more before the drawing it saves (ticks, labels, no pixels): ~a third of a
+    # plot's CPU for the same bytes. The layout is already applied; no engine, no extra draw.
+    fig.set_layout_engine(None)
     # Fixed metadata so seeded runs give identical bytes.
     fig.savefig(path, dpi=_DPI, metadata={"Software": None})
     plt.close(fig)
