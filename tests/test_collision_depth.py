@@ -191,8 +191,8 @@ def test_pull_back_shrinks_the_correction_and_keeps_frames_clear(body):
 
 def test_regula_falsi_finds_the_smallest_clear_fraction_in_few_judge_calls():
     """`_regula_falsi` (the pull-back's search) on depth curves shaped like the judge's
-    (0 past the contact at s ≈ 0.97-0.995, then growing nearly linearly: docs/performance.md,
-    s6-adam): the s it returns is never too deep, lies within the search tolerances of the true
+    (0 past the contact at s ≈ 0.97-0.995, then growing nearly linearly, as measured on the
+    default sequences): the s it returns is never too deep, lies within the search tolerances of the true
     root, judges only unsettled frames, and takes fewer calls than the 6 of the bisection it
     replaced; frames already within the limit at s = 0 get 0. A far contact (s = 0.8) still
     ends clear within the iteration cap."""

@@ -40,8 +40,8 @@ per 150 frames against Adam's 7.08 (100 vs 909 iterations), Pose MSE 0.0204/0.00
 fingers (the finger joints are not variables) oscillate until the 40-iteration cap, seq_003's
 correction has kinks (ΔAccel +1.6e-2) and the ≤ 1 s per 150 frames target needs ~2x fewer
 iterations. `optimize._mitigate` hands the frames this solve leaves penetrating to Adam,
-warm-started from its pose (11 of the 24 default sequences); the 24-sequence figures are in
-docs/performance.md (2026-11-26, s6-gn).
+warm-started from its pose (11 of the 24 default sequences; the figures are in the git log of
+2026-11-26).
 """
 
 from __future__ import annotations

@@ -102,7 +102,7 @@ LAMBDA0 = 1.0
 #: the next phase's first step (a heavier collision term, all frames after the coarse pass)
 #: overshoots: doubling from there took 5-10 rejected trials, each a full residual evaluation,
 #: before a step was accepted (benchmarks/ik_vs_mink.py: 162 evaluations for 109 accepted
-#: steps). With the floor: 1.13× CPU frames/s, same accuracy (docs/performance.md, s6-ik).
+#: steps). With the floor: 1.13× CPU frames/s, same accuracy.
 LAMBDA_MIN = 1e-3
 
 
