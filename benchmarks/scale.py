@@ -439,7 +439,10 @@ def _full_env(api: str, work: Path) -> dict[str, str]:
 
 
 def _render(args: argparse.Namespace) -> str:
-    return "off" if "run.render=false" in args.sets else "on"
+    """The RESULT line's `render=`: what the `--set` overrides leave `run.render` at."""
+    from embody.config import load_config
+
+    return "on" if load_config(sets=args.sets).run.render else "off"
 
 
 def _configs(args: argparse.Namespace) -> str:

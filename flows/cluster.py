@@ -77,8 +77,8 @@ class DaskProcesses(LocalService):
         the render's software GL (Mesa llvmpipe) rasterises on the task's own thread
         (`LP_NUM_THREADS=0`) instead of one thread per core. Dask's housekeeping runs less
         often (`DASK_TICK`): its 20 ms event-loop tick and 0.5 s system monitor cost an idle
-        scheduler 3.3 % and each idle worker 3.2 % of a core, 0.8-1.3 % at these intervals,
-        on the cores the workers compute on."""
+        scheduler 3.3 % and each idle worker 3.2 % of a core (0.8-1.1 % and 1.2-1.9 % at these
+        intervals), on the cores the workers compute on."""
         env = {k: v for k, v in os.environ.items()
                if not k.startswith(("PREFECT_", "DASK_")) and k not in ("TMPDIR", "TMP", "TEMP")}
         tmp = home / "tmp"

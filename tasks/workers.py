@@ -425,19 +425,18 @@ def worker_pool(ctx: Context, pipeline: Pipeline) -> Iterator[bool]:
     threads compute, as with one worker)."""
     pool = _fork(ctx.cfg.run.workers, ctx, pipeline) if usable(ctx.cfg) else None
     _IN_THREAD[ctx.session] = threading.Semaphore(max(1, ctx.cfg.run.workers))
-    if pool is None:
-        try:
-            yield False
-        finally:
-            _IN_THREAD.pop(ctx.session, None)
-        return
-    _POOLS[ctx.session] = pool
     try:
-        yield True
+        if pool is None:
+            yield False
+            return
+        _POOLS[ctx.session] = pool
+        try:
+            yield True
+        finally:
+            del _POOLS[ctx.session]
+            _CPU[0] += pool.close()
     finally:
-        del _POOLS[ctx.session]
         _IN_THREAD.pop(ctx.session, None)
-        _CPU[0] += pool.close()
 
 
 def process_cpu_seconds(pid: int) -> float:

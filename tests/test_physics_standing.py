@@ -179,19 +179,20 @@ def test_the_replay_models_drop_geoms_but_keep_the_robots_dynamics(g1):
         d.qpos[:] = m.qpos0 if rm is fixed else qpos0
         q = legs.copy()
         q[rm.joints] = rng.uniform(-0.3, 0.3, len(rm.joints))
-        q[rm.joints[np.isin(rm.joints, np.flatnonzero(legs))]] = legs[rm.joints[np.isin(rm.joints, np.flatnonzero(legs))]]
+        stance = rm.joints[np.isin(rm.joints, np.flatnonzero(legs))]
+        q[stance] = legs[stance]
         qd = rng.normal(0.0, 0.5, len(rm.joints))
         d.qpos[rm.qpos_adr] = q[rm.joints]
         d.qvel[rm.dof_adr] = qd
+        dof_full = np.array([full.jnt_dofadr[full.joint(g1.joint_names[j]).id] for j in rm.joints])
         data.qpos[:] = full.qpos0
         data.qpos[g1.qpos_adr] = q
         if rm is standing:  # the same base pose
             data.qpos[:7] = d.qpos[:7]
         data.qvel[:] = 0.0
-        data.qvel[[full.jnt_dofadr[full.joint(g1.joint_names[j]).id] for j in rm.joints]] = qd
+        data.qvel[dof_full] = qd
         for mm, dd in ((m, d), (full, data)):
             mujoco.mj_forward(mm, dd)
-        dof_full = np.array([full.jnt_dofadr[full.joint(g1.joint_names[j]).id] for j in rm.joints])
         np.testing.assert_allclose(_mass(m, d)[np.ix_(rm.dof_adr, rm.dof_adr)],
                                    _mass(full, data)[np.ix_(dof_full, dof_full)], atol=1e-9)
         np.testing.assert_allclose(d.qfrc_bias[rm.dof_adr], data.qfrc_bias[dof_full], atol=1e-7)
